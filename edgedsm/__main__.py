@@ -1,0 +1,3 @@
+from edgedsm.cli import main
+
+raise SystemExit(main())

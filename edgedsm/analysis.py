@@ -1,0 +1,87 @@
+"""Reducing activity maps: region statistics, the contrast β of the paper, histograms.
+
+Pure functions on float maps and boolean masks (same shape); no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from edgedsm.errors import EstimatorError
+
+
+@dataclass(frozen=True)
+class RegionStats:
+    """Statistics of one map over one region (units of the map)."""
+
+    pixels: int
+    mean: float
+    std: float
+    p05: float
+    median: float
+    p95: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"pixels": self.pixels, "mean": self.mean, "std": self.std, "p05": self.p05,
+                "median": self.median, "p95": self.p95}
+
+
+def _check(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    values = np.asarray(values)
+    mask = np.asarray(mask)
+    if mask.dtype != bool:
+        raise EstimatorError(f"mask must be boolean, got {mask.dtype}")
+    if values.shape != mask.shape:
+        raise EstimatorError(f"map shape {values.shape} and mask shape {mask.shape} differ")
+    return values, mask
+
+
+def region_mean(values: np.ndarray, mask: np.ndarray) -> float:
+    """Mean of ``values`` over ``mask``; an empty mask is an error, not NaN."""
+    values, mask = _check(values, mask)
+    count = int(mask.sum())
+    if count == 0:
+        raise EstimatorError("region is empty")
+    return float(values[mask].mean(dtype=np.float64))
+
+
+def region_stats(values: np.ndarray, mask: np.ndarray) -> RegionStats:
+    """Mean, standard deviation and 5/50/95 % percentiles over ``mask``."""
+    values, mask = _check(values, mask)
+    selected = values[mask].astype(np.float64)
+    if selected.size == 0:
+        raise EstimatorError("region is empty")
+    p05, median, p95 = np.percentile(selected, [5, 50, 95])
+    return RegionStats(int(selected.size), float(selected.mean()), float(selected.std()),
+                       float(p05), float(median), float(p95))
+
+
+def region_means(values: np.ndarray, masks: dict[str, np.ndarray]) -> dict[str, float]:
+    """Mean of ``values`` in each named mask (empty masks are skipped)."""
+    return {name: region_mean(values, mask) for name, mask in masks.items() if mask.any()}
+
+
+def contrast(values: np.ndarray, active: np.ndarray, background: np.ndarray) -> float:
+    """β = (S_l - S_b)/S_l with S_l, S_b the means over the active and background areas.
+
+    Paper §2C. S_l = 0 (no activity at all) gives β = 0.
+    """
+    s_l = region_mean(values, active)
+    s_b = region_mean(values, background)
+    return 0.0 if s_l == 0 else (s_l - s_b) / s_l
+
+
+def histogram(values: np.ndarray, bins: int = 100, value_range: tuple[float, float] | None = None,
+              mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Probability density of the map entries (optionally inside ``mask``): (density, edges)."""
+    if bins < 1:
+        raise EstimatorError("bins must be >= 1")
+    data = np.asarray(values, np.float64)
+    if mask is not None:
+        data, mask = _check(data, mask)
+        data = data[mask]
+    if data.size == 0:
+        raise EstimatorError("no values to histogram")
+    return np.histogram(data, bins=bins, range=value_range, density=True)

@@ -1,0 +1,62 @@
+"""The ``edgedsm`` command line: one sub-command per module in ``edgedsm.commands``.
+
+Each command module exposes ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
+Errors edgedsm raises on purpose are printed as one clear message; a ConfigError exits 78.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from edgedsm import __version__
+from edgedsm.errors import ConfigError, EdgedsmError
+
+COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "laser")
+
+EXIT_ERROR = 1
+EXIT_USAGE = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="edgedsm",
+        description="Dynamic speckle activity maps (S1, S2, S3 of Levchenko et al. 2022): "
+                    "simulate speckle, compute maps, run the factory daemon.",
+        epilog="Run 'edgedsm COMMAND --help' for the options of one command.",
+    )
+    parser.add_argument("--version", action="version", version=f"edgedsm {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"edgedsm.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"edgedsm.commands.{name}":
+                continue  # command not part of this build
+            raise
+        command = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(command)
+        command.set_defaults(handler=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.handler(args) or 0)
+    except ConfigError as exc:
+        print(f"edgedsm: configuration error:\n{exc}", file=sys.stderr)
+        return ConfigError.exit_code
+    except EdgedsmError as exc:
+        print(f"edgedsm: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("edgedsm: interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,35 @@
+"""Benchmarks that put accuracy and cost side by side and print them as tables.
+
+  edgedsm bench sim      simulator frames/s per effect, complex64 vs complex128, vs pyspeckle
+  edgedsm bench engine   streaming estimator engine vs batch recompute, memory bandwidth bound
+
+Every benchmark prints a markdown table and can write it to a file (--output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+NAME = "bench"
+HELP = "measure speed and accuracy (simulator, streaming engine)"
+SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="suite", metavar="SUITE", required=True)
+    for name, module_name in SUITES.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name == module_name:
+                continue
+            raise
+        suite = sub.add_parser(name, help=module.HELP, description=module.__doc__,
+                               formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(suite)
+        suite.set_defaults(bench_run=module.run)
+
+
+def run(args: argparse.Namespace) -> int:
+    return int(args.bench_run(args) or 0)

@@ -1,0 +1,7 @@
+"""Activity estimators S1, S2, S3 (paper Eq. 1-4): batch references and streaming engine."""
+
+from edgedsm.estimators.batch import all_maps, s1, s2, s3, temporal_sigma
+
+ESTIMATORS = ("s1", "s2", "s3")
+
+__all__ = ["ESTIMATORS", "all_maps", "s1", "s2", "s3", "temporal_sigma"]

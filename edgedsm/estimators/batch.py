@@ -1,0 +1,121 @@
+"""Reference (batch) estimators S1, S2, S3 of the paper, in float64.
+
+All take a stack of N frames, shape (N, H, W), and a time lag m (in frames, 1 <= m <= N-1),
+and return an (H, W) float64 map. Intensities are in whatever unit the frames carry (grey
+levels for camera data); S1 then has that unit, S2 and S3 are dimensionless.
+
+Degenerate cases (defined, never NaN or inf):
+- S2 with q = 0 and both intensities 0: the pair contributes 0 (no fluctuation).
+- S3 where σ = 0 (constant or saturated pixel): S3 = 0. σ = 0 means every intensity of the
+  window is equal, so every |difference| is 0 as well.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edgedsm.errors import EstimatorError
+
+
+
+def check_stack(frames: np.ndarray, lag: int) -> np.ndarray:
+    """Validate a (N, H, W) stack and a lag; returns the stack as an ndarray."""
+    stack = np.asarray(frames)
+    if stack.ndim != 3:
+        raise EstimatorError(f"frames must be a (N, H, W) stack, got shape {stack.shape}")
+    if not (np.issubdtype(stack.dtype, np.integer) or np.issubdtype(stack.dtype, np.floating)):
+        raise EstimatorError(f"frames must be integer or float, got {stack.dtype}")
+    if isinstance(lag, bool) or not isinstance(lag, int | np.integer):
+        raise EstimatorError(f"lag must be an integer number of frames, got {lag!r}")
+    n = stack.shape[0]
+    if not 1 <= lag <= n - 1:
+        raise EstimatorError(f"lag m={lag} does not fit a window of N={n} frames (need 1 <= m <= N-1)")
+    if np.issubdtype(stack.dtype, np.floating) and not np.isfinite(stack).all():
+        raise EstimatorError("frames contain NaN or inf")
+    return stack
+
+
+def _check_q(q: float) -> float:
+    q = float(q)
+    if not np.isfinite(q) or q < 0:
+        raise EstimatorError(f"q must be a finite number >= 0, got {q}")
+    return q
+
+
+def _pair_sums(stack: np.ndarray, lag: int, q: float | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Σ|I_i - I_{i+m}| and, if q is given, Σ|I_i - I_{i+m}|/(I_i + I_{i+m} + q), float64."""
+    n, h, w = stack.shape
+    flat = stack.reshape(n, h * w)
+    abs_sum = np.zeros(h * w, np.float64)
+    ratio_sum = None if q is None else np.zeros(h * w, np.float64)
+    for i in range(n - lag):
+        a = flat[i].astype(np.float64)
+        b = flat[i + lag].astype(np.float64)
+        diff = np.abs(a - b)
+        abs_sum += diff
+        if ratio_sum is not None:
+            denominator = a + b + q
+            np.divide(diff, denominator, out=diff, where=denominator > 0)
+            diff[denominator <= 0] = 0.0
+            ratio_sum += diff
+    return abs_sum.reshape(h, w), None if ratio_sum is None else ratio_sum.reshape(h, w)
+
+
+def s1(frames: np.ndarray, lag: int) -> np.ndarray:
+    """Eq. 1: S1 = 1/(N-m) Σ_{i=1}^{N-m} |I_i - I_{i+m}| (modified structure function)."""
+    stack = check_stack(frames, lag)
+    abs_sum, _ = _pair_sums(stack, lag, None)
+    return abs_sum / (stack.shape[0] - lag)
+
+
+def s2(frames: np.ndarray, lag: int, q: float = 0.0) -> np.ndarray:
+    """Eq. 2: S2 = 1/(N-m) Σ |I_i - I_{i+m}| / (I_i + I_{i+m} + q); q >= 0 avoids 0/0."""
+    stack = check_stack(frames, lag)
+    _, ratio_sum = _pair_sums(stack, lag, _check_q(q))
+    return ratio_sum / (stack.shape[0] - lag)
+
+
+def temporal_sigma(frames: np.ndarray) -> np.ndarray:
+    """Eq. 4: σ with the 1/N (population) normalisation, float64.
+
+    Integer data: N·ΣI² - (ΣI)² is formed exactly in integers (no cancellation), then
+    σ = sqrt(that)/N. Float data: two-pass, mean-centred.
+    """
+    stack = np.asarray(frames)
+    n = stack.shape[0]
+    if np.issubdtype(stack.dtype, np.integer) and stack.dtype.itemsize <= 2:
+        flat = stack.reshape(n, -1)
+        total = np.zeros(flat.shape[1], np.int64)
+        total_sq = np.zeros(flat.shape[1], np.int64)
+        for frame in flat:
+            f = frame.astype(np.int64)
+            total += f
+            total_sq += f * f
+        # exact while N·Σ I² < 2^63: N <= 2^31 frames of 16-bit data
+        spread = n * total_sq - total * total
+        return (np.sqrt(spread.astype(np.float64)) / n).reshape(stack.shape[1:])
+    data = stack.astype(np.float64)
+    centred = data - data.mean(axis=0)
+    return np.sqrt((centred * centred).mean(axis=0))
+
+
+def s3(frames: np.ndarray, lag: int) -> np.ndarray:
+    """Eq. 3-4: S3 = S1/σ with σ of Eq. 4 over the same N frames; S3 = 0 where σ = 0."""
+    stack = check_stack(frames, lag)
+    abs_sum, _ = _pair_sums(stack, lag, None)
+    sigma = temporal_sigma(stack)
+    result = np.zeros_like(abs_sum)
+    np.divide(abs_sum / (stack.shape[0] - lag), sigma, out=result, where=sigma > 0)
+    return result
+
+
+def all_maps(frames: np.ndarray, lag: int, q: float = 0.0) -> dict[str, np.ndarray]:
+    """S1, S2 and S3 in one pass over the stack."""
+    stack = check_stack(frames, lag)
+    abs_sum, ratio_sum = _pair_sums(stack, lag, _check_q(q))
+    pairs = stack.shape[0] - lag
+    s1_map = abs_sum / pairs
+    sigma = temporal_sigma(stack)
+    s3_map = np.zeros_like(s1_map)
+    np.divide(s1_map, sigma, out=s3_map, where=sigma > 0)
+    return {"s1": s1_map, "s2": ratio_sum / pairs, "s3": s3_map}

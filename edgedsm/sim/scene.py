@@ -1,0 +1,224 @@
+"""Scene files (TOML): which physical effects to simulate and with which parameters.
+
+Every effect is an optional table; an absent table means the effect is not simulated at all
+(no cost, no random numbers). Units: lengths in camera pixels (Δ) unless stated, times in
+frame intervals (Δt), intensities in photons. See DESIGN.md §5 and the paper's §2A.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from edgedsm.errors import ConfigError
+from edgedsm.validation import StrictModel, read_toml, validate
+
+TauC = Annotated[float, Field(gt=0.0, le=1e12, description="temporal correlation radius τc, in Δt")]
+
+
+class Pupil(StrictModel):
+    """Imaging optics; the mean speckle size on the sensor is λ·f/(D·Δ) pixels."""
+
+    diameter_mm: float = Field(gt=0, le=1000, description="aperture diameter D of the objective, mm")
+    focal_mm: float = Field(gt=0, le=10000, description="focal distance f of the objective, mm")
+    wavelength_nm: float = Field(632.8, gt=100, le=20000, description="laser wavelength λ, nm")
+    pixel_pitch_um: float = Field(3.45, gt=0, le=1000, description="camera pixel pitch Δ, µm")
+
+    @property
+    def speckle_size(self) -> float:
+        """Mean speckle size λf/(DΔ) in camera pixels."""
+        return (self.wavelength_nm * 1e-9 * self.focal_mm) / (self.diameter_mm * self.pixel_pitch_um * 1e-6)
+
+
+class SceneSection(StrictModel):
+    size: int = Field(256, ge=16, le=8192, description="camera pixels per side (Nx = Ny); object grid is 2*size")
+    frames: int = Field(200, ge=1, le=100_000_000, description="number of frames simulate() yields")
+    seed: int = Field(1, ge=0, le=2**63 - 1, description="master seed; each effect derives its own stream")
+    speckle_size: float | None = Field(
+        None, ge=0.5, le=256, description="mean speckle size λf/(DΔ) in camera pixels (default 2)")
+    pupil: Pupil | None = Field(None, description="give the optics instead of speckle_size")
+    dt: float = Field(1.0, gt=0, le=3600, description="frame interval Δt in seconds (pacing of the simulated camera)")
+
+    @model_validator(mode="after")
+    def _one_speckle_spec(self) -> SceneSection:
+        if self.speckle_size is not None and self.pupil is not None:
+            raise ValueError("give either speckle_size or pupil, not both")
+        size = self.effective_speckle_size
+        if size > self.size / 2:
+            raise ValueError(f"speckle size {size:.3g} px is larger than half the image ({self.size} px)")
+        return self
+
+    @property
+    def effective_speckle_size(self) -> float:
+        if self.pupil is not None:
+            return self.pupil.speckle_size
+        return 2.0 if self.speckle_size is None else self.speckle_size
+
+
+class RectRegion(StrictModel):
+    shape: Literal["rect"]
+    x: float = Field(ge=-1e5, le=1e5, description="column of the top-left corner, camera px")
+    y: float = Field(ge=-1e5, le=1e5, description="row of the top-left corner, camera px")
+    width: float = Field(gt=0, le=1e5, description="width, camera px")
+    height: float = Field(gt=0, le=1e5, description="height, camera px")
+    tau_c: TauC
+    name: str = Field("", max_length=64, description="label used in reports")
+
+
+class CircleRegion(StrictModel):
+    shape: Literal["circle"]
+    cx: float = Field(ge=-1e5, le=1e5, description="centre column, camera px")
+    cy: float = Field(ge=-1e5, le=1e5, description="centre row, camera px")
+    radius: float = Field(gt=0, le=1e5, description="radius, camera px")
+    tau_c: TauC
+    name: str = Field("", max_length=64, description="label used in reports")
+
+
+class RingRegion(StrictModel):
+    shape: Literal["ring"]
+    cx: float = Field(ge=-1e5, le=1e5, description="centre column, camera px")
+    cy: float = Field(ge=-1e5, le=1e5, description="centre row, camera px")
+    inner_radius: float = Field(ge=0, le=1e5, description="inner radius, camera px")
+    outer_radius: float = Field(gt=0, le=1e5, description="outer radius, camera px")
+    tau_c: TauC
+    name: str = Field("", max_length=64, description="label used in reports")
+
+    @model_validator(mode="after")
+    def _radii(self) -> RingRegion:
+        if self.outer_radius <= self.inner_radius:
+            raise ValueError("outer_radius must be larger than inner_radius")
+        return self
+
+
+class TextRegion(StrictModel):
+    shape: Literal["text"]
+    text: str = Field(min_length=1, max_length=64, description="letters drawn as the region, e.g. 'IOMT'")
+    x: float = Field(ge=-1e5, le=1e5, description="column of the top-left corner, camera px")
+    y: float = Field(ge=-1e5, le=1e5, description="row of the top-left corner, camera px")
+    height: float = Field(gt=1, le=1e5, description="cap height of the letters, camera px")
+    stroke: float = Field(0.18, gt=0.01, le=1.0, description="stroke width as a fraction of the height")
+    tau_c: TauC
+    name: str = Field("", max_length=64, description="label used in reports")
+
+
+class MaskRegion(StrictModel):
+    shape: Literal["mask"]
+    path: Path = Field(description="grey image, relative to the scene file; resized to the camera size")
+    threshold: int = Field(128, ge=1, le=255, description="grey level from which a pixel is inside")
+    tau_c: TauC
+    name: str = Field("", max_length=64, description="label used in reports")
+
+
+Region = Annotated[
+    RectRegion | CircleRegion | RingRegion | TextRegion | MaskRegion, Field(discriminator="shape")
+]
+
+
+class Drying(StrictModel):
+    """τc of the whole surface grows by ``final_factor`` over ``duration`` frames from ``start``."""
+
+    law: Literal["exponential", "linear", "logistic"] = Field(
+        "exponential", description="shape of the growth of τc over time")
+    start: int = Field(0, ge=0, le=100_000_000, description="frame at which drying begins")
+    duration: int = Field(gt=0, le=100_000_000, description="frames from start to the final τc")
+    final_factor: float = Field(gt=1.0, le=1e9, description="τc at the end divided by τc at the start")
+
+    def factor(self, frame: int) -> float:
+        """Multiplier of τc at ``frame`` (1 before start, final_factor after start+duration)."""
+        progress = min(max((frame - self.start) / self.duration, 0.0), 1.0)
+        if self.law == "exponential":
+            return self.final_factor**progress
+        if self.law == "linear":
+            return 1.0 + (self.final_factor - 1.0) * progress
+        # logistic in log(τc), normalised to pass through 1 and final_factor at the ends
+        s = 1.0 / (1.0 + math.exp(-12.0 * (progress - 0.5)))
+        s0, s1 = 1.0 / (1.0 + math.exp(6.0)), 1.0 / (1.0 + math.exp(-6.0))
+        return self.final_factor ** ((s - s0) / (s1 - s0))
+
+
+class Activity(StrictModel):
+    tau_c: TauC = Field(description="τc of the background, in Δt")
+    regions: list[Region] = Field(default_factory=list, max_length=256,
+                                  description="areas with their own τc; later ones paint over earlier")
+    drying: Drying | None = Field(None, description="optional growth of τc over time")
+
+
+class Illumination(StrictModel):
+    kind: Literal["uniform", "gaussian"] = Field("uniform", description="laser beam profile I0")
+    omega: float = Field(300.0, gt=0, le=1e6, description="Gaussian width Ω in camera px (I0 = exp(-r²/Ω²))")
+
+
+class PhaseNoise(StrictModel):
+    """Environmental phase noise (vibration), σ_noise = α·sqrt(Δt/τ_noise), paper §2A."""
+
+    alpha: float = Field(ge=0, le=10, description="α: noise spread relative to the process")
+    tau_noise: float = Field(1.0, gt=0, le=1e9, description="correlation radius τ_noise of the noise, in Δt")
+    model: Literal["white", "ou"] = Field(
+        "white", description="white: fresh θ each frame (paper literal); ou: Ornstein-Uhlenbeck, "
+                             "stationary std σ_noise, correlation time τ_noise")
+
+
+class AmbientLight(StrictModel):
+    eta: float = Field(ge=0, le=100, description="η: ambient photons per pixel N_al = η·N_max")
+
+
+class Detector(StrictModel):
+    n_max: float = Field(1000.0, gt=0, le=1e9, description="N_max: photons at the brightest pixel of frame 1")
+    bits: int = Field(8, ge=1, le=16, description="bit depth of the digitised frames")
+    shot_noise: bool = Field(True, description="Poisson photon noise on the laser signal")
+    quantization: bool = Field(True, description="round to integer grey levels (else float grey levels)")
+
+
+class Scene(StrictModel):
+    scene: SceneSection = Field(default_factory=SceneSection)
+    activity: Activity
+    illumination: Illumination | None = None
+    phase_noise: PhaseNoise | None = None
+    ambient_light: AmbientLight | None = None
+    detector: Detector | None = None
+    base_dir: Path = Field(Path("."), exclude=True, description="directory relative paths resolve in")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Scene:
+        if self.ambient_light is not None and self.detector is None:
+            raise ValueError("ambient_light needs a [detector] table (N_al = eta * n_max photons)")
+        return self
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.scene.size, self.scene.size)
+
+    @property
+    def active_effects(self) -> tuple[str, ...]:
+        """Effects that cost time and draw random numbers in this scene."""
+        effects = ["surface", "activity"]
+        if self.illumination is not None and self.illumination.kind != "uniform":
+            effects.append("illumination")
+        if self.phase_noise is not None and self.phase_noise.alpha > 0:
+            effects.append("phase_noise")
+        if self.detector is not None:
+            effects.append("detector")
+            if self.detector.shot_noise:
+                effects.append("shot_noise")
+            if self.ambient_light is not None and self.ambient_light.eta > 0:
+                effects.append("ambient_light")
+        return tuple(effects)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene TOML file; ConfigError names the key path of every problem."""
+    path = Path(path)
+    data = read_toml(path)
+    scene = validate(Scene, data, str(path))
+    scene.base_dir = path.resolve().parent
+    return scene
+
+
+def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
+    """Validate a scene given as a dict (the same layout as the TOML file)."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a scene must be a table")
+    return validate(Scene, data, source)
