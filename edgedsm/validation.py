@@ -19,11 +19,11 @@ class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
 
 
-def format_validation_error(error: ValidationError, source: str) -> str:
+def format_validation_error(error: ValidationError, source: str, data: Any = None) -> str:
     """One line per problem: ``source: key.path: reason``."""
     lines = []
     for item in error.errors():
-        path = ".".join(str(part) for part in item["loc"] if not _is_union_tag(part))
+        path = ".".join(str(part) for part in _key_path(item["loc"], data))
         reason = item["msg"]
         if item["type"] == "extra_forbidden":
             reason = "unknown key (not allowed here; check the spelling)"
@@ -31,9 +31,20 @@ def format_validation_error(error: ValidationError, source: str) -> str:
     return "\n".join(lines)
 
 
-def _is_union_tag(part: Any) -> bool:
-    # pydantic inserts the discriminator value ("rect", "circle"...) into the location.
-    return isinstance(part, str) and part.startswith("__tag__")
+def _key_path(loc: tuple, data: Any) -> list:
+    """The location as the user wrote it: pydantic inserts the tag of a discriminated union
+    ("rect", "circle"...) into the location; it is dropped where the input has no such key
+    but carries it as a value."""
+    path, node = [], data
+    for part in loc:
+        if isinstance(node, dict) and isinstance(part, str) and part not in node and part in node.values():
+            continue
+        path.append(part)
+        try:
+            node = node[part]
+        except (KeyError, IndexError, TypeError):
+            node = None
+    return path
 
 
 def read_toml(path: Path) -> dict[str, Any]:
@@ -54,4 +65,4 @@ def validate(model: type[ModelT], data: dict[str, Any], source: str) -> ModelT:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, source)) from None
+        raise ConfigError(format_validation_error(exc, source, data)) from None

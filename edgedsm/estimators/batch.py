@@ -17,7 +17,6 @@ import numpy as np
 from edgedsm.errors import EstimatorError
 
 
-
 def check_stack(frames: np.ndarray, lag: int) -> np.ndarray:
     """Validate a (N, H, W) stack and a lag; returns the stack as an ndarray."""
     stack = np.asarray(frames)

@@ -1,0 +1,22 @@
+"""The built-in default scene (the paper's two-level logo object; config/scenes/logos.toml)."""
+
+from __future__ import annotations
+
+from edgedsm.sim.scene import Scene, scene_from_dict
+
+
+def _logo(text: str, y: float) -> dict:
+    return {"shape": "text", "text": text, "x": 48, "y": y, "height": 62, "stroke": 0.21,
+            "tau_c": 10.0, "name": text}
+
+
+DEFAULT_SCENE = {
+    "scene": {"size": 256, "frames": 200, "seed": 1, "speckle_size": 2.0},
+    "activity": {"tau_c": 50.0, "regions": [_logo("IOMT", 45), _logo("ETRI", 150)]},
+    "detector": {"n_max": 1000, "bits": 8},
+}
+
+
+def default_scene() -> Scene:
+    """A fresh copy of the built-in default scene."""
+    return scene_from_dict(DEFAULT_SCENE, "<built-in default scene>")

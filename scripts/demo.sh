@@ -1,0 +1,5 @@
+#!/usr/bin/env bash
+# The README's first command: set up, then run the main job on the built-in simulated default.
+source "$(dirname "${BASH_SOURCE[0]}")/_env.sh"
+ensure_venv fast
+exec "$VENV/bin/edgedsm" demo "$@"

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# The README's second command: install everything the tests need (Debian packages included),
+# check the code with ruff, and run the whole test suite.
+source "$(dirname "${BASH_SOURCE[0]}")/_env.sh"
+# socat: PTY pairs for the emulated relay boards.
+apt_install socat
+ensure_venv test
+cd "$ROOT"
+"$VENV/bin/ruff" check edgedsm tests
+"$VENV/bin/python" -m pytest "$@"
