@@ -33,6 +33,18 @@ ensure_venv() {
     if [ ! -x "$VENV/bin/python" ]; then
         "$PYTHON" -m venv "$VENV"
     fi
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip >/dev/null
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e "$ROOT[$extras]"
+    # Re-install only when pyproject.toml or the extras changed (the install is editable).
+    local stamp="$VENV/.edgedsm-$extras"
+    local digest
+    digest="$(sha256sum "$ROOT/pyproject.toml" | cut -d' ' -f1)"
+    if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$digest" ]; then
+        return 0
+    fi
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip 2>/dev/null
+    if ! "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e "$ROOT[$extras]" \
+            2> >(grep -v "is ignored: it is neither a file nor a directory" >&2); then
+        echo "edgedsm: pip could not install edgedsm[$extras]" >&2
+        return 1
+    fi
+    echo "$digest" > "$stamp"
 }
