@@ -1,0 +1,689 @@
+"""Relay drivers against emulated boards on the far end of a real socat PTY pair.
+
+Each emulated board runs in a thread on one end of the pair, checks every byte it receives
+against the real board's protocol, records the frames, and answers (echo, readback, status)
+the way the real board does. The driver opens the other end through open_relay(), as the
+daemon and the `edgedsm laser` tool do. The same contract tests run against the simulated
+relay and every emulated board.
+
+socat is required: without it these tests FAIL (the README's test command installs it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import serial
+
+from edgedsm.cli import main
+from edgedsm.devices.laser import (
+    LaserSafety,
+    forget_simulated_boards,
+    open_relay,
+    simulated_board,
+)
+from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
+
+H = bytes.fromhex
+START_TIMEOUT_S = 10.0  # socat links must appear within this
+SHORT_TIMEOUT_S = 0.2   # driver timeout for tests that expect silence
+BOUND_S = 2.0           # generous upper bound on how long a timeout may take in total
+
+
+# -- socat ---------------------------------------------------------------------------------
+
+def _socat() -> str:
+    path = shutil.which("socat")
+    if path is None:
+        pytest.fail("socat is not installed, so the relay PTY tests cannot run: install it "
+                    "with 'apt-get install -y socat' (the README's test command does)")
+    return path
+
+
+def _wait_for(predicate: Callable[[], bool], timeout: float, what: str,
+              process: subprocess.Popen[bytes] | None = None) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if process is not None and process.poll() is not None:
+            err = process.stderr.read().decode(errors="replace") if process.stderr else ""
+            pytest.fail(f"socat exited with {process.returncode} before {what}:\n{err}")
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.01)
+
+
+def _stop(process: subprocess.Popen[bytes]) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=5)
+    if process.stderr:
+        process.stderr.close()
+
+
+@dataclass
+class PtyPair:
+    """The two ends of a socat PTY pair and the socat process joining them."""
+
+    app: str
+    board: str
+    process: subprocess.Popen[bytes]
+
+
+@pytest.fixture
+def pty_pair(tmp_path: Path) -> Iterator[PtyPair]:
+    """A fresh socat PTY pair: ``app`` for the driver, ``board`` for the emulator."""
+    app, board = tmp_path / "app", tmp_path / "board"
+    process = subprocess.Popen(
+        [_socat(), "-d", "-d", f"pty,raw,echo=0,link={app}", f"pty,raw,echo=0,link={board}"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        _wait_for(lambda: app.exists() and board.exists(), START_TIMEOUT_S,
+                  "socat's PTY links", process)
+        yield PtyPair(str(app), str(board), process)
+    finally:
+        _stop(process)
+
+
+# -- emulated boards -----------------------------------------------------------------------
+
+class EmulatedBoard(threading.Thread):
+    """A relay board on the far end of the PTY: strict about bytes, answers like the real one.
+
+    ``mode``: ``normal``; ``silent`` (a dead board: reads, never answers, never switches);
+    ``garbage`` (answers nonsense); ``stuck`` (answers normally, the contact never moves).
+    Every complete frame received is kept in ``received``; protocol violations go to
+    ``errors`` (the fixture asserts there are none).
+    """
+
+    readback = True
+
+    def __init__(self, path: str, channel: int) -> None:
+        super().__init__(daemon=True, name=f"emulated-{type(self).__name__}")
+        self.port = serial.Serial(path, timeout=0.02)
+        self.channel = channel
+        self.mode = "normal"
+        self.is_on = False
+        self.received: list[bytes] = []
+        self.errors: list[str] = []
+        self._buffer = bytearray()
+        self._halt = threading.Event()
+        self._lock = threading.Lock()
+
+    # -- thread plumbing --
+    def run(self) -> None:
+        while not self._halt.is_set():
+            try:
+                chunk = self.port.read(max(1, self.port.in_waiting))
+            except (serial.SerialException, OSError) as exc:
+                if not self._halt.is_set():
+                    self.errors.append(f"port failed: {exc}")
+                return
+            if chunk:
+                self._buffer += chunk
+                try:
+                    self.consume()
+                except Exception as exc:  # keep the report; a dead thread would hide it
+                    self.errors.append(f"emulator crashed: {exc!r}")
+
+    def stop(self) -> None:
+        self._halt.set()
+        self.join(5)
+        self.port.close()
+
+    def frames(self) -> list[bytes]:
+        with self._lock:
+            return list(self.received)
+
+    def wait_frames(self, count: int, timeout: float = 5.0) -> list[bytes]:
+        """Frames received, once there are at least ``count`` (boards that never answer)."""
+        _wait_for(lambda: len(self.frames()) >= count, timeout, f"{count} frames")
+        return self.frames()
+
+    def take(self, count: int) -> bytes | None:
+        if len(self._buffer) < count:
+            return None
+        frame, self._buffer = bytes(self._buffer[:count]), self._buffer[count:]
+        with self._lock:
+            self.received.append(frame)
+        return frame
+
+    def answer(self, data: bytes) -> None:
+        if self.mode == "silent":
+            return
+        if self.mode == "garbage":
+            data = b"\x5a\xa5\x13\x37\xfe" + data[::-1]
+        self.port.write(data)
+
+    def switch(self, on: bool) -> None:
+        if self.mode not in ("silent", "stuck"):
+            self.is_on = on
+
+    def consume(self) -> None:
+        raise NotImplementedError
+
+
+class LcusBoard(EmulatedBoard):
+    """LCUS: A0 ch state checksum; never answers."""
+
+    readback = False
+
+    def consume(self) -> None:
+        while (frame := self.take(4)) is not None:
+            start, channel, state, check = frame
+            if start != 0xA0 or channel != self.channel or state not in (0, 1) \
+                    or check != (0xA0 + channel + state) & 0xFF:
+                self.errors.append(f"bad LCUS frame {frame.hex(' ')}")
+                continue
+            self.switch(state == 1)
+
+
+class NumatoBoard(EmulatedBoard):
+    """Numato: ASCII line with CR; echo + '\\n\\r', the answer + '\\n\\r', then '>'."""
+
+    def consume(self) -> None:
+        while b"\r" in self._buffer:
+            line = self.take(self._buffer.index(b"\r") + 1)
+            assert line is not None
+            command = line[:-1].decode("ascii", errors="replace")
+            token = str(self.channel) if self.channel < 10 else chr(55 + self.channel)
+            reply = command.encode() + b"\n\r"
+            if command == f"relay on {token}":
+                self.switch(True)
+            elif command == f"relay off {token}":
+                self.switch(False)
+            elif command == f"relay read {token}":
+                reply += (b"on" if self.is_on else b"off") + b"\n\r"
+            else:
+                self.errors.append(f"unexpected Numato command {line!r}")
+            self.answer(reply + b">")
+
+
+class KmtronicBoard(EmulatedBoard):
+    """KMTronic: FF ch state (no answer); FF 09 00 -> one byte per relay."""
+
+    def __init__(self, path: str, channel: int, relays: int = 8) -> None:
+        super().__init__(path, channel)
+        self.relays = relays
+
+    def consume(self) -> None:
+        while (frame := self.take(3)) is not None:
+            header, channel, state = frame
+            if header != 0xFF:
+                self.errors.append(f"bad KMTronic frame {frame.hex(' ')}")
+            elif frame == H("FF 09 00") and self.relays > 2:
+                self.answer(bytes(int(self.is_on and ch == self.channel)
+                                  for ch in range(1, self.relays + 1)))
+            elif channel == self.channel and state in (0, 1):
+                self.switch(state == 1)
+            elif channel == self.channel and state == 3 and self.relays <= 2:
+                self.answer(bytes((0xFF, channel, int(self.is_on))))
+            else:
+                self.errors.append(f"unexpected KMTronic frame {frame.hex(' ')}")
+
+
+def _crc(data: bytes) -> bytes:
+    """CRC-16/MODBUS written out again here, so the emulator does not trust the driver's."""
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return bytes((crc & 0xFF, crc >> 8))
+
+
+class ModbusBoard(EmulatedBoard):
+    """Modbus RTU slave with coils 0..15: functions 05 and 01, exception 02 outside."""
+
+    def __init__(self, path: str, channel: int, slave: int = 7) -> None:
+        super().__init__(path, channel)
+        self.slave = slave
+        self.coils = 16
+
+    def consume(self) -> None:
+        while (frame := self.take(8)) is not None:  # both requests used are 8 bytes long
+            body, crc = frame[:6], frame[6:]
+            if _crc(body) != crc:
+                self.errors.append(f"bad Modbus CRC in {frame.hex(' ')}")
+                continue
+            slave, function = body[0], body[1]
+            address, value = int.from_bytes(body[2:4], "big"), int.from_bytes(body[4:6], "big")
+            if slave != self.slave:
+                self.errors.append(f"Modbus frame for slave {slave}: {frame.hex(' ')}")
+                continue
+            if address >= self.coils:
+                reply = bytes((slave, function | 0x80, 0x02))  # illegal data address
+                self.answer(reply + _crc(reply))
+            elif function == 0x05 and value in (0xFF00, 0x0000) and address == self.channel:
+                self.switch(value == 0xFF00)
+                self.answer(frame)
+            elif function == 0x01 and value == 1 and address == self.channel:
+                reply = bytes((slave, 0x01, 0x01, int(self.is_on)))
+                self.answer(reply + _crc(reply))
+            else:
+                self.errors.append(f"unexpected Modbus frame {frame.hex(' ')}")
+
+
+# Channels off the defaults, so that a driver ignoring channel= is caught.
+BOARDS: dict[str, tuple[type[EmulatedBoard], str, dict[str, int]]] = {
+    "lcus": (LcusBoard, "protocol=lcus&channel=2", {"channel": 2}),
+    "numato": (NumatoBoard, "protocol=numato&channel=11", {"channel": 11}),
+    "kmtronic": (KmtronicBoard, "protocol=kmtronic&channel=3&relays=4",
+                 {"channel": 3, "relays": 4}),
+    "modbus": (ModbusBoard, "protocol=modbus&slave=7&channel=5", {"channel": 5, "slave": 7}),
+}
+
+# The exact frames each board must receive for on(), off() and a readback.
+ON = {"lcus": H("A0 02 01 A3"), "numato": b"relay on B\r", "kmtronic": H("FF 03 01"),
+      "modbus": H("07 05 00 05 FF 00 9C 5D")}
+OFF = {"lcus": H("A0 02 00 A2"), "numato": b"relay off B\r", "kmtronic": H("FF 03 00"),
+       "modbus": H("07 05 00 05 00 00 DD AD")}
+READ = {"numato": b"relay read B\r", "kmtronic": H("FF 09 00"),
+        "modbus": H("07 01 00 05 00 01 ED AD")}
+READBACK = ("numato", "kmtronic", "modbus")
+
+
+@dataclass
+class Rig:
+    """A relay URI and a way to look at the physical contact behind it."""
+
+    name: str
+    uri: str
+    board: EmulatedBoard | None = None
+    sim_name: str = ""
+
+    def settled(self, on: bool, timeout: float = 2.0) -> bool:
+        """Whether the contact reaches ``on`` within ``timeout`` (boards that never answer
+        switch after the driver has returned)."""
+        deadline = time.monotonic() + timeout
+        while self.is_on != on and time.monotonic() < deadline:
+            time.sleep(0.005)
+        return self.is_on == on
+
+    def uri_with(self, extra: str) -> str:
+        return f"{self.uri}{'&' if '?' in self.uri else '?'}{extra}"
+
+    @property
+    def is_on(self) -> bool:
+        if self.board is not None:
+            return self.board.is_on
+        return simulated_board(self.sim_name).is_on
+
+    def force(self, on: bool) -> None:
+        """Set the contact behind the driver's back (someone else left the laser on)."""
+        if self.board is not None:
+            self.board.is_on = on
+        else:
+            simulated_board(self.sim_name).apply(on)
+
+    @property
+    def readback(self) -> bool:
+        return self.board.readback if self.board is not None else True
+
+
+@contextlib.contextmanager
+def emulated(name: str, pair: PtyPair, **overrides: int) -> Iterator[Rig]:
+    cls, query, kwargs = BOARDS[name]
+    board = cls(pair.board, **{**kwargs, **overrides})
+    board.start()
+    try:
+        yield Rig(name, f"serial:{pair.app}?{query}", board=board)
+    finally:
+        board.stop()
+    assert board.errors == [], f"the emulated {name} board saw protocol errors"
+
+
+@pytest.fixture(params=list(BOARDS))
+def board_rig(request: pytest.FixtureRequest, pty_pair: PtyPair) -> Iterator[Rig]:
+    """Each emulated board behind a PTY."""
+    with emulated(request.param, pty_pair) as rig:
+        yield rig
+
+
+@pytest.fixture(params=[name for name in BOARDS if name in READBACK])
+def readback_rig(request: pytest.FixtureRequest, pty_pair: PtyPair) -> Iterator[Rig]:
+    """Each emulated board that can report its relay's state."""
+    with emulated(request.param, pty_pair) as rig:
+        yield rig
+
+
+@pytest.fixture(params=["sim", *BOARDS])
+def any_rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rig]:
+    """The simulated relay and every emulated board: for the shared contract tests."""
+    if request.param == "sim":
+        forget_simulated_boards()
+        name = f"contract-{uuid.uuid4().hex[:8]}"
+        yield Rig("sim", f"sim:{name}", sim_name=name)
+        forget_simulated_boards()
+        return
+    pair = request.getfixturevalue("pty_pair")
+    with emulated(request.param, pair) as rig:
+        yield rig
+
+
+# -- exact bytes ---------------------------------------------------------------------------
+
+def test_switching_sends_exact_bytes(board_rig: Rig) -> None:
+    name, board = board_rig.name, board_rig.board
+    assert board is not None
+    relay = open_relay(board_rig.uri)
+    status = relay.on()
+    assert board_rig.settled(True)
+    assert (status.on, status.confirmed) == (True, name in READBACK)
+    status = relay.off()
+    assert board_rig.settled(False)
+    assert (status.on, status.confirmed) == (False, name in READBACK)
+    relay.close()
+    if name in READBACK:
+        expected = [ON[name], READ[name], OFF[name], READ[name], OFF[name], READ[name]]
+    else:
+        expected = [ON[name], OFF[name], OFF[name]]
+    assert board.wait_frames(len(expected)) == expected
+    time.sleep(0.05)
+    assert board.frames() == expected  # and nothing more
+
+
+def test_status_reads_the_board(readback_rig: Rig) -> None:
+    relay = open_relay(readback_rig.uri)
+    try:
+        assert relay.state().on is False
+        readback_rig.force(True)  # switched behind the driver's back
+        status = relay.state()
+        assert (status.on, status.confirmed) == (True, True)
+        assert status.describe() == "on (readback confirmed)"
+    finally:
+        relay.detach()
+    assert readback_rig.settled(True)  # detach() changed nothing
+    name = readback_rig.name
+    assert readback_rig.board is not None
+    assert readback_rig.board.frames() == [READ[name], READ[name]]
+
+
+def test_lcus_state_is_what_was_commanded(pty_pair: PtyPair) -> None:
+    with emulated("lcus", pty_pair) as rig:
+        relay = open_relay(rig.uri)
+        assert relay.state().on is None
+        relay.on()
+        assert (relay.state().on, relay.state().confirmed) == (True, False)
+        relay.close()
+        assert rig.board is not None and rig.board.wait_frames(2)
+
+
+# -- faulty boards -------------------------------------------------------------------------
+
+def test_silent_board_times_out_in_bounded_time(readback_rig: Rig) -> None:
+    assert readback_rig.board is not None
+    readback_rig.board.mode = "silent"
+    relay = open_relay(readback_rig.uri_with(f"timeout={SHORT_TIMEOUT_S}"))
+    for operation in (relay.on, relay.state, relay.close):
+        started = time.monotonic()
+        with pytest.raises(DeviceTimeout, match=r"no answer within 0\.2 s"):
+            operation()
+        assert SHORT_TIMEOUT_S * 0.9 <= time.monotonic() - started < BOUND_S
+    assert relay.closed
+
+
+def test_silent_lcus_board_goes_unnoticed(pty_pair: PtyPair) -> None:
+    # The LCUS protocol has no answer at all, so a dead board cannot be detected: the
+    # status says so ("as commanded"), and the technician checks the laser by eye.
+    with emulated("lcus", pty_pair) as rig:
+        assert rig.board is not None
+        rig.board.mode = "silent"
+        with open_relay(rig.uri) as relay:
+            assert relay.on().confirmed is False
+        assert rig.settled(False)
+
+
+def test_garbage_answer_is_device_error(readback_rig: Rig) -> None:
+    assert readback_rig.board is not None
+    readback_rig.board.mode = "garbage"
+    relay = open_relay(readback_rig.uri_with(f"timeout={SHORT_TIMEOUT_S}"))
+    started = time.monotonic()
+    with pytest.raises(DeviceError) as info:
+        relay.on()
+    assert time.monotonic() - started < BOUND_S
+    assert not isinstance(info.value, DeviceLost)
+    relay.detach()
+
+
+def test_stuck_relay_fails_the_readback_check(readback_rig: Rig) -> None:
+    assert readback_rig.board is not None
+    readback_rig.board.mode = "stuck"
+    relay = open_relay(readback_rig.uri)
+    with pytest.raises(DeviceError, match="commanded on but the board reports off"):
+        relay.on()
+    relay.close()  # off is what the stuck contact shows, so closing succeeds
+
+
+def test_verify_false_skips_readback(pty_pair: PtyPair) -> None:
+    with emulated("modbus", pty_pair) as rig:
+        with open_relay(rig.uri_with("verify=false")) as relay:
+            status = relay.on()
+            assert (status.on, status.confirmed) == (True, False)
+        assert rig.board is not None
+        assert rig.board.frames() == [ON["modbus"], OFF["modbus"]]
+
+
+def test_modbus_exception_answer(pty_pair: PtyPair) -> None:
+    with emulated("modbus", pty_pair, channel=40) as rig:  # the slave has coils 0..15 only
+        relay = open_relay(rig.uri.replace("channel=5", "channel=40"))
+        with pytest.raises(DeviceError, match=r"exception 02 \(illegal data address"):
+            relay.on()
+        relay.detach()
+
+
+def test_kmtronic_relay_count_mismatch_is_explained(pty_pair: PtyPair) -> None:
+    with emulated("kmtronic", pty_pair) as rig:  # a 4-relay board, told relays=8
+        relay = open_relay(rig.uri.replace("relays=4", "relays=8") + f"&timeout={SHORT_TIMEOUT_S}")
+        with pytest.raises(DeviceError, match=r"incomplete answer.*set relays= to match"):
+            relay.on()
+        relay.detach()
+
+
+def test_unplugged_board_is_device_lost(pty_pair: PtyPair) -> None:
+    with emulated("numato", pty_pair) as rig:
+        relay = open_relay(rig.uri)
+        relay.on()
+        _stop(pty_pair.process)  # the USB cable is pulled
+        started = time.monotonic()
+        with pytest.raises(DeviceLost):
+            relay.off()
+        assert time.monotonic() - started < BOUND_S
+        relay.detach()
+        assert rig.board is not None
+        rig.board.join(BOUND_S)  # its port died too, as it should: let it notice, then
+        rig.board.errors.clear()  # drop that expected report
+
+
+def test_port_is_locked_against_a_second_user(pty_pair: PtyPair) -> None:
+    with (emulated("numato", pty_pair) as rig, open_relay(rig.uri),
+          pytest.raises(DeviceError, match="cannot open relay port")):
+        open_relay(rig.uri)
+
+
+def _listening(tcp_port: int) -> bool:
+    """Whether something listens on 127.0.0.1:tcp_port (read from /proc: a probe connection
+    would use up socat's only connection)."""
+    wanted = f"0100007F:{tcp_port:04X}"
+    with open("/proc/net/tcp") as table:
+        return any(fields[1] == wanted and fields[3] == "0A"  # 0A = LISTEN
+                   for fields in (line.split() for line in list(table)[1:]))
+
+
+def test_modbus_over_socket_url(tmp_path: Path) -> None:
+    # A serial-over-TCP converter: socat bridges a PTY (the board) to a TCP listener.
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        tcp_port = probe.getsockname()[1]
+    link = tmp_path / "board"
+    # The PTY first: socat opens its addresses in order and the listener blocks in accept().
+    process = subprocess.Popen(
+        [_socat(), "-d", "-d", f"pty,raw,echo=0,link={link}",
+         f"tcp-listen:{tcp_port},bind=127.0.0.1,reuseaddr"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        _wait_for(lambda: link.exists() and _listening(tcp_port), START_TIMEOUT_S,
+                  "socat's PTY link and TCP listener", process)
+        pair = PtyPair(app=f"socket://127.0.0.1:{tcp_port}", board=str(link), process=process)
+        with emulated("modbus", pair) as rig:
+            with open_relay(rig.uri) as relay:
+                assert relay.on().confirmed
+                assert rig.settled(True)
+            assert rig.settled(False)
+            assert rig.board is not None
+            assert rig.board.frames()[:2] == [ON["modbus"], READ["modbus"]]
+    finally:
+        _stop(process)
+
+
+# -- the contract, shared by the simulated relay and every emulated board -------------------
+
+def test_contract_close_leaves_it_off(any_rig: Rig) -> None:
+    relay = open_relay(any_rig.uri)
+    relay.on()
+    assert any_rig.settled(True)
+    relay.close()
+    assert any_rig.settled(False)
+    relay.close()  # again: nothing happens
+    with pytest.raises(DeviceError, match="closed"):
+        relay.on()
+    assert any_rig.settled(False)
+
+
+def test_contract_exit_on_exception_leaves_it_off(any_rig: Rig) -> None:
+    with pytest.raises(RuntimeError, match="camera lost"), open_relay(any_rig.uri) as relay:
+        relay.on()
+        assert any_rig.settled(True)
+        raise RuntimeError("camera lost")
+    assert any_rig.settled(False)
+
+
+def test_contract_safety_off_at_start_and_on_error(any_rig: Rig) -> None:
+    any_rig.force(True)  # someone left the laser on
+    with pytest.raises(ValueError), LaserSafety(open_relay(any_rig.uri)) as relay:
+        assert any_rig.settled(False)
+        relay.on()
+        assert any_rig.settled(True)
+        raise ValueError("bad frame")
+    assert any_rig.settled(False)
+
+
+def test_contract_readback_is_reported_honestly(any_rig: Rig) -> None:
+    with open_relay(any_rig.uri) as relay:
+        assert relay.readback is any_rig.readback
+        assert relay.on().confirmed is any_rig.readback
+        assert relay.state().on is True
+
+
+def test_contract_sigterm_leaves_it_off(any_rig: Rig) -> None:
+    safety = LaserSafety(open_relay(any_rig.uri), signals=(signal.SIGTERM,))
+    with pytest.raises(SystemExit), safety as relay:
+        relay.on()
+        assert any_rig.settled(True)
+        signal.raise_signal(signal.SIGTERM)
+        time.sleep(5)
+    assert any_rig.settled(False)
+
+
+# -- the field tool, end to end ------------------------------------------------------------
+
+def test_cli_laser_on_holds_then_switches_off(readback_rig: Rig,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["laser", "on", readback_rig.uri, "--for", "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert "laser: on (readback confirmed)" in out
+    assert "laser: holding on for 0.3 s" in out
+    assert out.rstrip().endswith("laser: off (readback confirmed)")
+    assert readback_rig.settled(False)
+    name = readback_rig.name
+    assert readback_rig.board is not None
+    assert readback_rig.board.frames()[:4] == [OFF[name], READ[name], ON[name], READ[name]]
+
+
+def test_cli_status_off_and_leave_on(readback_rig: Rig,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    uri = readback_rig.uri
+    assert main(["laser", "status", uri]) == 0
+    assert capsys.readouterr().out == "laser: off (readback confirmed)\n"
+    assert main(["laser", "on", uri, "--leave-on"]) == 0
+    assert "left ON as asked" in capsys.readouterr().out
+    assert readback_rig.settled(True)
+    assert main(["laser", "status", uri]) == 0
+    assert capsys.readouterr().out == "laser: on (readback confirmed)\n"
+    assert readback_rig.settled(True)  # status changed nothing
+    assert main(["laser", "off", uri]) == 0
+    assert capsys.readouterr().out == "laser: off (readback confirmed)\n"
+    assert readback_rig.settled(False)
+
+
+def test_cli_lcus_says_it_cannot_confirm(pty_pair: PtyPair,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    with emulated("lcus", pty_pair) as rig:
+        assert main(["laser", "on", rig.uri, "--for", "0"]) == 0
+        out = capsys.readouterr().out
+        assert "laser: on (as commanded; this board has no readback)" in out
+        assert main(["laser", "status", rig.uri]) == 0
+        assert "unknown" in capsys.readouterr().out
+        assert rig.board is not None
+        assert rig.board.wait_frames(4)[:2] == [OFF["lcus"], ON["lcus"]]
+        assert rig.settled(False)
+
+
+def test_cli_reports_a_dead_board(pty_pair: PtyPair, capsys: pytest.CaptureFixture[str]) -> None:
+    with emulated("numato", pty_pair) as rig:
+        assert rig.board is not None
+        rig.board.mode = "silent"
+        started = time.monotonic()
+        assert main(["laser", "on", rig.uri_with("timeout=0.2"), "--for", "5"]) == 1
+        assert time.monotonic() - started < 3 * BOUND_S
+        err = capsys.readouterr().err
+        assert "edgedsm: error:" in err and "no answer within 0.2 s" in err
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_cli_hold_ends_on_signal_with_laser_off(signum: int, pty_pair: PtyPair,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    with emulated("numato", pty_pair) as rig:
+        done = threading.Event()
+
+        def signal_once_on() -> None:
+            # Not a fixed delay: building the CLI parser imports every command and may be slow.
+            if rig.settled(True, timeout=10) and not done.is_set():
+                os.kill(os.getpid(), signum)
+
+        sender = threading.Thread(target=signal_once_on, daemon=True)
+        sender.start()
+        started = time.monotonic()
+        try:
+            assert main(["laser", "on", rig.uri, "--for", "20"]) == 0
+        finally:
+            done.set()
+            sender.join(BOUND_S)
+        assert time.monotonic() - started < 3 * BOUND_S
+        out = capsys.readouterr().out
+        why = "stopped by SIGTERM" if signum == signal.SIGTERM else "Ctrl-C"
+        assert out.splitlines()[-1] == f"laser: off ({why}; switched off on the way out)"
+        assert rig.settled(False)
+        assert signal.getsignal(signal.SIGTERM) is not None  # handlers were restored
+
+
+def test_cli_bad_uri_exits_78(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["laser", "status", "serial:/dev/ttyUSB0?protocol=lcus&chanel=1"]) == 78
+    assert "unknown option 'chanel'" in capsys.readouterr().err
