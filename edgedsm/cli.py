@@ -14,7 +14,7 @@ import sys
 from edgedsm import __version__
 from edgedsm.errors import ConfigError, EdgedsmError
 
-COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "laser")
+COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "probe")
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2
@@ -31,10 +31,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
+        module_name = f"edgedsm.commands.{name.replace('-', '_')}"
         try:
-            module = importlib.import_module(f"edgedsm.commands.{name}")
+            module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:
-            if exc.name == f"edgedsm.commands.{name}":
+            if exc.name == module_name:
                 continue  # command not part of this build
             raise
         command = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__,

@@ -134,6 +134,14 @@ class RegionStateMachine:
                               f"activity {activity:.4g} held for {t - self._candidate_since:.1f} s")
         return None
 
+    def reset(self, t: float, reason: str) -> Transition | None:
+        """Start over (new baseline, new burst): back to warming up, reported if it is a change."""
+        self._history.clear()
+        self._candidate = None
+        if self.state == DryingState.WARMING_UP:
+            return None
+        return self._move(DryingState.WARMING_UP, t, None, reason)
+
     def _move(self, to: DryingState, t: float, activity: float | None, reason: str) -> Transition:
         transition = Transition(self.region, self.state, to, activity, t, reason)
         self.state, self.since, self._candidate = to, t, None
@@ -183,6 +191,9 @@ class DryingMonitor:
             if transition is not None:
                 transitions.append(transition)
         return transitions
+
+    def reset(self, t: float, reason: str) -> list[Transition]:
+        return [tr for machine in self.regions.values() if (tr := machine.reset(t, reason)) is not None]
 
     def snapshot(self) -> dict[str, dict]:
         return {name: machine.snapshot() for name, machine in self.regions.items()}

@@ -100,3 +100,12 @@ def test_monitor_steps_all_regions():
     snap = monitor.snapshot()
     assert snap["a"]["state"] == "wet" and snap["b"]["time_to_dry_s"] == 0.0
     assert out[0].as_dict()["type"] == "transition"
+
+
+def test_reset_goes_back_to_warming_up_once():
+    m = machine(min_dwell_s=0)
+    m.step(0, 15.0)
+    tr = m.reset(1.0, "rebaseline")
+    assert (tr.from_state, tr.to_state, tr.reason) == (W, DryingState.WARMING_UP, "rebaseline")
+    assert m.reset(2.0, "again") is None
+    assert m.time_to_dry() is None

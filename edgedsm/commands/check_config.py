@@ -1,0 +1,39 @@
+"""Validate a daemon configuration file without starting anything.
+
+Prints every problem with its key path (e.g. ``regions.0.dry_below: ...``) and exits 78
+(EX_CONFIG) when the file is bad, 0 with a short summary when it is good. ``--schema`` prints
+the JSON Schema of the configuration instead (for editors).
+
+Examples:
+  edgedsm check-config /etc/edgedsm/line3.toml
+  edgedsm check-config --schema > edgedsm-config.schema.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+NAME = "check-config"
+HELP = "validate a daemon configuration file (exit 78 when bad)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", nargs="?", metavar="CONFIG", help="daemon configuration (TOML)")
+    parser.add_argument("--schema", action="store_true", help="print the JSON Schema of the configuration")
+
+
+def run(args: argparse.Namespace) -> int:
+    from edgedsm.config import config_schema, load_config
+
+    if args.schema:
+        print(json.dumps(config_schema(), indent=2))
+        return 0
+    if args.config is None:
+        raise SystemExit("edgedsm check-config: give a CONFIG file (or --schema)")
+    config = load_config(args.config)
+    mqtt = f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else "none (log only)"
+    print(f"{args.config}: OK — camera {config.camera.uri}, laser {config.laser.uri if config.laser else 'none'}, "
+          f"{config.estimator.activity.upper()} N={config.estimator.window} m={config.estimator.lag} "
+          f"({config.estimator.mode}), {len(config.regions)} region(s), MQTT {mqtt}")
+    return 0

@@ -1,0 +1,53 @@
+"""Run the measurement daemon for one camera (what the systemd service starts).
+
+Reads the configuration (refused with every key path and exit 78 when bad), switches the
+laser off, takes dark frames, then measures: S1/S2/S3 maps, per-region statistics and drying
+states, published over MQTT. SIGTERM stops (laser off, 'offline' published, exit 0); SIGHUP
+reloads the configuration (a bad one is refused and the old one kept).
+
+Example:
+  edgedsm run -c /etc/edgedsm/line3.toml
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+NAME = "run"
+HELP = "run the measurement daemon (systemd service)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-c", "--config", required=True, metavar="CONFIG", help="daemon configuration (TOML)")
+
+
+class _JsonFormatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        return json.dumps({"t": record.created, "level": record.levelname.lower(), "logger": record.name,
+                           "message": record.getMessage()})
+
+
+def configure_logging(level: str, json_lines: bool) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    if json_lines:
+        handler.setFormatter(_JsonFormatter())
+    else:
+        # journald adds its own timestamps; keep lines short
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
+
+
+def run(args: argparse.Namespace) -> int:
+    from edgedsm.config import load_config
+    from edgedsm.daemon.service import Service
+
+    config = load_config(args.config)
+    configure_logging(config.logging.level, config.logging.json_lines)
+    service = Service(args.config, config=config)
+    service.install_signal_handlers()
+    return service.run()

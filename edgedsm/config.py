@@ -1,0 +1,179 @@
+"""Daemon configuration (TOML), validated with pydantic: unknown keys refused, every field
+bounded and described. ``edgedsm check-config FILE`` prints every problem with its key path
+and exits 78; ``edgedsm config-schema`` prints the JSON Schema for editors.
+
+Secrets never live in this file: the MQTT password comes from the environment or from
+``$CREDENTIALS_DIRECTORY`` (see ``[mqtt]``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from edgedsm import geometry
+from edgedsm.drying import Thresholds
+from edgedsm.errors import ConfigError
+from edgedsm.publish.settings import MqttSettings
+from edgedsm.validation import StrictModel, read_toml, validate
+
+
+class DeviceSection(StrictModel):
+    name: str = Field("camera1", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$",
+                      description="instance name; the MQTT topics are <prefix>/<name>/...")
+    state_dir: Path = Field(default_factory=lambda: Path(os.environ.get("STATE_DIRECTORY", "/var/lib/edgedsm")),
+                            description="durable state (alert queue); default: systemd's $STATE_DIRECTORY")
+
+
+class CameraSection(StrictModel):
+    uri: str = Field("sim:default", min_length=1, max_length=1024,
+                     description="camera URI: aravis:ID, v4l2:/dev/videoN, replay:PATH, sim:SCENE.toml")
+    exposure_us: float | None = Field(None, gt=0, le=60e6, description="exposure time in µs (camera default if unset)")
+    frame_interval_s: float | None = Field(None, gt=0, le=3600,
+                                           description="frame interval Δt in s (camera default if unset)")
+    pixel_format: str | None = Field(None, max_length=32, description="Mono8, Mono10, Mono12, Mono12Packed, Mono16")
+    grab_timeout_s: float = Field(5.0, gt=0, le=600, description="a frame not arriving within this is a fault")
+    reconnect_initial_s: float = Field(0.5, gt=0, le=600, description="first reconnection delay after a loss")
+    reconnect_max_s: float = Field(30.0, gt=0, le=3600, description="longest reconnection delay (backoff cap)")
+
+
+class LaserSection(StrictModel):
+    uri: str = Field(min_length=1, max_length=1024,
+                     description="relay URI, e.g. serial:/dev/ttyUSB0?protocol=lcus&channel=1 or sim:")
+
+
+class AcquisitionSection(StrictModel):
+    mode: Literal["continuous", "bursts"] = Field(
+        "continuous", description="continuous: laser on while measuring; bursts: spare the laser")
+    burst_frames: int = Field(400, ge=3, le=1_000_000, description="frames per burst (bursts mode)")
+    burst_period_s: float = Field(600.0, gt=0, le=86400, description="start-to-start period of bursts")
+    dark_frames: int = Field(10, ge=0, le=10_000, description="laser-off frames for the ambient level (0 = none)")
+    dark_every_min: float = Field(30.0, ge=0, le=10080,
+                                  description="repeat the dark frames every K minutes (0 = only at start)")
+    queue_frames: int = Field(16, ge=1, le=10_000,
+                              description="bounded queue camera→estimator; oldest dropped when full")
+
+
+class EstimatorSection(StrictModel):
+    activity: Literal["s1", "s2", "s3"] = Field(
+        "s2", description="estimator the drying states are judged on (S3 saturates once τc >> N)")
+    window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
+    lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
+    q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
+    mode: Literal["sliding", "exponential", "tumbling"] = Field("sliding", description="window mode of the engine")
+    ambient_correction: bool = Field(True, description="S2 with the measured dark level subtracted")
+    threads: int | None = Field(None, ge=1, le=256, description="kernel threads (default: all cores)")
+
+    @model_validator(mode="after")
+    def _lag_fits(self) -> EstimatorSection:
+        if self.lag >= self.window:
+            raise ValueError(f"lag ({self.lag}) must be smaller than window ({self.window})")
+        return self
+
+
+class RegionSection(StrictModel):
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$", description="region name in MQTT")
+    shape: Literal["full", "rect", "circle", "polygon", "mask"] = Field("full", description="region geometry")
+    x: float = Field(0, ge=0, le=1e5, description="rect: column of the top-left corner, px")
+    y: float = Field(0, ge=0, le=1e5, description="rect: row of the top-left corner, px")
+    width: float = Field(0, ge=0, le=1e5, description="rect: width, px")
+    height: float = Field(0, ge=0, le=1e5, description="rect: height, px")
+    cx: float = Field(0, ge=0, le=1e5, description="circle: centre column, px")
+    cy: float = Field(0, ge=0, le=1e5, description="circle: centre row, px")
+    radius: float = Field(0, ge=0, le=1e5, description="circle: radius, px")
+    points: list[tuple[float, float]] = Field(default_factory=list, max_length=1000,
+                                              description="polygon: [[x, y], ...] vertices, px")
+    path: Path | None = Field(None, description="mask: grey image; pixels >= 128 are inside")
+    wet_above: float = Field(gt=0, le=1e9, description="activity at or above which the surface is wet")
+    dry_below: float = Field(gt=0, le=1e9, description="activity at or below which the surface is dry")
+    hysteresis: float = Field(0.05, ge=0, lt=0.5, description="relative margin to leave a state")
+    min_dwell_s: float = Field(10.0, ge=0, le=86400, description="a new state must hold this long")
+    trend_window_s: float = Field(120.0, gt=0, le=86400, description="time-to-dry trend window")
+
+    @model_validator(mode="after")
+    def _geometry(self) -> RegionSection:
+        if self.shape == "rect" and (self.width <= 0 or self.height <= 0):
+            raise ValueError("a rect needs width > 0 and height > 0")
+        if self.shape == "circle" and self.radius <= 0:
+            raise ValueError("a circle needs radius > 0")
+        if self.shape == "polygon" and len(self.points) < 3:
+            raise ValueError("a polygon needs at least 3 points")
+        if self.shape == "mask" and self.path is None:
+            raise ValueError("a mask needs path")
+        try:
+            self.thresholds()
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+        return self
+
+    def thresholds(self) -> Thresholds:
+        return Thresholds(self.wet_above, self.dry_below, self.hysteresis, self.min_dwell_s, self.trend_window_s)
+
+    def mask(self, shape: tuple[int, int], base_dir: Path) -> np.ndarray:
+        """Boolean mask of the region on a frame of ``shape``; an empty region is a ConfigError."""
+        if self.shape == "full":
+            mask = np.ones(shape, bool)
+        elif self.shape == "rect":
+            mask = geometry.rect_mask(shape, self.x, self.y, self.width, self.height)
+        elif self.shape == "circle":
+            mask = geometry.circle_mask(shape, self.cx, self.cy, self.radius)
+        elif self.shape == "polygon":
+            mask = geometry.polygon_mask(shape, self.points)
+        else:
+            assert self.path is not None
+            path = self.path if self.path.is_absolute() else base_dir / self.path
+            mask = geometry.load_mask_image(path, shape)
+        if not mask.any():
+            raise ConfigError(f"regions.{self.name}: the region has no pixel inside the {shape[1]}x{shape[0]} frame")
+        return mask
+
+
+class LoggingSection(StrictModel):
+    level: Literal["debug", "info", "warning", "error"] = Field("info", description="log level")
+    json_lines: bool = Field(False, description="one JSON object per log line (for log shippers)")
+
+
+def _default_regions() -> list[RegionSection]:
+    return [RegionSection(name="full", wet_above=0.9, dry_below=0.5)]
+
+
+class DaemonConfig(StrictModel):
+    device: DeviceSection = Field(default_factory=DeviceSection)
+    camera: CameraSection = Field(default_factory=CameraSection)
+    laser: LaserSection | None = Field(None, description="laser relay; absent = laser not switched by edgedsm")
+    acquisition: AcquisitionSection = Field(default_factory=AcquisitionSection)
+    estimator: EstimatorSection = Field(default_factory=EstimatorSection)
+    regions: Annotated[list[RegionSection], Field(min_length=1, max_length=64)] = Field(
+        default_factory=_default_regions, description="regions of interest, each with drying thresholds")
+    mqtt: MqttSettings | None = Field(None, description="broker; absent = no publishing")
+    logging: LoggingSection = Field(default_factory=LoggingSection)
+    base_dir: Path = Field(Path("."), exclude=True, description="directory relative paths resolve in")
+
+    @model_validator(mode="after")
+    def _unique_regions(self) -> DaemonConfig:
+        names = [r.name for r in self.regions]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ValueError(f"region names must be unique: {', '.join(duplicates)}")
+        if self.acquisition.mode == "bursts" and self.acquisition.burst_frames < self.estimator.window:
+            raise ValueError("bursts mode: burst_frames must be >= estimator.window")
+        if self.mqtt is not None and "device" not in self.mqtt.model_fields_set:
+            self.mqtt.device = self.device.name  # one name for the instance, its logs and its topics
+        return self
+
+
+def load_config(path: str | Path) -> DaemonConfig:
+    """Read and validate a daemon config; ConfigError lists every problem with its key path."""
+    path = Path(path)
+    config = validate(DaemonConfig, read_toml(path), str(path))
+    config.base_dir = path.resolve().parent
+    return config
+
+
+def config_schema() -> dict:
+    """JSON Schema of the daemon config (for editors: taplo, VS Code Even Better TOML)."""
+    return DaemonConfig.model_json_schema()

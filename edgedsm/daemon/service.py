@@ -1,0 +1,174 @@
+"""The service shell around the pipeline: devices from the config, laser safety, signals,
+systemd notification and watchdog, configuration reload.
+
+- SIGTERM / SIGINT: stop; the laser is switched off, ``offline`` published, exit 0 (within 2 s).
+- SIGHUP: reload the config file. A bad file is refused (logged with every key path) and the
+  daemon keeps running with the old one; a good one restarts the pipeline with it.
+- ``Type=notify``: READY once measuring, STATUS lines, WATCHDOG pings only while frames keep
+  arriving (a stalled camera lets systemd's watchdog restart the service).
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from edgedsm.config import DaemonConfig, load_config
+from edgedsm.daemon.notify import Notifier
+from edgedsm.daemon.pipeline import Cadence, Pipeline, Publisher
+from edgedsm.daemon.publishers import LogPublisher
+from edgedsm.devices.camera.base import Camera
+from edgedsm.devices.camera.sim import SimulatedCamera
+from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
+from edgedsm.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+def open_camera_for(config: DaemonConfig) -> Camera:
+    from edgedsm.devices.camera.uri import open_camera
+
+    return open_camera(config.camera.uri, base_dir=config.base_dir)
+
+
+def make_publisher(config: DaemonConfig, on_command: Callable[[str, dict], dict]) -> Any:
+    """The MQTT publisher of the config, or a logging one when no broker is configured."""
+    if config.mqtt is None:
+        return LogPublisher()
+    from edgedsm.publish import MqttPublisher
+
+    publisher = MqttPublisher(config.mqtt, state_dir=config.device.state_dir, on_command=on_command)
+    publisher.start()
+    return publisher
+
+
+def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
+    """A simulated camera sees speckle only while the simulated laser's contact is closed."""
+    if isinstance(camera, SimulatedCamera) and isinstance(relay, SimulatedRelay):
+        board = relay.board
+        camera.illuminated = lambda: board.is_on
+
+
+class Service:
+    """Runs pipelines for a config file until stopped (see the module docstring)."""
+
+    def __init__(self, config_path: str | Path | None, config: DaemonConfig | None = None,
+                 notifier: Notifier | None = None, cadence: Cadence | None = None) -> None:
+        self.config_path = Path(config_path) if config_path is not None else None
+        self.config = config if config is not None else load_config(self.config_path)  # type: ignore[arg-type]
+        self.notifier = notifier or Notifier()
+        self.cadence = cadence
+        self._stop = threading.Event()
+        self._reload = threading.Event()
+        self.pipeline: Pipeline | None = None
+        self.exit_reason = ""
+        self._reloaded = False
+
+    # -- signals ----------------------------------------------------------------------------
+    def install_signal_handlers(self) -> None:
+        signal.signal(signal.SIGTERM, self._on_stop_signal)
+        signal.signal(signal.SIGINT, self._on_stop_signal)
+        signal.signal(signal.SIGHUP, self._on_reload_signal)
+
+    def _on_stop_signal(self, signum: int, frame: FrameType | None) -> None:
+        self.exit_reason = signal.Signals(signum).name
+        self._stop.set()
+
+    def _on_reload_signal(self, signum: int, frame: FrameType | None) -> None:
+        self._reload.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def request_reload(self) -> None:
+        self._reload.set()
+
+    def _should_stop(self) -> bool:
+        if self._stop.is_set():
+            return True
+        if self._reload.is_set():
+            self._reload.clear()
+            return self._try_reload()
+        return False
+
+    def _try_reload(self) -> bool:
+        if self.config_path is None:
+            log.warning("reload requested but the daemon was not started from a file")
+            return False
+        self.notifier.reloading()
+        try:
+            new = load_config(self.config_path)
+        except ConfigError as exc:
+            log.error("reload refused, keeping the running configuration:\n%s", exc)
+            self.notifier.ready(status="reload refused: bad configuration (see the log)")
+            return False
+        log.warning("configuration reloaded from %s", self.config_path)
+        self.config = new
+        self._reloaded = True
+        return True
+
+    # -- running ----------------------------------------------------------------------------
+    def run(self) -> int:
+        """Measure until stopped; returns the process exit code."""
+        while True:
+            self._reloaded = False
+            self._run_once()
+            if self._stop.is_set():
+                log.info("stopped (%s)", self.exit_reason or "requested")
+                return 0
+            if not self._reloaded:
+                log.info("camera stream ended")
+                return 0
+
+    def _run_once(self) -> None:
+        config = self.config
+        relay = open_relay(config.laser.uri) if config.laser is not None else None
+        camera = open_camera_for(config)
+        couple_simulated_laser(camera, relay)
+        holder: dict[str, Pipeline] = {}
+
+        def on_command(name: str, args: dict) -> dict:
+            pipeline = holder.get("pipeline")
+            return pipeline.submit(name, args) if pipeline else {"ok": False, "error": "not running"}
+
+        publisher: Publisher = make_publisher(config, on_command)
+        last_ping = [0.0]
+
+        def alive() -> None:
+            now = time.monotonic()
+            interval = self.notifier.watchdog_s
+            if interval and now - last_ping[0] >= interval:
+                last_ping[0] = now
+                self.notifier.watchdog()
+
+        pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=self.cadence or self._cadence(config),
+                            on_alive=alive)
+        holder["pipeline"] = self.pipeline = pipeline
+        try:
+            if relay is not None:
+                with LaserSafety(relay):
+                    self._measure(pipeline)
+            else:
+                self._measure(pipeline)
+        finally:
+            close = getattr(publisher, "close", None)
+            if close is not None:
+                close()
+
+    def _measure(self, pipeline: Pipeline) -> None:
+        self.notifier.ready(status=f"measuring with {self.config.camera.uri}")
+        pipeline.run(self._should_stop)
+        if self._stop.is_set():
+            self.notifier.stopping()
+
+    @staticmethod
+    def _cadence(config: DaemonConfig) -> Cadence:
+        if config.mqtt is None:
+            return Cadence()
+        return Cadence(stats_every_s=config.mqtt.stats_interval_s, maps_every_s=config.mqtt.maps_interval_s)

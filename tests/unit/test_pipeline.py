@@ -1,0 +1,123 @@
+"""The pipeline in-process: simulated camera and laser, recorded publications."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edgedsm.config import load_config
+from edgedsm.daemon.pipeline import Cadence, Pipeline
+from edgedsm.daemon.publishers import RecordingPublisher
+from edgedsm.daemon.service import couple_simulated_laser
+from edgedsm.devices.camera import SimulatedCamera
+from edgedsm.devices.laser import SimulatedRelay
+from edgedsm.estimators import all_maps
+from edgedsm.sim import load_scene
+
+
+@pytest.fixture
+def setup(repo):
+    config = load_config(repo / "config" / "daemon" / "demo.toml")
+    config.mqtt = None
+    scene = load_scene(repo / "config" / "scenes" / "drying_demo.toml")
+    scene.scene.size = 64  # same physics, 4x fewer pixels
+    camera = SimulatedCamera(scene, time_scale=0)
+    relay = SimulatedRelay()
+    couple_simulated_laser(camera, relay)
+    publisher = RecordingPublisher()
+    return config, camera, relay, publisher, scene
+
+
+def make_pipeline(config, camera, relay, publisher, dt=0.05):
+    box = {}
+    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0),
+                        clock=lambda: box["p"].counters["frames"] * dt if "p" in box else 0.0)
+    box["p"] = pipeline
+    return pipeline
+
+
+def test_drying_plate_goes_wet_drying_dry_and_laser_ends_off(setup):
+    config, camera, relay, publisher, _ = setup
+    pipeline = make_pipeline(config, camera, relay, publisher)
+    pipeline.run(lambda: False, max_frames=1300)
+    moves = [(a["from"], a["to"]) for a in publisher.alerts]
+    assert moves == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")]
+    times = [a["t"] for a in publisher.alerts]
+    assert times == sorted(times)
+    history = relay.board.history
+    assert history[0].on is False and history[-1].on is False and not relay.board.is_on
+    assert any(s.on for s in history)
+    # the ambient level was measured from laser-off frames: eta = 0.05 of n_max photons
+    assert pipeline.ambient_level == pytest.approx(50 * 255 / (1000 + np.sqrt(1000)), rel=0.1)
+    last = publisher.stats[-1]
+    assert last["state"] == {"plate": "dry"} and last["ready"]
+    assert set(last["regions"]["plate"]) == {"s1", "s2", "s3"}
+    assert publisher.states[-1]["regions"]["plate"]["state"] == "dry"
+
+
+def test_published_maps_equal_batch_maps_of_the_window(setup):
+    config, camera, _relay, publisher, _ = setup
+    config.estimator.ambient_correction = False
+    config.acquisition.dark_frames = 0
+    config.acquisition.queue_frames = 10_000  # no drops: every recorded frame is pushed
+    recorded = []
+    original = camera._do_grab
+
+    def grab(timeout_s):
+        frame = original(timeout_s)
+        recorded.append(frame.pixels.copy())
+        return frame
+
+    camera._do_grab = grab
+    pipeline = make_pipeline(config, camera, None, publisher)
+    pipeline.run(lambda: False, max_frames=150)
+    name, values, meta = publisher.maps[-1]
+    pushed = pipeline.counters["frames"]
+    # the map published at frame k is the batch map of frames k-N+1..k
+    k = meta["frames"]
+    window = np.stack(recorded[k - config.estimator.window:k])
+    expected = all_maps(window, config.estimator.lag, q=config.estimator.q)[name]
+    assert pipeline.counters["dropped_queue"] == 0
+    assert pushed >= k and np.allclose(values, expected, rtol=0, atol=1e-9)
+
+
+def test_camera_loss_switches_laser_off_and_faults(setup):
+    config, _, relay, publisher, scene = setup
+    camera = SimulatedCamera(scene, time_scale=0, lose_after=300)
+    couple_simulated_laser(camera, relay)
+    config.camera.reconnect_initial_s = 0.01
+    pipeline = make_pipeline(config, camera, relay, publisher)
+    switch_offs = []
+    relay.board.add_listener(lambda on: switch_offs.append((on, pipeline.counters["frames"])))
+    pipeline.run(lambda: False, max_frames=600)
+    assert pipeline.counters["camera_lost"] == 1 and pipeline.counters["camera_reconnects"] == 1
+    moves = [(a["from"], a["to"]) for a in publisher.alerts]
+    assert moves[:4] == [("warming_up", "wet"), ("wet", "fault"), ("fault", "warming_up"), ("warming_up", "wet")]
+    # the laser went off when the camera was lost, and on again after it came back
+    offs_after_start = [f for on, f in switch_offs if not on and f > 10]
+    assert offs_after_start and offs_after_start[0] <= 305
+    assert not relay.board.is_on
+
+
+def test_queue_drops_oldest_and_counts(setup):
+    config, camera, relay, publisher, _ = setup
+    config.acquisition.queue_frames = 2
+    pipeline = make_pipeline(config, camera, relay, publisher)
+    for seq in range(5):
+        pipeline._enqueue(seq)
+    assert pipeline.counters["dropped_queue"] == 3
+    assert [pipeline._capture.frames.get_nowait() for _ in range(2)] == [3, 4]
+
+
+def test_bad_frames_are_dropped_and_counted(setup):
+    config, camera, relay, publisher, _ = setup
+    pipeline = make_pipeline(config, camera, relay, publisher)
+    from edgedsm.frames import Frame
+
+    good = Frame(np.zeros((8, 8), np.uint8), 0, 0, 8)
+    pipeline._push(good)
+    pipeline._push(Frame(np.zeros((9, 9), np.uint8), 1, 0, 8))
+    pipeline._push(Frame(np.zeros((8, 8), np.float32), 2, 0, 8))
+    pipeline._push(good)
+    assert pipeline.counters["dropped_invalid"] == 2
+    assert pipeline.engine is not None and pipeline.engine.frames_seen == 2
