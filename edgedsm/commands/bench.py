@@ -13,7 +13,7 @@ import importlib
 
 NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine)"
-SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine"}
+SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

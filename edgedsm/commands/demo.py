@@ -1,14 +1,24 @@
-"""Run the main job on a simulated scene: simulate, compute S1, S2, S3, save and summarise.
+"""Run the main job on simulated devices: activity maps, then the daemon watching a plate dry.
 
-Without arguments it simulates the built-in default scene (the paper's logo object: letters
-"IOMT" and "ETRI" with τc = 10 Δt on a background with τc = 50 Δt, 200 frames of 256x256,
-8-bit detector), computes the three activity maps with lag 10, writes each as .npy (float64)
-and as a colour-mapped PNG, and prints the mean activity per region and the contrast β.
+Part 1 (maps): simulates the built-in default scene (the paper's logo object: letters "IOMT"
+and "ETRI" with τc = 10 Δt on a background with τc = 50 Δt, 200 frames of 256x256, 8-bit
+detector), computes S1, S2, S3 with lag 10, writes each as .npy (float64) and as a
+colour-mapped PNG, and prints the mean activity per region and the contrast β.
+
+Part 2 (daemon, skip with --no-daemon): runs the measurement daemon on config/daemon/demo.toml
+(a simulated plate drying in under a minute, simulated laser relay) against a private mosquitto
+started on a free loopback port (or --broker HOST:PORT), and prints what a subscriber sees
+(edgedsm watch): availability, then the plate going wet -> drying -> dry.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
+import re
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -16,12 +26,15 @@ import numpy as np
 
 from edgedsm.analysis import contrast, region_mean
 from edgedsm.commands.common import add_progress_flag, progress, scene_argument
+from edgedsm.config import DaemonConfig
+from edgedsm.errors import EdgedsmError
 from edgedsm.estimators import ESTIMATORS, all_maps
 from edgedsm.imageio import save_map_png
 from edgedsm.sim import Simulator, region_masks
 
 NAME = "demo"
-HELP = "simulate the default scene and compute its activity maps (the README's first command)"
+HELP = "activity maps of a simulated scene, then the daemon watching a plate dry (the README's first command)"
+DEMO_CONFIG = Path(__file__).resolve().parents[2] / "config" / "daemon" / "demo.toml"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,6 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", default="edgedsm-demo", help="output directory (default ./edgedsm-demo)")
     parser.add_argument("--lag", type=int, default=10, help="time lag m in frames (default 10)")
     parser.add_argument("--q", type=float, default=0.0, help="S2 regulariser q (default 0)")
+    parser.add_argument("--no-daemon", dest="daemon", action="store_false", help="only part 1 (the maps)")
+    parser.add_argument("--daemon-config", type=Path, default=DEMO_CONFIG,
+                        help="daemon config of part 2 (default: config/daemon/demo.toml)")
+    parser.add_argument("--broker", metavar="HOST:PORT", help="use this broker instead of a private mosquitto")
+    parser.add_argument("--time-limit", type=float, default=180.0, help="seconds part 2 may take (default 180)")
     add_progress_flag(parser)
 
 
@@ -62,4 +80,67 @@ def run(args: argparse.Namespace) -> int:
                 if masks["regions"].any() and masks["background"].any() else float("nan"))
         print(f"{name:<4} {row} {beta:8.3f}")
     print(f"wrote frames.npy, s1/s2/s3 .npy and .png to {output.resolve()}")
+    if not args.daemon:
+        return 0
+    return run_daemon_demo(args.daemon_config, args.broker, args.time_limit, output / "state")
+
+
+def run_daemon_demo(config_path: Path, broker: str | None, time_limit: float, state_dir: Path) -> int:
+    """Part 2: the daemon in a thread, a watch subscriber in this one, until the plate is dry."""
+    from edgedsm.config import load_config
+
+    config = load_config(config_path)
+    if config.mqtt is None:
+        raise EdgedsmError(f"{config_path}: the demo needs an [mqtt] table")
+    config.device.state_dir = state_dir
+    quiet = logging.getLogger().level >= logging.WARNING
+    daemon_log = logging.getLogger("edgedsm")
+    previous_level = daemon_log.level
+    if quiet:
+        daemon_log.setLevel(logging.ERROR)  # the watch lines below tell the story
+    try:
+        return _daemon_demo(config, config_path, broker, time_limit)
+    finally:
+        daemon_log.setLevel(previous_level)
+
+
+def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, time_limit: float) -> int:
+    from edgedsm.commands.watch import Watcher
+    from edgedsm.daemon.broker import LocalBroker
+    from edgedsm.daemon.service import Service
+
+    assert config.mqtt is not None
+    with contextlib.ExitStack() as stack:
+        if broker is None:
+            local = stack.enter_context(LocalBroker())
+            config.mqtt.host, config.mqtt.port = "127.0.0.1", local.port
+            print(f"\nedgedsm demo: started a private mosquitto on 127.0.0.1:{local.port}")
+        else:
+            host, _, port = broker.rpartition(":")
+            config.mqtt.host, config.mqtt.port = host or "127.0.0.1", int(port)
+        print(f"edgedsm demo: daemon on {config.camera.uri} (laser {config.laser.uri if config.laser else 'none'}); "
+              f"watching {config.mqtt.topic_prefix}/{config.mqtt.device}/# until the plate is dry\n")
+        service = Service(config_path, config=config)
+        thread = threading.Thread(target=service.run, name="edgedsm-demo-daemon", daemon=True)
+        thread.start()
+        dry = threading.Event()
+
+        def emit(line: str) -> None:
+            print(line, flush=True)
+            if "alert" in line and re.search(r"-> dry\b(?!ing)", line):
+                dry.set()
+
+        watcher = Watcher(config.mqtt, password=None, emit=emit)
+        watcher.start()
+        try:
+            finished = dry.wait(time_limit)
+            time.sleep(0.5)
+        finally:
+            watcher.stop()
+            service.stop()
+            thread.join(timeout=5)
+    if not finished:
+        print(f"edgedsm demo: the plate was not dry within {time_limit:g} s", file=sys.stderr)
+        return 1
+    print("\nedgedsm demo: the plate is dry; daemon stopped, laser off.")
     return 0

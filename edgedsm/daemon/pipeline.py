@@ -219,6 +219,9 @@ class Pipeline:
                 future.set_result(self._command(name, args))
             except EdgedsmError as exc:
                 future.set_result({"ok": False, "error": str(exc)})
+            except Exception as exc:  # a command must never take the measurement down
+                log.exception("command %s failed", name)
+                future.set_result({"ok": False, "error": f"internal error: {exc}"})
 
     def _command(self, name: str, args: dict) -> dict:
         if name == "laser":

@@ -27,7 +27,7 @@ class LogPublisher:
     def publish_map(self, name: str, values: np.ndarray, meta: dict[str, Any]) -> None:
         log.debug("map %s %s", name, values.shape)
 
-    def close(self) -> None:
+    def close(self, timeout: float | None = None) -> None:
         return None
 
 
@@ -57,5 +57,5 @@ class RecordingPublisher:
         with self._lock:
             self.maps.append((name, values.copy(), meta))
 
-    def close(self) -> None:
+    def close(self, timeout: float | None = None) -> None:
         return None

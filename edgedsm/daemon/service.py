@@ -10,6 +10,7 @@ systemd notification and watchdog, configuration reload.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import signal
 import threading
@@ -25,6 +26,7 @@ from edgedsm.daemon.pipeline import Cadence, Pipeline, Publisher
 from edgedsm.daemon.publishers import LogPublisher
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
+from edgedsm.devices.camera.uri import open_camera, parse_camera_uri
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
 from edgedsm.errors import ConfigError
 
@@ -32,9 +34,11 @@ log = logging.getLogger(__name__)
 
 
 def open_camera_for(config: DaemonConfig) -> Camera:
-    from edgedsm.devices.camera.uri import open_camera
-
-    return open_camera(config.camera.uri, base_dir=config.base_dir)
+    """The configured camera; relative replay and scene paths are relative to the config file."""
+    spec = parse_camera_uri(config.camera.uri)
+    if spec.scheme in ("sim", "replay") and spec.target not in ("", "default") and not Path(spec.target).is_absolute():
+        spec = dataclasses.replace(spec, target=str(config.base_dir / spec.target))
+    return open_camera(spec)
 
 
 def make_publisher(config: DaemonConfig, on_command: Callable[[str, dict], dict]) -> Any:
@@ -133,8 +137,10 @@ class Service:
         couple_simulated_laser(camera, relay)
         holder: dict[str, Pipeline] = {}
 
-        def on_command(name: str, args: dict) -> dict:
+        def on_command(name: str, command: Any) -> dict:
+            # called on the publisher's command thread with a validated pydantic model
             pipeline = holder.get("pipeline")
+            args = command.model_dump() if hasattr(command, "model_dump") else dict(command or {})
             return pipeline.submit(name, args) if pipeline else {"ok": False, "error": "not running"}
 
         publisher: Publisher = make_publisher(config, on_command)
@@ -159,7 +165,7 @@ class Service:
         finally:
             close = getattr(publisher, "close", None)
             if close is not None:
-                close()
+                close(timeout=1.0)  # 'offline' out within the 2 s a SIGTERM allows
 
     def _measure(self, pipeline: Pipeline) -> None:
         self.notifier.ready(status=f"measuring with {self.config.camera.uri}")

@@ -82,7 +82,7 @@ def test_analyze_refuses_lag_that_does_not_fit(tmp_path, scene_file, capsys):
 
 def test_demo_writes_maps_and_summary(tmp_path, scene_file, capsys):
     assert main(["demo", "--scene", str(scene_file), "-o", str(tmp_path / "demo"), "--lag", "5",
-                 "--no-progress"]) == 0
+                 "--no-progress", "--no-daemon"]) == 0
     out = capsys.readouterr().out
     for name in ("s1", "s2", "s3"):
         assert (tmp_path / "demo" / f"{name}.npy").exists()

@@ -1,0 +1,526 @@
+"""Streaming-engine benchmark: what exactness costs in time, per window mode and kernel.
+
+Measures, side by side in one run (N = 200 frames, lag m = 10, all three maps, 8-bit frames):
+
+  1. a streaming memory bandwidth (read-modify-write of two large float64 arrays, the access
+     pattern of the engine's sums, and a plain copy; the best is kept);
+  2. per frame size, mode (sliding, tumbling, exponential) and kernel (numba, numpy):
+     ms per pushed frame, Mpx/s, bytes of state per pixel, the bytes one push must move per
+     pixel and the ratio of the measured time to that traffic at the measured bandwidth
+     (1.0 = as fast as memory allows), the cost of ``maps()``, the speed-up against
+     recomputing the maps from the window with the float64 batch reference, and the largest
+     difference of the maps from that reference;
+  3. the map noise at constant activity: spatial spread (standard deviation / mean) of S1, S2
+     and S3 on simulated speckle (τc = 20 frames) against N, for the sliding and the
+     exponential window, so N and the mode can be chosen knowingly.
+
+Frames are synthetic 8-bit speckle (exponential intensities, mean 60 grey levels) cycled
+from a pool; the engines are first filled with N frames (steady state: every push adds and
+removes), then timed frame by frame; tables give the median. numba runs first and its state
+is handed to the numpy engine (the kernels are bit-identical, which is checked), so the slow
+fallback is only timed, not filled. The machine's load average is printed: other work on it
+slows every row alike only on average, so compare rows of one run.
+
+Examples:
+  edgedsm bench engine                                # 1024² and 2048², a few minutes
+  edgedsm bench engine --paper-size                   # also 4096 x 2168, the paper's camera
+  edgedsm bench engine --quick                        # 256² and 512², about 30 s
+  edgedsm bench engine --output docs/bench-engine.md  # also markdown, and a PNG plot
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import gc
+import importlib.util
+import math
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from edgedsm.estimators import SlidingWindow, all_maps
+
+HELP = "streaming engine vs batch recompute: ms/frame, memory, bandwidth bound, error, map noise"
+
+MODES = ("sliding", "tumbling", "exponential")
+PAPER_SIZE = (2168, 4096)  # rows x columns of the paper's camera
+POOL = 16  # distinct frames cycled through the engines
+EXACT_SAMPLE = 400  # pixels whose S2 is also computed in exact arithmetic
+
+
+@dataclass
+class Row:
+    """One (size, mode, kernel) measurement."""
+
+    size: tuple[int, int]
+    mode: str
+    kernel: str
+    ms: float
+    maps_ms: float
+    state_bytes: float
+    traffic_bytes: float
+    bound_ms: float
+    batch_ms: float
+    errors: dict[str, float] | None  # max |map - batch| per map; None: not measured
+    note: str = ""
+
+    @property
+    def pixels(self) -> int:
+        return self.size[0] * self.size[1]
+
+
+# -- measurements --------------------------------------------------------------------------
+def measure_bandwidth(megabytes: int = 512, repeats: int = 5) -> tuple[float, str]:
+    """Best streaming bandwidth in bytes/s, and how it was obtained.
+
+    Read-modify-write a[i] += b[i] over two float64 arrays (numba, all threads; 3 x 8 bytes
+    moved per element, as the engine's sums are read and written) and np.copyto (2 x 8).
+    """
+    n = megabytes * 2**20 // 16
+    a = np.ones(n)
+    b = np.ones(n)
+    results: dict[str, float] = {}
+
+    def best(step: Callable[[], object], moved: int) -> float:
+        step()
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            step()
+            times.append(time.perf_counter() - start)
+        return moved / min(times)
+
+    results["numpy copy"] = best(lambda: np.copyto(a, b), 16 * n)
+    if importlib.util.find_spec("numba"):
+        import numba
+
+        @numba.njit(parallel=True)
+        def update(x: np.ndarray, y: np.ndarray) -> None:  # pragma: no cover - compiled
+            for i in numba.prange(x.size):
+                x[i] += y[i]
+
+        results[f"numba a += b ({numba.get_num_threads()} threads)"] = best(
+            lambda: update(a, b), 24 * n)
+    name = max(results, key=lambda key: results[key])
+    detail = ", ".join(f"{key} {value / 1e9:.1f} GB/s" for key, value in results.items())
+    return results[name], f"best of {detail} ({2 * 8 * n / 2**20:.0f} MiB arrays)"
+
+
+def speckle_pool(shape: tuple[int, int], seed: int = 7) -> list[np.ndarray]:
+    """Synthetic 8-bit speckle frames: exponential intensities (mean 60) clipped at 255."""
+    rng = np.random.default_rng(seed)
+    return [np.minimum(rng.exponential(60.0, shape), 255.0).astype(np.uint8)
+            for _ in range(POOL)]
+
+
+def window_stack(pool: list[np.ndarray], first: int, count: int) -> np.ndarray:
+    return np.stack([pool[j % POOL] for j in range(first, first + count)])
+
+
+def handover(source: SlidingWindow, target: SlidingWindow) -> None:
+    """Give ``target`` (another kernel) the state of ``source``: same layout, same sums."""
+    for name, array in source._arrays.items():
+        np.copyto(target._arrays[name], array)
+    target.frames_seen = source.frames_seen
+    target.blocks_completed = source.blocks_completed
+    target._weight_frames = source._weight_frames
+    target._weight_pairs = source._weight_pairs
+
+
+def timed_pushes(engine: SlidingWindow, pool: list[np.ndarray], first: int,
+                 count: int) -> list[float]:
+    times = []
+    for j in range(first, first + count):
+        start = time.perf_counter()
+        engine.push(pool[j % POOL])
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def time_maps(engine: SlidingWindow, repeats: int = 3) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        engine.maps()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def max_errors(maps: dict[str, np.ndarray], reference: dict[str, np.ndarray]) -> dict[str, float]:
+    return {name: float(np.max(np.abs(maps[name] - reference[name]))) for name in maps}
+
+
+def exact_s2(samples: np.ndarray, lag: int) -> np.ndarray:
+    """S2 of Eq. 2 (q = 0) in exact integer arithmetic for a (N, P) window of P pixels.
+
+    Every denominator a+b divides L = lcm(1..2·max), so Σ|a-b|·(L/(a+b)) is an exact
+    integer; only the final quotient is rounded (once, correctly) to float64.
+    """
+    values = samples.astype(np.int64)
+    common = math.lcm(*range(1, 2 * int(values.max()) + 2))
+    pairs = values.shape[0] - lag
+    out = np.empty(values.shape[1])
+    for p in range(values.shape[1]):
+        column = values[:, p].tolist()
+        total = sum(abs(a - b) * (common // (a + b)) for a, b in
+                    zip(column[:pairs], column[lag:], strict=True) if a + b)
+        out[p] = float(Fraction(total, common * pairs))
+    return out
+
+
+def bench_size(shape: tuple[int, int], window: int, lag: int, kernels: list[str],
+               numpy_frames: int, bandwidth: float, threads: int | None,
+               log: Callable[[str], None]) -> tuple[list[Row], dict[str, float]]:
+    """All modes and kernels at one frame size (see the module docstring); also the S2
+    errors of the engine and of the float64 batch against exact arithmetic on a sample."""
+    pool = speckle_pool(shape)
+    # the reference window: after 2N pushes the sliding window and the tumbling block are
+    # both frames N..2N-1
+    stack = window_stack(pool, window, window)
+    start = time.perf_counter()
+    reference = all_maps(stack, lag)
+    batch_ms = (time.perf_counter() - start) * 1e3
+    rng = np.random.default_rng(1)
+    sample = rng.integers(0, shape[0] * shape[1], EXACT_SAMPLE)
+    exact = exact_s2(stack.reshape(window, -1)[:, sample], lag)
+    del stack
+    check = {"batch": float(np.max(np.abs(reference["s2"].ravel()[sample] - exact)))}
+    log(f"  {shape[0]}x{shape[1]}: batch recompute {batch_ms:.0f} ms")
+    rows: list[Row] = []
+    first = kernels[0]
+    for mode in MODES:
+        lead = SlidingWindow(shape, window, lag, bits=8, mode=mode, kernel=first, threads=threads)
+        for j in range(window):  # fill: from here on every push adds and removes
+            lead.push(pool[j % POOL])
+        times = timed_pushes(lead, pool, window, window)
+        maps = lead.maps()
+        errors = max_errors(maps, reference)
+        if mode == "sliding":
+            check["engine"] = float(np.max(np.abs(maps["s2"].ravel()[sample] - exact)))
+            check["bound"] = lead.s2_bound
+        rows.append(_row(shape, lead, times, time_maps(lead), bandwidth, batch_ms, errors,
+                         "error = model difference" if mode == "exponential" else ""))
+        log(f"  {mode} {lead.kernel}: {rows[-1].ms:.2f} ms/frame")
+        position = 2 * window  # next frame of the stream
+        for kernel in kernels[1:]:
+            other = SlidingWindow(shape, window, lag, bits=8, mode=mode, kernel=kernel,
+                                  threads=threads)
+            handover(lead, other)
+            times = timed_pushes(other, pool, position, numpy_frames)
+            timed_pushes(lead, pool, position, numpy_frames)
+            position += numpy_frames
+            same = all(np.array_equal(x, y) for x, y in
+                       zip(lead._arrays.values(), other._arrays.values(), strict=True))
+            note = f"state bit-identical to {first}: {'yes' if same else 'NO'}"
+            rows.append(_row(shape, other, times, time_maps(other), bandwidth, batch_ms, None,
+                             note))
+            log(f"  {mode} {other.kernel}: {rows[-1].ms:.2f} ms/frame")
+            del other
+        if mode == "sliding" and first == "numba" and threads is None:
+            single = SlidingWindow(shape, window, lag, bits=8, mode=mode, kernel="numba",
+                                   threads=1)
+            handover(lead, single)
+            times = timed_pushes(single, pool, position, max(numpy_frames, 20))
+            rows.append(_row(shape, single, times, time_maps(single), bandwidth, batch_ms,
+                             None, "1 thread"))
+            del single
+        del lead
+        gc.collect()
+    return rows, check
+
+
+def _row(shape: tuple[int, int], engine: SlidingWindow, times: list[float], maps_s: float,
+         bandwidth: float, batch_ms: float, errors: dict[str, float] | None,
+         note: str) -> Row:
+    pixels = shape[0] * shape[1]
+    traffic = engine.traffic_per_pixel
+    return Row(shape, engine.mode, engine.kernel, statistics.median(times) * 1e3, maps_s * 1e3,
+               engine.bytes_per_pixel, traffic, traffic * pixels / bandwidth * 1e3, batch_ms,
+               errors, note)
+
+
+def noise_study(size: int, frames: int, windows: list[int], lag: int
+                ) -> list[dict[str, Any]]:
+    """Spatial spread (std/mean) of each map at constant activity (τc = 20) against N."""
+    from edgedsm.sim import Simulator, scene_from_dict
+
+    scene = scene_from_dict({"scene": {"size": size, "frames": frames, "seed": 1},
+                             "activity": {"tau_c": 20.0},
+                             "detector": {"n_max": 1000, "bits": 8}})
+    stack = np.stack(list(Simulator(scene).frames()))
+    out = []
+    for window in windows:
+        row: dict[str, Any] = {"N": window}
+        for mode in ("sliding", "exponential"):
+            engine = SlidingWindow(stack.shape[1:], window, lag, bits=8, mode=mode)
+            for frame in stack:
+                engine.push(frame)
+            for name, values in engine.maps().items():
+                row[(mode, name)] = float(values.std() / values.mean())
+                row[(mode, name, "mean")] = float(values.mean())
+        out.append(row)
+    return out
+
+
+# -- report --------------------------------------------------------------------------------
+def _versions() -> str:
+    parts = [f"Python {platform.python_version()}", f"numpy {np.__version__}"]
+    try:
+        import numba
+
+        parts.append(f"numba {numba.__version__} ({numba.config.NUMBA_NUM_THREADS} threads)")
+    except ImportError:
+        parts.append("numba not installed")
+    return ", ".join(parts)
+
+
+def _cpu() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def _available_bytes() -> int:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def _needed_bytes(shape: tuple[int, int], window: int) -> int:
+    """Ring + batch window stack (uint8) + float64 temporaries of the batch reference."""
+    return shape[0] * shape[1] * (2 * window + 250)
+
+
+def _fmt_err(errors: dict[str, float] | None) -> str:
+    if errors is None:
+        return "as the first kernel"
+    return " / ".join("0" if value == 0 else f"{value:.1e}" for value in errors.values())
+
+
+def speed_table(rows: list[Row]) -> list[str]:
+    lines = ["| frame | mode | kernel | ms/frame | Mpx/s | state B/px | moved B/px | "
+             "x bandwidth bound | maps() ms | speed-up vs batch: push / push+maps | "
+             "max abs error S1 / S2 / S3 | note |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|"]
+    for row in rows:
+        lines.append(
+            f"| {row.size[1]}x{row.size[0]} | {row.mode} | {row.kernel} | {row.ms:.2f} | "
+            f"{row.pixels / row.ms / 1e3:.0f} | {row.state_bytes:.0f} | "
+            f"{row.traffic_bytes:.0f} | {row.ms / row.bound_ms:.2f} | {row.maps_ms:.1f} | "
+            f"{row.batch_ms / row.ms:.0f}x / {row.batch_ms / (row.ms + row.maps_ms):.0f}x | "
+            f"{_fmt_err(row.errors)} | {row.note} |")
+    return lines
+
+
+def noise_table(noise: list[dict[str, Any]]) -> list[str]:
+    lines = ["| N | sliding S1 | sliding S2 | sliding S3 | exponential S1 | exponential S2 | "
+             "exponential S3 | mean S1 / S2 / S3 (sliding) |",
+             "|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for row in noise:
+        cells = [f"{100 * row[(mode, name)]:.1f} %" for mode in ("sliding", "exponential")
+                 for name in ("s1", "s2", "s3")]
+        means = " / ".join(f"{row[('sliding', name, 'mean')]:.3g}" for name in ("s1", "s2", "s3"))
+        lines.append(f"| {row['N']} | " + " | ".join(cells) + f" | {means} |")
+    return lines
+
+
+def plot(rows: list[Row], noise: list[dict[str, Any]], path: Path) -> bool:
+    """Two panels: ms/frame per mode and kernel; map spread against N. False without mpl."""
+    try:
+        import matplotlib
+        import matplotlib.ticker
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
+    labels = sorted({(r.mode, r.kernel, r.note == "1 thread") for r in rows},
+                    key=lambda k: (MODES.index(k[0]), k[1], k[2]))
+    sizes = sorted({r.size for r in rows}, key=lambda s: s[0] * s[1])
+    width = 0.8 / max(1, len(labels))
+    for k, (mode, kernel, single) in enumerate(labels):
+        values, bounds = [], []
+        for size in sizes:
+            match = [r for r in rows if r.size == size and r.mode == mode and
+                     r.kernel == kernel and (r.note == "1 thread") == single]
+            values.append(match[0].ms if match else np.nan)
+            bounds.append(match[0].bound_ms if match else np.nan)
+        x = np.arange(len(sizes)) + k * width
+        left.bar(x, values, width, label=f"{mode} / {kernel}{' (1 thread)' if single else ''}")
+        # each bar's own memory-bandwidth bound as a black tick across it
+        left.hlines(bounds, x - width / 2, x + width / 2, colors="black", linewidth=2,
+                    label="bandwidth bound" if k == 0 else None)
+    left.set_xticks(np.arange(len(sizes)) + width * (len(labels) - 1) / 2,
+                    [f"{s[1]}x{s[0]}" for s in sizes])
+    left.set_yscale("log")
+    left.set_ylabel("ms per frame (all three maps)")
+    left.set_title("streaming engine, N = 200, m = 10")
+    left.legend(fontsize=7, ncol=2)
+    if noise:
+        windows = [row["N"] for row in noise]
+        for name, colour in (("s1", "C0"), ("s2", "C1"), ("s3", "C2")):
+            for mode, style in (("sliding", "-o"), ("exponential", "--s")):
+                right.plot(windows, [100 * row[(mode, name)] for row in noise], style,
+                           color=colour, label=f"{name.upper()} {mode}")
+        right.set_xscale("log")
+        right.set_yscale("log")
+        right.set_xticks(windows, [str(n) for n in windows])
+        right.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        right.yaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
+        right.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        right.set_xlabel("window N (frames)")
+        right.set_ylabel("spatial spread std/mean (%)")
+        right.set_title("map noise at constant activity (τc = 20 frames)")
+        right.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def run(args: argparse.Namespace) -> int:
+    quick = args.quick
+    window, lag = args.window, args.lag
+    sizes: list[tuple[int, int]] = [(s, s) for s in (args.sizes or ([256, 512] if quick
+                                                                    else [1024, 2048]))]
+    if args.paper_size:
+        sizes.append(PAPER_SIZE)
+    numpy_frames = args.numpy_frames or (10 if quick else 30)
+    kernels = ["numba", "numpy"] if importlib.util.find_spec("numba") else ["numpy"]
+    out: list[str] = []
+
+    def emit(line: str = "") -> None:
+        out.append(line)
+        print(line, flush=True)
+
+    def log(line: str) -> None:
+        print(line, flush=True)
+
+    load_start = os.getloadavg()
+    started = time.perf_counter()
+    bandwidth, how = measure_bandwidth(128 if quick else 512)
+    rows: list[Row] = []
+    checks: dict[tuple[int, int], dict[str, float]] = {}
+    skipped = []
+    for shape in sizes:
+        if _needed_bytes(shape, window) > 0.8 * _available_bytes():
+            skipped.append(f"{shape[1]}x{shape[0]} (needs ~{_needed_bytes(shape, window) / 2**30:.1f} "
+                           f"GiB, {_available_bytes() / 2**30:.1f} GiB available)")
+            continue
+        size_rows, checks[shape] = bench_size(shape, window, lag, kernels, numpy_frames,
+                                              bandwidth, args.threads, log)
+        rows += size_rows
+    noise_windows = [25, 50, 100, 200] if quick else [25, 50, 100, 200, 400, 800]
+    noise_frames = args.noise_frames or (400 if quick else 1600)
+    noise = noise_study(64 if quick else 128, noise_frames,
+                        [n for n in noise_windows if n <= noise_frames], lag)
+    load_end = os.getloadavg()
+    elapsed = time.perf_counter() - started
+
+    command = "edgedsm bench engine" + (" --quick" if quick else "") + \
+        (" --paper-size" if args.paper_size else "")
+    emit("# Streaming engine benchmark")
+    emit()
+    emit(f"`{command}` on {datetime.date.today().isoformat()}: {_cpu()}, "
+         f"{os.cpu_count()} logical CPUs; {_versions()}. Load average "
+         f"{load_start[0]:.2f} at the start, {load_end[0]:.2f} at the end (other work on the "
+         f"machine slows rows at random); {elapsed:.0f} s in all.")
+    emit()
+    emit(f"Measured memory bandwidth: **{bandwidth / 1e9:.1f} GB/s** ({how}). N = {window}, "
+         f"m = {lag}, q = 0, 8-bit frames, all three maps. *ms/frame*: median of the timed "
+         f"pushes ({window} for the first kernel, {numpy_frames} for the others) in steady "
+         f"state. *moved B/px*: bytes one push must read or write per pixel (frame, ring "
+         f"slots, each sum read and written); *x bandwidth bound* = ms/frame divided by "
+         f"moved bytes / bandwidth (1.0 = memory-bound). *speed-up*: the float64 batch "
+         f"recompute of all three maps from the window (`all_maps`) against one push, and "
+         f"against a push followed by `maps()` (turning the sums into float maps). *max abs "
+         f"error*: against that batch reference on the same window (sliding, and tumbling "
+         f"whose last block is the same frames); S1 in grey levels. For the exponential mode "
+         f"it is the difference between the two estimators, not a rounding error.")
+    emit()
+    for line in speed_table(rows):
+        emit(line)
+    emit()
+    emit(f"S2 against exact rational arithmetic on {EXACT_SAMPLE} sampled pixels of the "
+         f"sliding window (max abs error): " + "; ".join(
+             f"{shape[1]}x{shape[0]}: engine {c['engine']:.1e} (stated bound "
+             f"{c['bound']:.1e}), float64 batch reference {c['batch']:.1e}"
+             for shape, c in checks.items()) + ". The S2 differences in the table are the "
+         "batch reference's own rounding.")
+    if skipped:
+        emit()
+        emit("Skipped for lack of memory: " + "; ".join(skipped) + ".")
+    target = [r for r in rows if r.size == (2048, 2048) and r.mode == "sliding"
+              and r.note == "" and r.errors is not None]
+    if target:
+        r = target[0]
+        emit()
+        emit(f"Targets at 2048², N = 200, m = 10, all three maps ({r.kernel}, sliding): "
+             f"speed-up against the batch recompute **{r.batch_ms / r.ms:.0f}x** per map update "
+             f"(target >= 100x: {'met' if r.batch_ms / r.ms >= 100 else 'NOT met'}; with "
+             f"`maps()` on every frame {r.batch_ms / (r.ms + r.maps_ms):.0f}x); time "
+             f"**{r.ms / r.bound_ms:.2f}x** the memory-bandwidth bound (target <= 2x: "
+             f"{'met' if r.ms / r.bound_ms <= 2 else 'NOT met'}).")
+    emit()
+    emit("## Map noise at constant activity")
+    emit()
+    emit(f"Spatial spread (standard deviation / mean over the map) of S1, S2, S3 on simulated "
+         f"speckle ({64 if quick else 128}² px, τc = 20 frames everywhere, N_max = 1000, 8 bit, "
+         f"{noise_frames} frames, m = {lag}), after the whole stream. With one activity "
+         f"everywhere, this spread is pure estimator noise: it sets the smallest activity "
+         f"contrast a map of window N can show. The exponential window of the same N "
+         f"averages about as many frames but weighs them unevenly.")
+    emit()
+    for line in noise_table(noise):
+        emit(line)
+    if args.output:
+        path = Path(args.output)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        picture = path.with_suffix(".png")
+        if plot(rows, noise, picture):
+            out.append("")
+            out.append(f"![ms per frame and map noise]({picture.name})")
+            print(f"wrote {picture}")
+        path.write_text("\n".join(out) + "\n")
+        print(f"wrote {path}")
+    return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true",
+                        help="256² and 512² frames, a shorter noise study (about 30 s)")
+    parser.add_argument("--sizes", type=int, nargs="+", metavar="PX",
+                        help="square frame sizes in pixels per side (default 1024 2048)")
+    parser.add_argument("--paper-size", action="store_true",
+                        help="also 4096 x 2168, the paper's camera (needs ~2 GiB)")
+    parser.add_argument("--window", type=int, default=200, metavar="N",
+                        help="window N in frames (default 200)")
+    parser.add_argument("--lag", type=int, default=10, metavar="m",
+                        help="lag m in frames (default 10)")
+    parser.add_argument("--threads", type=int, metavar="T",
+                        help="numba threads (default: all; a 1-thread sliding row is added)")
+    parser.add_argument("--numpy-frames", type=int, metavar="n",
+                        help="timed pushes of the numpy kernel (default 30; 10 with --quick)")
+    parser.add_argument("--noise-frames", type=int, metavar="n",
+                        help="simulated frames for the noise study (default 1600; 400 quick)")
+    parser.add_argument("-o", "--output", metavar="FILE.md",
+                        help="also write the report as markdown, and FILE.png when "
+                             "matplotlib is installed")

@@ -1,0 +1,358 @@
+"""Watch a running edgedsm daemon over MQTT: availability, drying-state changes and alerts, live.
+
+Prints one line per event, with the time it arrived:
+
+  2025-06-01 12:00:01.123  availability  online
+  2025-06-01 12:00:01.125  state         panel: wet (activity 0.412)
+  2025-06-01 12:04:09.871  state         panel: wet -> drying (activity 0.287)
+  2025-06-01 12:04:09.872  alert #12     panel: wet -> drying (activity 0.287) [transition]
+
+Alerts are delivered at least once; watch prints each one once (it deduplicates on the
+alert's stream and seq). With --client-id it keeps a persistent session on the broker, so
+alerts raised while it was not running are delivered when it comes back (as long as the
+broker keeps sessions). Exit after N alerts with --count, after S seconds with --timeout
+(for scripts and tests): exit status 0, or 1 if --count was not reached in time.
+
+Examples:
+  edgedsm watch --host broker.local --device line3
+  edgedsm watch -c /etc/edgedsm/line3.toml --save-maps /tmp/maps
+  edgedsm watch --device line3 --count 1 --timeout 600     # wait for the next alert
+  EDGEDSM_MQTT_PASSWORD=... edgedsm watch --host broker --port 8883 --ca-file ca.pem --username op
+
+Connection settings come from the [mqtt] table of a daemon config (-c) and/or the options;
+options win. The password comes from $EDGEDSM_MQTT_PASSWORD (or
+$CREDENTIALS_DIRECTORY/mqtt-password), never from the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
+
+from edgedsm.errors import ConfigError
+from edgedsm.imageio import save_map_png
+from edgedsm.publish.errors import MapCodecError, PublishError
+from edgedsm.publish.mapcodec import decode_map
+from edgedsm.publish.mqtt import Topics, build_ssl_context, describe_refusal, diagnose
+from edgedsm.publish.settings import MqttSettings, resolve_password
+from edgedsm.validation import read_toml, validate
+
+NAME = "watch"
+HELP = "print a daemon's availability, state changes and alerts live (MQTT subscriber)"
+
+CONNECT_WAIT_S = 10.0
+
+
+def _positive(kind: type, low: float) -> Callable[[str], Any]:
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be at least {low}")
+        return value
+    return parse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-c", "--config", type=Path, metavar="CONFIG",
+                        help="take the broker settings from this daemon config's [mqtt] table")
+    conn = parser.add_argument_group("connection (override the config)")
+    conn.add_argument("--host", help="broker host (default localhost)")
+    conn.add_argument("--port", type=int, help="broker port (default 1883)")
+    conn.add_argument("--prefix", dest="topic_prefix", metavar="PREFIX", help="topic prefix (default edgedsm)")
+    conn.add_argument("--device", help="device name in the topics (default cam0)")
+    conn.add_argument("--username", help="user name; the password is read from $EDGEDSM_MQTT_PASSWORD")
+    conn.add_argument("--tls", action="store_true", help="use TLS (implied by --ca-file/--cert-file)")
+    conn.add_argument("--ca-file", type=Path, help="CA certificate(s) of the broker (PEM)")
+    conn.add_argument("--cert-file", type=Path, help="client certificate (PEM)")
+    conn.add_argument("--key-file", type=Path, help="client key (PEM)")
+    conn.add_argument("--insecure", action="store_true",
+                      help="do not check that the broker's certificate names the host")
+    conn.add_argument("--client-id", help="fixed client id: a persistent session, so alerts raised while "
+                                          "watch is away are delivered when it returns")
+    out = parser.add_argument_group("output")
+    out.add_argument("--save-maps", type=Path, metavar="DIR",
+                     help="decode received maps and save them as colour-mapped PNG files in DIR")
+    out.add_argument("--stats", action="store_true", help="also print every statistics message")
+    stop = parser.add_argument_group("stopping")
+    stop.add_argument("--count", type=_positive(int, 1), metavar="N", help="exit after N distinct alerts")
+    stop.add_argument("--timeout", type=_positive(float, 0.0), metavar="S", help="exit after S seconds")
+
+
+def settings_from_args(args: argparse.Namespace) -> MqttSettings:
+    """Broker settings: the config's [mqtt] table (if any) overridden by the options."""
+    data: dict[str, Any] = {}
+    source = "command line"
+    if args.config is not None:
+        table = read_toml(args.config).get("mqtt")
+        if not isinstance(table, dict):
+            raise ConfigError(f"{args.config}: has no [mqtt] table")
+        data = dict(table)
+        source = f"{args.config}: mqtt"
+        if "device" not in data:  # the daemon names its topics after [device] name
+            device = read_toml(args.config).get("device", {})
+            if isinstance(device, dict) and "name" in device:
+                data["device"] = device["name"]
+    for key in ("host", "port", "topic_prefix", "device", "username"):
+        value = getattr(args, key)
+        if value is not None:
+            data[key] = value
+    data.pop("client_id", None)  # the daemon's id: using it would throw the daemon off the broker
+    if args.tls or args.ca_file or args.cert_file or args.key_file or args.insecure:
+        tls = dict(data.get("tls") or {})
+        for key in ("ca_file", "cert_file", "key_file"):
+            if getattr(args, key) is not None:
+                tls[key] = getattr(args, key)
+        if args.insecure:
+            tls["insecure"] = True
+        data["tls"] = tls
+    return validate(MqttSettings, data, source)
+
+
+def _now() -> str:
+    return datetime.now().strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+
+def _clock(t: Any) -> str:
+    try:
+        return datetime.fromtimestamp(float(t)).strftime("%H:%M:%S")
+    except (TypeError, ValueError, OverflowError, OSError):
+        return "?"
+
+
+def _number(value: Any) -> str:
+    return f"{value:.4g}" if isinstance(value, int | float) and not isinstance(value, bool) else str(value)
+
+
+class Watcher:
+    """The subscriber behind ``edgedsm watch``; prints through ``emit`` (one line per event)."""
+
+    def __init__(self, settings: MqttSettings, *, password: str | None, client_id: str | None = None,
+                 save_maps: Path | None = None, show_stats: bool = False, count: int | None = None,
+                 emit: Callable[[str], None] | None = None) -> None:
+        self.settings = settings
+        self.topics = Topics.from_settings(settings)
+        self.password = password
+        self.save_maps = save_maps
+        self.show_stats = show_stats
+        self.count = count
+        self.emit = emit or (lambda line: print(line, flush=True))
+        self.alerts_seen: set[tuple[Any, Any]] = set()
+        self.done = threading.Event()
+        self.connected = threading.Event()
+        self.refusal: str | None = None
+        self._availability: str | None = None
+        self._states: dict[str, Any] = {}
+        self._raw_state: Any = None
+        self._metas: dict[str, dict[str, Any]] = {}
+        self._pngs: dict[str, bytes] = {}
+        self._ssl = build_ssl_context(settings.tls) if settings.tls is not None else None
+        self.client = mqtt.Client(CallbackAPIVersion.VERSION2,
+                                  client_id=client_id or f"edgedsm-watch-{os.getpid()}-{time.monotonic_ns() % 10**6}",
+                                  protocol=mqtt.MQTTv311, clean_session=client_id is None)
+        self.client.suppress_exceptions = True
+        self.client.connect_timeout = settings.connect_timeout_s
+        self.client.reconnect_delay_set(settings.reconnect_min_s, settings.reconnect_max_s)
+        if settings.username is not None:
+            self.client.username_pw_set(settings.username, password)
+        if self._ssl is not None:
+            self.client.tls_set_context(self._ssl)
+            if settings.tls is not None and settings.tls.insecure:
+                self.client.tls_insecure_set(True)
+        self.client.on_connect = self._on_connect
+        self.client.on_disconnect = self._on_disconnect
+        self.client.on_message = self._on_message
+
+    def start(self, wait_s: float = CONNECT_WAIT_S) -> None:
+        """Connect (in paho's thread) and wait, bounded, for the broker's answer."""
+        self.client.connect_async(self.settings.host, self.settings.port, keepalive=self.settings.keepalive_s)
+        self.client.loop_start()
+        deadline = time.monotonic() + wait_s
+        while not self.connected.wait(0.05):
+            if self.refusal is not None:
+                self.stop()
+                raise PublishError(self.refusal)
+            if time.monotonic() >= deadline:
+                why = diagnose(self.settings, self._ssl)
+                self.stop()
+                raise PublishError(f"no connection to the MQTT broker within {wait_s:g} s: {why}")
+
+    def stop(self) -> None:
+        self.client.disconnect()
+        stopper = threading.Thread(target=self.client.loop_stop, daemon=True)
+        stopper.start()
+        stopper.join(timeout=2.0)
+
+    # -- callbacks (paho's thread) --------------------------------------------------------------
+
+    def _on_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
+                    properties: Properties | None) -> None:
+        if reason.is_failure:
+            self.refusal = describe_refusal(reason, self.settings, self.password is not None)
+            return
+        topics = [self.topics.availability, self.topics.state, self.topics.alerts,
+                  f"{self.topics.base}/cmd/+/reply"]
+        if self.show_stats:
+            topics.append(self.topics.stats)
+        if self.save_maps is not None:
+            topics += [self.topics.maps_filter, f"{self.topics.maps_filter}/meta"]
+        client.subscribe([(topic, 1) for topic in topics])
+        if self.connected.is_set() or getattr(flags, "session_present", False):
+            self.emit(f"{_now()}  connection    re-established to {self.settings.host}:{self.settings.port}")
+        else:
+            self.emit(f"{_now()}  connection    {self.settings.host}:{self.settings.port}, "
+                      f"watching {self.topics.base}")
+        self.connected.set()
+
+    def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
+                       properties: Properties | None) -> None:
+        if self.connected.is_set() and not self.done.is_set():
+            self.emit(f"{_now()}  connection    lost ({reason}); reconnecting")
+
+    def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
+        topic = message.topic
+        try:
+            if topic == self.topics.availability:
+                self._availability_message(message.payload.decode("utf-8", "replace"), message.retain)
+            elif topic == self.topics.state:
+                self._state_message(json.loads(message.payload))
+            elif topic == self.topics.alerts:
+                self._alert_message(json.loads(message.payload))
+            elif topic == self.topics.stats:
+                self.emit(f"{_now()}  stats         {message.payload.decode('utf-8', 'replace')}")
+            elif topic.endswith("/reply"):
+                self._reply_message(json.loads(message.payload))
+            elif topic.startswith(f"{self.topics.base}/map/"):
+                self._map_message(topic[len(self.topics.base) + 5:], message.payload)
+        except (ValueError, UnicodeDecodeError) as exc:
+            self.emit(f"{_now()}  unreadable    {topic}: {exc}")
+
+    # -- one handler per kind of message --------------------------------------------------------
+
+    def _availability_message(self, value: str, retained: bool) -> None:
+        if value != self._availability:
+            self._availability = value
+            self.emit(f"{_now()}  availability  {value}{' (retained)' if retained else ''}")
+
+    def _state_message(self, state: Any) -> None:
+        regions = state.get("regions") if isinstance(state, dict) else None
+        if not isinstance(regions, dict):
+            if state != self._raw_state:
+                self._raw_state = state
+                self.emit(f"{_now()}  state         {json.dumps(state, separators=(',', ':'))}")
+            return
+        for name, region in regions.items():
+            current = region.get("state") if isinstance(region, dict) else region
+            previous = self._states.get(name)
+            if current == previous:
+                continue
+            self._states[name] = current
+            detail = ""
+            if isinstance(region, dict) and region.get("activity") is not None:
+                detail = f" (activity {_number(region['activity'])})"
+            change = f"{previous} -> {current}" if previous is not None else f"{current}"
+            self.emit(f"{_now()}  state         {name}: {change}{detail}")
+
+    def _alert_message(self, alert: Any) -> None:
+        if not isinstance(alert, dict):
+            self.emit(f"{_now()}  alert         {alert!r}")
+            return
+        key = (alert.get("stream"), alert.get("seq"))
+        if alert.get("seq") is not None and key in self.alerts_seen:
+            return  # a resend after a reconnection: already shown
+        self.alerts_seen.add(key)
+        parts = [f"{alert.get('region', '?')}:"]
+        if "from" in alert or "to" in alert:
+            parts.append(f"{alert.get('from')} -> {alert.get('to')}")
+        if alert.get("activity") is not None:
+            parts.append(f"(activity {_number(alert['activity'])})")
+        if alert.get("type"):
+            parts.append(f"[{alert['type']}]")
+        if alert.get("t") is not None:
+            parts.append(f"at {_clock(alert['t'])}")
+        if alert.get("reason"):
+            parts.append(f"- {alert['reason']}")
+        label = f"alert #{alert.get('seq', '?')}"
+        self.emit(f"{_now()}  {label:<13} {' '.join(parts)}")
+        if self.count is not None and len(self.alerts_seen) >= self.count:
+            self.done.set()
+
+    def _reply_message(self, reply: Any) -> None:
+        if not isinstance(reply, dict):
+            return
+        outcome = "ok" if reply.get("ok") else f"refused: {reply.get('error')}"
+        rid = f" (request {reply['request_id']})" if reply.get("request_id") is not None else ""
+        self.emit(f"{_now()}  command       {reply.get('command')}: {outcome}{rid}")
+
+    def _map_message(self, rest: str, payload: bytes) -> None:
+        if self.save_maps is None:
+            return
+        if rest.endswith("/meta"):
+            name = rest[:-5]
+            self._metas[name] = json.loads(payload)
+        else:
+            name = rest
+            self._pngs[name] = payload
+        meta, png = self._metas.get(name), self._pngs.get(name)
+        if meta is None or png is None:
+            return
+        try:
+            values = decode_map(png, meta)
+        except MapCodecError as exc:
+            if "CRC" in str(exc):
+                return  # PNG and meta of different updates: wait for the partner
+            self.emit(f"{_now()}  map {name:<9} not decoded: {exc}")
+            self._metas.pop(name, None)
+            self._pngs.pop(name, None)
+            return
+        del self._metas[name], self._pngs[name]
+        seq = meta.get("seq")
+        stem = f"{name}-{seq:010d}" if isinstance(seq, int) else f"{name}-{int(time.time() * 1000)}"
+        path = self.save_maps / f"{stem}.png"
+        title = f"{name.upper()} seq {seq}" if seq is not None else name.upper()
+        save_map_png(path, values, title=title)
+        self.emit(f"{_now()}  map {name:<9} #{seq} {values.shape[0]}x{values.shape[1]} "
+                  f"[{_number(meta.get('min'))}, {_number(meta.get('max'))}] saved to {path}")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
+    if args.save_maps is not None:
+        args.save_maps.mkdir(parents=True, exist_ok=True)
+    watcher = Watcher(settings, password=resolve_password(), client_id=args.client_id,
+                      save_maps=args.save_maps, show_stats=args.stats, count=args.count)
+    deadline = None if args.timeout is None else time.monotonic() + args.timeout
+    watcher.start(wait_s=CONNECT_WAIT_S if deadline is None else max(0.5, min(CONNECT_WAIT_S, args.timeout)))
+    timed_out = False
+    try:
+        while not watcher.done.is_set():
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                timed_out = True
+                break
+            watcher.done.wait(0.5 if remaining is None else min(0.5, remaining))
+    except KeyboardInterrupt:
+        pass  # Ctrl-C is the normal way to stop watching
+    finally:
+        watcher.done.set()
+        watcher.stop()
+    if timed_out and args.count is not None and len(watcher.alerts_seen) < args.count:
+        print(f"edgedsm watch: timed out after {args.timeout:g} s with {len(watcher.alerts_seen)} of "
+              f"{args.count} alert(s)", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,177 @@
+"""Numba kernels of the streaming engine: one fused, parallel pass over the pixels per frame.
+
+Same contract and bit-identical results as :mod:`edgedsm.estimators.kernels_numpy` (tested).
+Each ``*_kernel(...)`` factory returns a compiled function specialised for one set of sums
+(which of Σ|ΔI|, Σ S2 term, ΣI/ΣI² are kept, how S2 terms are formed, with or without
+removal): the choices are compile-time constants, so the loop has no branches on them. (With
+run-time flags, some combinations ran up to 100x slower with numba 0.68.) The caller picks
+the kernel without removal while the window fills, and expresses "no pair yet" by a neutral
+input (the frame paired with itself), see :mod:`edgedsm.estimators.streaming`.
+
+All functions take flat (1-D, C-contiguous) arrays, update the sums in place and write the
+new frame into its ring slot after reading the slot. ``fastmath`` stays off: every
+floating-point operation is evaluated as written (no FMA contraction, no reassociation) so
+both kernel modules round identically. Compiled code is cached on disk (``cache=True``; numba
+keys the cache on the closure constants too).
+
+``parallel=False`` compiles the same loop for the calling thread alone: for small frames,
+waking the worker threads costs more than the work (and on a loaded machine a parallel
+region waits for a descheduled worker).
+
+Importing this module imports numba (the optional extra ``fast``); the engine imports it
+lazily.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+
+import numba
+import numpy as np
+
+KERNEL = "numba"
+
+
+def set_threads(threads: int | None) -> None:
+    """Use ``threads`` worker threads for the next kernel calls (None: numba's default)."""
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS if threads is None else threads)
+
+
+def max_threads() -> int:
+    """Largest thread count :func:`set_threads` accepts."""
+    return int(numba.config.NUMBA_NUM_THREADS)
+
+
+@numba.njit(inline="always", cache=True)
+def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - compiled
+    """Eq. 2 term |a-b|/(a+b+q) in fixed point (scale 2^K), int64.
+
+    kind "exact" (integer q, K <= 51): round half up of |a-b|·2^K/(a+b+q), exactly: a float
+    estimate within 1/4 of the true value, then one integer correction step.
+    kind "lut": the exactly rounded value from the 8-bit table, index (a << 8) | b.
+    kind "float": ⌊fl(|a-b| / fl(a+b+q))·2^K + 0.5⌋.
+    The denominator is raised to at least 1: it is below 1 only when a = b = 0, where the
+    term is 0 whatever it is divided by (no branch, no 0/0).
+    """
+    if kind == "lut":
+        return lut[(a << 8) | b]
+    diff = abs(a - b)
+    if kind == "exact":
+        denominator = max(a + b + q_int, np.int64(1))
+        t = np.int64(np.floor(np.float64(diff) / np.float64(denominator) * scale + 0.5))
+        # t is right iff 0 <= 2·(diff·2^K - t·d) + d < 2d; the estimate is off by <= 1
+        rest = 2 * (diff * one - t * denominator) + denominator
+        if rest < 0:
+            t -= 1
+        elif rest >= 2 * denominator:
+            t += 1
+        return t
+    denominator = max(np.float64(a + b) + q, 1.0)
+    return np.int64(np.floor(diff / denominator * scale + 0.5))
+
+
+@functools.cache
+def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
+                  remove: bool, parallel: bool = True) -> Callable[..., None]:
+    """Kernel of the integer engine (sliding: ``remove``; tumbling: not), all pixels.
+
+    ``kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq, lut, scale,
+    q)``: per pixel it reads I_i (``new``), frame i-m (``lagged``) and, with ``remove``,
+    frame i-N (``slot``) and frame i-N+m (``leaving``); writes I_i into ``slot``; adds the
+    pair (i-m, i) and frame i and, with ``remove``, subtracts the pair (i-N, i-N+m) and
+    frame i-N, to and from Σ|ΔI| (Eq. 1), Σ fixed-point S2 term (Eq. 2), ΣI and ΣI² (Eq. 4).
+    ``slot`` must not share memory with another argument: numba may reorder accesses to
+    distinct arguments (read-only arguments may alias each other).
+    """
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq,
+               lut, scale, q):  # pragma: no cover - compiled
+        one = np.int64(scale)  # 2^K, exact
+        q_int = np.int64(q) if ratio_kind == "exact" else np.int64(0)
+        for p in numba.prange(new.size):
+            x = np.int64(new[p])
+            a = np.int64(lagged[p])
+            o = np.int64(slot[p]) if remove else np.int64(0)
+            b = np.int64(leaving[p]) if remove else np.int64(0)
+            slot[p] = new[p]
+            if do_sigma:
+                t = np.int64(total[p]) + x
+                t2 = np.int64(total_sq[p]) + x * x
+                if remove:
+                    t -= o
+                    t2 -= o * o
+                total[p] = t
+                total_sq[p] = t2
+            if do_abs:
+                s = np.int64(abs_sum[p])
+                if remove:  # remove first: the running value stays within the window's range
+                    s -= abs(b - o)
+                abs_sum[p] = s + abs(x - a)
+            if do_ratio:
+                r = ratio_sum[p]
+                if remove:
+                    r -= _ratio_term(ratio_kind, o, b, lut, scale, q, one, q_int)
+                ratio_sum[p] = r + _ratio_term(ratio_kind, a, x, lut, scale, q, one, q_int)
+
+    return kernel
+
+
+@functools.cache
+def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
+                 parallel: bool = True) -> Callable[..., None]:
+    """``kernel(first, second, abs_sum, ratio_sum, lut, scale, q)``: add one pair's terms to
+    Σ|ΔI| and Σ S2 term, all pixels (rebuilds the sums from the ring in ``resync``)."""
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(first, second, abs_sum, ratio_sum, lut, scale, q):  # pragma: no cover
+        one = np.int64(scale)
+        q_int = np.int64(q) if ratio_kind == "exact" else np.int64(0)
+        for p in numba.prange(first.size):
+            a = np.int64(first[p])
+            b = np.int64(second[p])
+            if do_abs:
+                abs_sum[p] = np.int64(abs_sum[p]) + abs(b - a)
+            if do_ratio:
+                ratio_sum[p] += _ratio_term(ratio_kind, a, b, lut, scale, q, one, q_int)
+
+    return kernel
+
+
+@functools.cache
+def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
+                       parallel: bool = True) -> Callable[..., None]:
+    """Kernel of the exponential engine (float64), all pixels.
+
+    ``kernel(new, slot, mean, m2, abs_mean, ratio_mean, decay, w_frame, w_pair, q)``:
+    ``slot`` holds frame i-m and receives I_i after it was read. Weighted mean and variance
+    follow West's update with old weights decayed by λ = ``decay`` and the new sample
+    weighing 1: μ += w·(x-μ), M2 = λ·M2 + (x-μ_old)(x-μ_new), w = 1/Σweights. The pair means
+    move by ``w_pair``·(term - mean); ``w_pair`` = 0 leaves them unchanged (no pair yet).
+    """
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(new, slot, mean, m2, abs_mean, ratio_mean, decay, w_frame, w_pair,
+               q):  # pragma: no cover - compiled
+        for p in numba.prange(new.size):
+            x = np.float64(new[p])
+            a = np.float64(slot[p])
+            slot[p] = new[p]
+            if do_sigma:
+                mu = mean[p]
+                delta = x - mu
+                mu = mu + w_frame * delta
+                mean[p] = mu
+                m2[p] = decay * m2[p] + delta * (x - mu)
+            diff = abs(x - a)
+            if do_abs:
+                y = abs_mean[p]
+                abs_mean[p] = y + w_pair * (diff - y)
+            if do_ratio:
+                # >= 1 unless x = a = 0, where diff = 0 and the term is 0 anyway
+                ratio = diff / max(x + a + q, 1.0)
+                z = ratio_mean[p]
+                ratio_mean[p] = z + w_pair * (ratio - z)
+
+    return kernel

@@ -1,0 +1,139 @@
+"""NumPy kernels of the streaming engine: the fallback when numba is not installed.
+
+Same factories, arguments and bit-identical results as
+:mod:`edgedsm.estimators.kernels_numba` (tested); see that module and
+:mod:`edgedsm.estimators.streaming` for what each sum means. The pass over the pixels is cut
+into chunks of :data:`CHUNK` pixels so the temporaries stay in cache: the frame and the sums
+are still read and written once per frame, as in the fused numba pass, but on one thread.
+The factories take ``parallel`` for symmetry with numba and ignore it.
+Floating-point expressions are evaluated in the same order as there, so every rounding
+matches.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+
+import numpy as np
+
+KERNEL = "numpy"
+CHUNK = 1 << 15  # pixels per chunk: the int64/float64 temporaries (256 KiB each) stay in L2
+
+
+def set_threads(threads: int | None) -> None:
+    """The NumPy kernels run on the calling thread; ``threads`` is accepted and ignored."""
+
+
+def max_threads() -> int:
+    """The NumPy kernels use one thread."""
+    return 1
+
+
+def _ratio_terms(kind: str, a: np.ndarray, b: np.ndarray, lut: np.ndarray, scale: float,
+                 q: float) -> np.ndarray:
+    """Eq. 2 terms |a-b|/(a+b+q) in fixed point, int64 (see kernels_numba._ratio_term)."""
+    if kind == "lut":
+        return lut[(a << 8) | b]
+    diff = np.abs(a - b)
+    if kind == "exact":
+        one = np.int64(scale)
+        denominator = np.maximum(a + b + np.int64(q), 1)
+        estimate = diff.astype(np.float64) / denominator.astype(np.float64) * scale + 0.5
+        t = np.floor(estimate).astype(np.int64)
+        rest = 2 * (diff * one - t * denominator) + denominator
+        t -= rest < 0
+        t += rest >= 2 * denominator
+        return t
+    denominator = np.maximum((a + b).astype(np.float64) + q, 1.0)
+    ratio = diff / denominator
+    ratio *= scale
+    ratio += 0.5
+    return np.floor(ratio).astype(np.int64)
+
+
+@functools.cache
+def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
+                  remove: bool, parallel: bool = True) -> Callable[..., None]:
+    """See kernels_numba.window_kernel."""
+
+    def kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq,
+               lut, scale, q) -> None:
+        for start in range(0, new.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            # copies: everything is read before the slot is overwritten
+            x = new[part].astype(np.int64)
+            a = lagged[part].astype(np.int64)
+            o = slot[part].astype(np.int64) if remove else None
+            b = leaving[part].astype(np.int64) if remove else None
+            slot[part] = new[part]
+            if do_sigma:
+                t = total[part].astype(np.int64)
+                t2 = total_sq[part].astype(np.int64)
+                t += x
+                t2 += x * x
+                if o is not None:
+                    t -= o
+                    t2 -= o * o
+                total[part] = t
+                total_sq[part] = t2
+            if do_abs:
+                s = abs_sum[part].astype(np.int64)
+                if o is not None and b is not None:
+                    s -= np.abs(b - o)
+                s += np.abs(x - a)
+                abs_sum[part] = s
+            if do_ratio:
+                r = ratio_sum[part]  # a view: updated in place
+                if o is not None and b is not None:
+                    r -= _ratio_terms(ratio_kind, o, b, lut, scale, q)
+                r += _ratio_terms(ratio_kind, a, x, lut, scale, q)
+
+    return kernel
+
+
+@functools.cache
+def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
+                 parallel: bool = True) -> Callable[..., None]:
+    """See kernels_numba.pairs_kernel."""
+
+    def kernel(first, second, abs_sum, ratio_sum, lut, scale, q) -> None:
+        for start in range(0, first.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            a = first[part].astype(np.int64)
+            b = second[part].astype(np.int64)
+            if do_abs:
+                abs_sum[part] = abs_sum[part].astype(np.int64) + np.abs(b - a)
+            if do_ratio:
+                ratio_sum[part] += _ratio_terms(ratio_kind, a, b, lut, scale, q)
+
+    return kernel
+
+
+@functools.cache
+def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
+                       parallel: bool = True) -> Callable[..., None]:
+    """See kernels_numba.exponential_kernel."""
+
+    def kernel(new, slot, mean, m2, abs_mean, ratio_mean, decay, w_frame, w_pair, q) -> None:
+        for start in range(0, new.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            x = new[part].astype(np.float64)
+            a = slot[part].astype(np.float64)
+            slot[part] = new[part]
+            if do_sigma:
+                mu = mean[part]
+                delta = x - mu
+                mu_new = mu + w_frame * delta
+                mean[part] = mu_new
+                m2[part] = decay * m2[part] + delta * (x - mu_new)
+            diff = np.abs(x - a)
+            if do_abs:
+                y = abs_mean[part]
+                abs_mean[part] = y + w_pair * (diff - y)
+            if do_ratio:
+                ratio = diff / np.maximum(x + a + q, 1.0)
+                z = ratio_mean[part]
+                ratio_mean[part] = z + w_pair * (ratio - z)
+
+    return kernel

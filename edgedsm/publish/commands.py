@@ -1,0 +1,65 @@
+"""Commands accepted on ``<prefix>/<device>/cmd/<name>``: a small, documented set.
+
+Payload: a JSON object. The optional key ``request_id`` (string or integer) is echoed in the
+reply; every other key must belong to the command. A zero-length payload is ignored without a
+reply: that is what clearing a retained message delivers. Retained commands are refused when
+the broker replays them (they would run again after every reconnection).
+
+=================  ==========================  ===============================================
+name               payload                     effect
+=================  ==========================  ===============================================
+``laser``          ``{"state": "on"|"off"|     switch the laser on or off and hold it so;
+                   "auto"}``                   ``auto`` hands it back to the acquisition plan
+``rebaseline``     ``{}``                      restart the estimator window and drying
+                                               baseline (daemon handler)
+``dark``           ``{}``                      take dark frames (laser off) now (daemon handler)
+``publish_maps``   ``{}``                      publish the maps at the next chance (the
+                                               publisher's ``maps_due()`` turns true, and the
+                                               daemon handler is told too)
+=================  ==========================  ===============================================
+
+Reply (JSON, QoS 1, not retained) on ``<prefix>/<device>/cmd/<name>/reply``, or on the MQTT v5
+Response Topic of the request when it has one (with its Correlation Data)::
+
+    {"ok": true|false, "command": "laser", "request_id": ..., "error": null|"why",
+     "result": {...}|null, "t": 1718000000.123}
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class Command(BaseModel):
+    """Base of every command payload: unknown keys refused, immutable once validated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LaserCommand(Command):
+    """Switch the laser on or off and hold it so, or hand it back to the acquisition plan."""
+
+    state: Literal["on", "off", "auto"] = Field(
+        description="'on' or 'off' (held until the next laser command), 'auto' (as the acquisition plan says)")
+
+
+class RebaselineCommand(Command):
+    """Forget the current window and drying baseline and start again."""
+
+
+class DarkCommand(Command):
+    """Take dark frames (laser off) now to re-measure the ambient level."""
+
+
+class PublishMapsCommand(Command):
+    """Publish the maps at the next chance instead of waiting for maps_interval_s."""
+
+
+COMMANDS: dict[str, type[Command]] = {
+    "laser": LaserCommand,
+    "rebaseline": RebaselineCommand,
+    "dark": DarkCommand,
+    "publish_maps": PublishMapsCommand,
+}

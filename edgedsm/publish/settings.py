@@ -1,0 +1,162 @@
+"""The ``[mqtt]`` table of the daemon config: broker, identity, TLS, cadence, map encoding.
+
+The password is deliberately NOT a field: a config file is often world-readable, copied into
+tickets and checked into version control. It comes from the environment variable
+``EDGEDSM_MQTT_PASSWORD`` or from the systemd credential file ``$CREDENTIALS_DIRECTORY/mqtt-password``
+(``LoadCredential=mqtt-password:/etc/edgedsm/mqtt-password`` in the unit); see
+:func:`resolve_password`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, FilePath, field_validator, model_validator
+
+from edgedsm.errors import ConfigError
+from edgedsm.validation import StrictModel
+
+PASSWORD_ENV = "EDGEDSM_MQTT_PASSWORD"
+CREDENTIAL_NAME = "mqtt-password"
+
+# A topic level: no MQTT wildcards, no NUL, no empty levels (they confuse subscribers).
+_TOPIC_PREFIX = r"^[^#+/\x00\s]+(/[^#+/\x00\s]+)*$"
+_DEVICE = r"^[A-Za-z0-9_.-]{1,64}$"
+
+
+class MqttTlsSettings(StrictModel):
+    """``[mqtt.tls]``: present = TLS on. Without ``ca_file`` the system's CA store is used."""
+
+    ca_file: FilePath | None = Field(
+        None, description="PEM file of the CA(s) that signed the broker's certificate; "
+                          "absent: the system's trusted CAs")
+    cert_file: FilePath | None = Field(
+        None, description="PEM client certificate, for brokers that require one (require_certificate)")
+    key_file: FilePath | None = Field(
+        None, description="PEM private key of the client certificate (unencrypted; protect it with "
+                          "file permissions or LoadCredential)")
+    insecure: bool = Field(
+        False, description="skip the check that the broker's certificate names the host we connect to "
+                           "(the chain is still verified); for brokers reached by IP. Off by default")
+
+    @model_validator(mode="after")
+    def _cert_and_key_together(self) -> MqttTlsSettings:
+        if (self.cert_file is None) != (self.key_file is None):
+            raise ValueError("cert_file and key_file go together: give both or neither")
+        return self
+
+
+class MqttSettings(StrictModel):
+    """Connection to the MQTT broker and what is published how often.
+
+    Topics are ``<topic_prefix>/<device>/...`` (see ``edgedsm.publish.mqtt.Topics``).
+    """
+
+    host: str = Field("localhost", min_length=1, max_length=253,
+                      description="broker host name or IP address")
+    port: int = Field(1883, ge=1, le=65535,
+                      description="broker TCP port (1883 plain, 8883 usual for TLS)")
+    client_id: str | None = Field(
+        None, min_length=1, max_length=128, pattern=r"^[\x21-\x7e]+$",
+        description="MQTT client id; default '<topic_prefix>-<device>' with '/' replaced by '-'. "
+                    "Must be unique on the broker: a second client with the same id throws the first off")
+    topic_prefix: str = Field("edgedsm", min_length=1, max_length=128, pattern=_TOPIC_PREFIX,
+                              description="first topic level(s), e.g. 'plant1/edgedsm'; no wildcards")
+    device: str = Field("cam0", pattern=_DEVICE,
+                        description="this camera's name in the topics (letters, digits, '_', '.', '-')")
+    protocol: Literal["3.1.1", "5"] = Field(
+        "5", description="MQTT protocol version; '5' also honours a command's response topic")
+    keepalive_s: int = Field(30, ge=5, le=3600,
+                             description="keepalive in seconds; the broker sends the last will "
+                                         "('offline') after about 1.5 times this without traffic")
+    connect_timeout_s: float = Field(5.0, ge=0.5, le=60.0,
+                                     description="TCP/TLS connect timeout in seconds")
+    tls: MqttTlsSettings | None = Field(None, description="TLS; absent = plain TCP")
+    username: str | None = Field(
+        None, min_length=1, max_length=256,
+        description="user name; its password comes from the environment variable "
+                    f"{PASSWORD_ENV} or the credential file $CREDENTIALS_DIRECTORY/{CREDENTIAL_NAME}, "
+                    "never from this file")
+    reconnect_min_s: float = Field(1.0, ge=0.05, le=60.0,
+                                   description="first wait before reconnecting after a lost connection")
+    reconnect_max_s: float = Field(60.0, ge=0.1, le=3600.0,
+                                   description="longest wait between reconnection attempts "
+                                               "(the wait doubles from reconnect_min_s up to this)")
+    alert_queue_max: int = Field(
+        10_000, ge=10, le=1_000_000,
+        description="alerts kept in the durable queue while the broker does not acknowledge them; "
+                    "beyond this the oldest are dropped (counted and logged)")
+    alerts_in_flight: int = Field(10, ge=1, le=20,
+                                  description="alerts sent but not yet acknowledged at any one time")
+    stats_interval_s: float = Field(5.0, ge=0.1, le=3600.0,
+                                    description="seconds between statistics messages")
+    maps_interval_s: float = Field(60.0, ge=0.1, le=86_400.0,
+                                   description="seconds between map messages (cmd/publish_maps asks "
+                                               "for one at once)")
+    map_max_size: int = Field(512, ge=8, le=8192,
+                              description="longest side in pixels of a published map; larger maps are "
+                                          "downsampled by area averaging (stated in the map's meta)")
+    map_png_compression: int = Field(3, ge=0, le=9,
+                                     description="zlib level of the map PNGs: 0 fastest, 9 smallest "
+                                                 "(lossless either way)")
+    shutdown_timeout_s: float = Field(1.0, ge=0.0, le=30.0,
+                                      description="longest wait at shutdown for 'offline' to be "
+                                                  "acknowledged before disconnecting")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_password_in_file(cls, data: Any) -> Any:
+        # A clearer message than "unknown key": say where the password belongs.
+        if isinstance(data, Mapping) and "password" in data:
+            raise ValueError(
+                f"'password' is not read from the config file: set the environment variable "
+                f"{PASSWORD_ENV} or provide the systemd credential '{CREDENTIAL_NAME}' "
+                f"(LoadCredential={CREDENTIAL_NAME}:/path/to/file)")
+        return data
+
+    @field_validator("host")
+    @classmethod
+    def _no_scheme(cls, value: str) -> str:
+        if "://" in value or re.search(r"\s", value):
+            raise ValueError("give a bare host name or IP address (no 'mqtt://', no spaces)")
+        return value
+
+    @model_validator(mode="after")
+    def _backoff_order(self) -> MqttSettings:
+        if self.reconnect_max_s < self.reconnect_min_s:
+            raise ValueError("reconnect_max_s must be at least reconnect_min_s")
+        return self
+
+    @property
+    def effective_client_id(self) -> str:
+        """The client id used: the configured one, or '<prefix>-<device>'."""
+        return self.client_id or f"{self.topic_prefix}-{self.device}".replace("/", "-")
+
+
+def resolve_password(environ: Mapping[str, str] | None = None) -> str | None:
+    """The broker password from ``$EDGEDSM_MQTT_PASSWORD`` or ``$CREDENTIALS_DIRECTORY/mqtt-password``.
+
+    The environment wins when both are set. A trailing newline in the credential file is
+    removed (editors add one). Returns None when neither is present; raises ConfigError when
+    the credential file exists but cannot be read.
+    """
+    env = os.environ if environ is None else environ
+    value = env.get(PASSWORD_ENV)
+    if value:
+        return value
+    directory = env.get("CREDENTIALS_DIRECTORY")
+    if not directory:
+        return None
+    path = Path(directory) / CREDENTIAL_NAME
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: MQTT password credential cannot be read: {exc}") from None
+    return text.rstrip("\r\n") or None
+

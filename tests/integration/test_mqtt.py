@@ -1,0 +1,869 @@
+"""MqttPublisher and `edgedsm watch` against a REAL mosquitto on a free loopback port.
+
+Each test starts its own broker from a config file in tmp_path (persistence off unless the test
+is about surviving a broker restart, TLS and passwords only where a test is about them) and
+stops it in a finalizer. Publishers that must die uncleanly run in a child process that is
+killed with SIGKILL.
+
+Alert delivery is checked the way a subscriber must consume it: at least once, deduplicated on
+(stream, seq), so "exactly once" below means exactly once after that deduplication (documented
+in edgedsm.publish.mqtt). Across a broker restart the broker keeps sessions (persistence on) and
+the subscriber uses a persistent session, as a real SCADA subscriber must.
+
+mosquitto, mosquitto_passwd and openssl are required: without them these tests FAIL (the
+README's test command installs them).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import paho.mqtt.client as mqtt
+import pytest
+from paho.mqtt.enums import CallbackAPIVersion
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+
+from edgedsm.publish import (
+    LaserCommand,
+    MqttPublisher,
+    MqttSettings,
+    PublishError,
+    Topics,
+    decode_map,
+    downsample_map,
+)
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
+
+REPO = Path(__file__).resolve().parents[2]
+START_TIMEOUT_S = 10.0
+WAIT_S = 15.0  # upper bound for anything that should happen "soon"
+
+
+# -- tools -----------------------------------------------------------------------------------
+
+def _tool(name: str, package: str) -> str:
+    path = shutil.which(name) or shutil.which(name, path="/usr/sbin:/usr/bin:/sbin")
+    if path is None:
+        pytest.fail(f"{name} is not installed, so the MQTT integration tests cannot run: install it with "
+                    f"'apt-get install -y {package}' (the README's test command does)")
+    return path
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.02)
+
+
+def _child_env() -> dict[str, str]:
+    path = os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
+    return {**os.environ, "PYTHONPATH": path}
+
+
+# -- the broker ------------------------------------------------------------------------------
+
+@dataclass
+class TlsFiles:
+    ca: Path
+    server_cert: Path
+    server_key: Path
+    client_cert: Path
+    client_key: Path
+
+
+class Broker:
+    """A mosquitto on 127.0.0.1:<free port>; the port stays the same across restarts."""
+
+    def __init__(self, directory: Path, *, persistence: bool = False, tls: TlsFiles | None = None,
+                 password_file: Path | None = None) -> None:
+        self.binary = _tool("mosquitto", "mosquitto")
+        self.directory = directory
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.port = _free_port()
+        self.persistence = persistence
+        self.tls = tls
+        self.password_file = password_file
+        self.log = directory / "mosquitto.log"
+        self.process: subprocess.Popen[bytes] | None = None
+
+    def _config(self) -> Path:
+        lines = [f"listener {self.port} 127.0.0.1"]
+        if self.tls is not None:
+            lines += [f"cafile {self.tls.ca}", f"certfile {self.tls.server_cert}",
+                      f"keyfile {self.tls.server_key}", "require_certificate true"]
+        if self.password_file is not None:
+            lines += ["allow_anonymous false", f"password_file {self.password_file}"]
+        else:
+            lines.append("allow_anonymous true")
+        if self.persistence:
+            lines += ["persistence true", f"persistence_location {self.directory}/",
+                      "autosave_interval 1"]
+        else:
+            lines.append("persistence false")
+        lines += [f"log_dest file {self.log}", "log_type error", "log_type warning", "log_type notice"]
+        if os.geteuid() == 0:
+            lines.append("user root")  # mosquitto would otherwise drop to 'mosquitto' and lose tmp_path
+        path = self.directory / "mosquitto.conf"
+        path.write_text("\n".join(lines) + "\n")
+        return path
+
+    def _accepts(self) -> bool:
+        with socket.socket() as sock:
+            sock.settimeout(0.2)
+            return sock.connect_ex(("127.0.0.1", self.port)) == 0
+
+    def start(self) -> Broker:
+        config = self._config()
+        self.process = subprocess.Popen([self.binary, "-c", str(config)], stdout=subprocess.DEVNULL,
+                                        stderr=subprocess.PIPE)
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not self._accepts():
+            if self.process.poll() is not None:
+                err = self.process.stderr.read().decode(errors="replace") if self.process.stderr else ""
+                log = self.log.read_text() if self.log.exists() else ""
+                self._close_pipes()
+                pytest.fail(f"mosquitto exited with {self.process.returncode}:\n{err}\n{log}")
+            if time.monotonic() > deadline:
+                self.stop()
+                pytest.fail(f"mosquitto did not accept connections on port {self.port} within "
+                            f"{START_TIMEOUT_S} s")
+            time.sleep(0.02)
+        return self
+
+    def stop(self) -> None:
+        if self.process is None:
+            return
+        if self.process.poll() is None:
+            self.process.terminate()  # SIGTERM: mosquitto saves its persistence file on the way out
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(timeout=5)
+        self._close_pipes()
+        self.process = None
+
+    def restart(self, pause: float = 0.3) -> None:
+        self.stop()
+        time.sleep(pause)
+        self.start()
+
+    def _close_pipes(self) -> None:
+        if self.process is not None and self.process.stderr is not None:
+            self.process.stderr.close()
+
+
+@pytest.fixture
+def make_broker(tmp_path: Path) -> Iterator[Callable[..., Broker]]:
+    brokers: list[Broker] = []
+
+    def make(**kwargs: Any) -> Broker:
+        broker = Broker(tmp_path / f"broker{len(brokers)}", **kwargs)
+        brokers.append(broker)
+        return broker.start()
+
+    yield make
+    for broker in brokers:
+        broker.stop()
+
+
+@pytest.fixture
+def broker(make_broker: Callable[..., Broker]) -> Broker:
+    return make_broker()
+
+
+# -- a test subscriber -----------------------------------------------------------------------
+
+@dataclass
+class Received:
+    topic: str
+    payload: bytes
+    retain: bool
+    properties: Any = None
+
+    def json(self) -> Any:
+        return json.loads(self.payload)
+
+
+@dataclass
+class Subscriber:
+    """A paho client that records everything on its topics (resubscribing after reconnects)."""
+
+    port: int
+    topics: list[str]
+    client_id: str = ""
+    protocol: int = mqtt.MQTTv311
+    tls: TlsFiles | None = None
+    username: str | None = None
+    password: str | None = None
+    messages: list[Received] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._lock = threading.Lock()
+        self.subscribed = threading.Event()
+        kwargs: dict[str, Any] = {}
+        if self.protocol != mqtt.MQTTv5:
+            kwargs["clean_session"] = not self.client_id
+        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=self.client_id, protocol=self.protocol,
+                                  **kwargs)
+        self.client.reconnect_delay_set(0.05, 0.3)
+        if self.tls is not None:
+            self.client.tls_set(ca_certs=str(self.tls.ca), certfile=str(self.tls.client_cert),
+                                keyfile=str(self.tls.client_key))
+        if self.username is not None:
+            self.client.username_pw_set(self.username, self.password)
+        self.client.on_connect = self._on_connect
+        self.client.on_subscribe = lambda *args: self.subscribed.set()
+        self.client.on_message = self._on_message
+
+    def _on_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if not reason.is_failure:
+            client.subscribe([(topic, 1) for topic in self.topics])
+
+    def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
+        with self._lock:
+            self.messages.append(Received(message.topic, bytes(message.payload), bool(message.retain),
+                                          getattr(message, "properties", None)))
+
+    def start(self) -> Subscriber:
+        self.client.connect_async("127.0.0.1", self.port, keepalive=10)
+        self.client.loop_start()
+        if not self.subscribed.wait(WAIT_S):
+            self.stop()
+            pytest.fail(f"test subscriber could not subscribe on port {self.port}")
+        return self
+
+    def stop(self) -> None:
+        self.client.disconnect()
+        self.client.loop_stop()
+
+    def on(self, topic: str) -> list[Received]:
+        with self._lock:
+            return [m for m in self.messages if m.topic == topic]
+
+    def wait_for(self, topic: str, predicate: Callable[[Received], bool], what: str,
+                 timeout: float = WAIT_S) -> Received:
+        found: list[Received] = []
+
+        def check() -> bool:
+            found[:] = [m for m in self.on(topic) if predicate(m)]
+            return bool(found)
+
+        _wait_until(check, timeout, what)
+        return found[-1]
+
+    def alerts(self, topics: Topics) -> list[dict[str, Any]]:
+        return [m.json() for m in self.on(topics.alerts)]
+
+
+@pytest.fixture
+def subscribers() -> Iterator[Callable[..., Subscriber]]:
+    made: list[Subscriber] = []
+
+    def make(port: int, topics: list[str], **kwargs: Any) -> Subscriber:
+        subscriber = Subscriber(port, topics, **kwargs)
+        made.append(subscriber)
+        return subscriber.start()
+
+    yield make
+    for subscriber in made:
+        subscriber.stop()
+
+
+# -- publishers ------------------------------------------------------------------------------
+
+def _settings(port: int, **kwargs: Any) -> MqttSettings:
+    values: dict[str, Any] = {"host": "127.0.0.1", "port": port, "device": "cam0", "keepalive_s": 5,
+                              "reconnect_min_s": 0.05, "reconnect_max_s": 0.3, "connect_timeout_s": 2.0,
+                              "shutdown_timeout_s": 1.0}
+    values.update(kwargs)
+    return MqttSettings.model_validate(values)
+
+
+@pytest.fixture
+def publishers(tmp_path: Path) -> Iterator[Callable[..., MqttPublisher]]:
+    made: list[MqttPublisher] = []
+
+    def make(settings: MqttSettings, state_dir: Path | None = None, **kwargs: Any) -> MqttPublisher:
+        publisher = MqttPublisher(settings, state_dir or tmp_path / "state", **kwargs)
+        made.append(publisher)
+        return publisher.start()
+
+    yield make
+    for publisher in made:
+        publisher.close()
+
+
+CHILD = textwrap.dedent("""
+    # A publisher in its own process, driven line by line on stdin, so a test can kill -9 it.
+    import json, sys
+    from edgedsm.publish import MqttPublisher, MqttSettings
+    config = json.loads(sys.argv[1])
+    publisher = MqttPublisher(MqttSettings.model_validate(config["settings"]), config["state_dir"]).start()
+    print("ready", flush=True)
+    for line in sys.stdin:
+        verb, _, rest = line.strip().partition(" ")
+        if verb == "connected":
+            publisher.wait_connected(10)
+            print("connected", flush=True)
+        elif verb == "alert":
+            print("seq", publisher.publish_alert(json.loads(rest)), flush=True)
+        elif verb == "state":
+            publisher.publish_state(json.loads(rest))
+            print("ok", flush=True)
+        elif verb == "flush":
+            print("flushed", publisher.flush_alerts(10), flush=True)
+        elif verb == "close":
+            publisher.close()
+            print("closed", flush=True)
+            break
+""")
+
+
+class Child:
+    """A publisher process (see CHILD) and its line protocol."""
+
+    def __init__(self, tmp_path: Path, settings: MqttSettings, state_dir: Path) -> None:
+        script = tmp_path / "child_publisher.py"
+        script.write_text(CHILD)
+        config = {"settings": settings.model_dump(mode="json"), "state_dir": str(state_dir)}
+        self.process = subprocess.Popen([sys.executable, str(script), json.dumps(config)], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                        env=_child_env())
+        self._expect("ready")
+
+    def _expect(self, prefix: str, timeout: float = WAIT_S) -> str:
+        assert self.process.stdout is not None
+        result: list[str] = []
+        reader = threading.Thread(target=lambda: result.append(self.process.stdout.readline()), daemon=True)
+        reader.start()
+        reader.join(timeout)
+        line = result[0].strip() if result else ""
+        if not line.startswith(prefix):
+            self.kill()
+            err = self.process.stderr.read() if self.process.stderr else ""
+            pytest.fail(f"publisher child said {line!r}, expected {prefix!r}; stderr:\n{err}")
+        return line
+
+    def send(self, line: str, expect: str) -> str:
+        assert self.process.stdin is not None
+        self.process.stdin.write(line + "\n")
+        self.process.stdin.flush()
+        return self._expect(expect)
+
+    def alert(self, **alert: Any) -> int:
+        return int(self.send(f"alert {json.dumps(alert)}", "seq").split()[1])
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            os.kill(self.process.pid, signal.SIGKILL)
+        self.process.wait(timeout=10)
+
+    def close_pipes(self) -> None:
+        for pipe in (self.process.stdin, self.process.stdout, self.process.stderr):
+            if pipe is not None:
+                with contextlib.suppress(OSError):
+                    pipe.close()
+
+
+@pytest.fixture
+def children(tmp_path: Path) -> Iterator[Callable[[MqttSettings, Path], Child]]:
+    made: list[Child] = []
+
+    def make(settings: MqttSettings, state_dir: Path) -> Child:
+        child = Child(tmp_path, settings, state_dir)
+        made.append(child)
+        return child
+
+    yield make
+    for child in made:
+        child.kill()
+        child.close_pipes()
+
+
+TOPICS = Topics.of("edgedsm", "cam0")
+
+
+def _distinct(alerts: list[dict[str, Any]]) -> dict[tuple[str, int], dict[str, Any]]:
+    return {(a["stream"], a["seq"]): a for a in alerts}
+
+
+# -- availability ----------------------------------------------------------------------------
+
+def test_online_then_last_will_offline_when_killed(broker, subscribers, children, tmp_path):
+    subscriber = subscribers(broker.port, [TOPICS.availability])
+    child = children(_settings(broker.port), tmp_path / "state")
+    child.send("connected", "connected")
+    subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"online", "online")
+    child.kill()  # no DISCONNECT: the broker must send the last will
+    subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"offline", "the last will 'offline'",
+                        timeout=10)
+    # and it is retained: a newcomer learns the device is offline
+    late = subscribers(broker.port, [TOPICS.availability])
+    late.wait_for(TOPICS.availability, lambda m: m.payload == b"offline" and m.retain, "retained offline")
+
+
+def test_clean_close_publishes_offline_quickly(broker, subscribers, publishers):
+    subscriber = subscribers(broker.port, [TOPICS.availability])
+    publisher = publishers(_settings(broker.port))
+    publisher.wait_connected(WAIT_S)
+    subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"online", "online")
+    started = time.monotonic()
+    publisher.close()
+    assert time.monotonic() - started < 2.0
+    subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"offline", "offline after close")
+
+
+def test_mqtt_3_1_1_works_too(broker, subscribers, publishers):
+    subscriber = subscribers(broker.port, [TOPICS.availability, TOPICS.alerts, f"{TOPICS.base}/cmd/+/reply"])
+    publisher = publishers(_settings(broker.port, protocol="3.1.1"), on_command=lambda name, command: None)
+    publisher.wait_connected(WAIT_S)
+    subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"online", "online")
+    publisher.publish_alert({"type": "fault", "region": "A"})
+    assert publisher.flush_alerts(WAIT_S)
+    subscriber.client.publish(TOPICS.command("dark"), b'{"request_id": 1}', qos=1)
+    reply = subscriber.wait_for(TOPICS.reply("dark"), lambda m: True, "reply").json()
+    assert reply["ok"] is True and reply["request_id"] == 1 and reply["result"] is None
+    assert [a["seq"] for a in subscriber.alerts(TOPICS)] == [1]
+
+
+# -- retained state --------------------------------------------------------------------------
+
+def test_retained_state_republished_after_broker_restart(broker, subscribers, publishers):
+    publisher = publishers(_settings(broker.port))
+    publisher.wait_connected(WAIT_S)
+    publisher.publish_state({"regions": {"A": {"state": "wet", "activity": 0.4}}})
+    first = subscribers(broker.port, [TOPICS.state])
+    first.wait_for(TOPICS.state, lambda m: m.json()["regions"]["A"]["state"] == "wet", "state wet")
+    first.stop()
+
+    broker.stop()  # persistence off: the broker forgets every retained message
+    _wait_until(lambda: not publisher.connected, 5, "the publisher to notice the broker is gone")
+    publisher.publish_state({"regions": {"A": {"state": "drying", "activity": 0.2}}})  # while down
+    broker.start()
+    publisher.wait_connected(WAIT_S)
+
+    late = subscribers(broker.port, [TOPICS.state, TOPICS.availability])
+    state = late.wait_for(TOPICS.state, lambda m: m.retain, "retained state after the restart")
+    assert state.json()["regions"]["A"]["state"] == "drying"  # the newest, not the one before the outage
+    late.wait_for(TOPICS.availability, lambda m: m.payload == b"online" and m.retain, "retained online")
+    assert publisher.counters()["connects"] == 2
+
+
+# -- alerts ----------------------------------------------------------------------------------
+
+def test_every_alert_exactly_once_across_broker_restart(make_broker, subscribers, publishers):
+    broker = make_broker(persistence=True)
+    subscriber = subscribers(broker.port, [TOPICS.alerts], client_id="scada-1")  # persistent session
+    publisher = publishers(_settings(broker.port))
+    publisher.wait_connected(WAIT_S)
+
+    total = 60
+    produced: list[int] = []
+
+    def produce() -> None:
+        for i in range(total):
+            produced.append(publisher.publish_alert({"type": "transition", "region": "A", "i": i}))
+            time.sleep(0.02)
+
+    producer = threading.Thread(target=produce)
+    producer.start()
+    _wait_until(lambda: len(produced) >= total // 3, 10, "the first alerts")
+    broker.restart()  # in mid-run: some alerts in flight, some queued while it is down
+    producer.join(timeout=20)
+    assert len(produced) == total and produced == list(range(1, total + 1))
+
+    _wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= total, WAIT_S, f"{total} distinct alerts")
+    assert publisher.flush_alerts(WAIT_S)
+    received = subscriber.alerts(TOPICS)
+    distinct = _distinct(received)
+    assert sorted(seq for _, seq in distinct) == produced
+    assert len({stream for stream, _ in distinct}) == 1
+    assert all(distinct[key]["i"] == key[1] - 1 for key in distinct)
+    assert publisher.pending_alerts == 0 and publisher.counters()["connects"] >= 2
+
+
+def test_every_alert_exactly_once_across_publisher_kill_and_restart(make_broker, subscribers, children,
+                                                                     tmp_path):
+    broker = make_broker(persistence=True)
+    subscriber = subscribers(broker.port, [TOPICS.alerts], client_id="scada-2")
+    state_dir = tmp_path / "state"
+    settings = _settings(broker.port)
+
+    first = children(settings, state_dir)
+    first.send("connected", "connected")
+    sent = [first.alert(type="transition", n=n) for n in range(3)]
+    assert first.send("flush", "flushed") == "flushed True"
+
+    broker.stop()  # now alerts can only be stored, not sent...
+    sent += [first.alert(type="transition", n=n) for n in range(3, 6)]
+    first.kill()   # ...and the daemon dies before the broker ever saw them
+    broker.start()
+
+    second = children(settings, state_dir)  # the restarted daemon, same state directory
+    second.send("connected", "connected")
+    sent += [second.alert(type="transition", n=n) for n in range(6, 8)]
+    assert sent == list(range(1, 9))  # seq continues across the restart
+    assert second.send("flush", "flushed") == "flushed True"
+
+    _wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= 8, WAIT_S, "8 distinct alerts")
+    distinct = _distinct(subscriber.alerts(TOPICS))
+    assert sorted(seq for _, seq in distinct) == sent
+    assert [distinct[k]["n"] for k in sorted(distinct, key=lambda k: k[1])] == list(range(8))
+    second.send("close", "closed")
+
+
+def test_alerts_published_before_the_broker_exists_are_delivered(tmp_path, subscribers, publishers):
+    late_broker = Broker(tmp_path / "late")  # not started yet
+    try:
+        publisher = publishers(_settings(late_broker.port))
+        seqs = [publisher.publish_alert({"type": "fault", "region": "A"}) for _ in range(3)]
+        time.sleep(0.3)
+        with pytest.raises(PublishError, match=f"cannot reach 127.0.0.1:{late_broker.port}"):
+            publisher.wait_connected(0.5)
+        late_broker.start()
+        subscriber = subscribers(late_broker.port, [TOPICS.alerts])
+        publisher.wait_connected(WAIT_S)
+        _wait_until(lambda: len(subscriber.alerts(TOPICS)) >= 3, WAIT_S, "3 alerts")
+        assert [a["seq"] for a in subscriber.alerts(TOPICS)] == seqs
+    finally:
+        late_broker.stop()
+
+
+# -- maps ------------------------------------------------------------------------------------
+
+def test_maps_decode_within_one_quantization_step(broker, subscribers, publishers):
+    subscriber = subscribers(broker.port, [TOPICS.maps_filter, f"{TOPICS.maps_filter}/meta"])
+    publisher = publishers(_settings(broker.port, map_max_size=128))
+    publisher.wait_connected(WAIT_S)
+    rng = np.random.default_rng(5)
+    big = rng.gamma(2.0, 0.1, size=(300, 200))   # downsampled to 128 x 85
+    small = rng.random((40, 60)) * 1e-3           # sent as is
+    assert publisher.publish_maps({"s1": big, "s3": small}, seq=1234, t=1.7e9, window=200, lag=10)
+    # the daemon's per-map call, with its own meta keys
+    flat = np.full((16, 16), 0.25)
+    assert publisher.publish_map("s2", flat, {"estimator": "s2", "window": 200, "lag": 10, "frames": 99,
+                                              "t": 1.7e9})
+
+    for name, source in (("s1", big), ("s3", small), ("s2", flat)):
+        png = subscriber.wait_for(TOPICS.map(name), lambda m: True, f"map {name}").payload
+        meta = subscriber.wait_for(TOPICS.map_meta(name), lambda m: True, f"meta of {name}").json()
+        decoded = decode_map(png, meta)
+        expected = downsample_map(source, 128)
+        assert decoded.shape == expected.shape == tuple(meta["shape"])
+        assert np.abs(decoded - expected).max() <= meta["scale"] / 2 + 1e-12 * np.abs(expected).max()
+        assert meta["window"] == 200 and meta["lag"] == 10
+    assert subscriber.on(TOPICS.map_meta("s1"))[-1].json()["downsampled"] is True
+    assert subscriber.on(TOPICS.map_meta("s1"))[-1].json()["seq"] == 1234
+    assert subscriber.on(TOPICS.map_meta("s2"))[-1].json()["seq"] == 99  # from "frames"
+    _wait_until(lambda: publisher.counters()["maps_sent"] == 3, 5, "3 maps counted as sent")
+
+
+def test_stats_carry_the_publisher_counters_and_no_nan(broker, subscribers, publishers):
+    subscriber = subscribers(broker.port, [TOPICS.stats])
+    publisher = publishers(_settings(broker.port, stats_interval_s=0.5))
+    publisher.wait_connected(WAIT_S)
+    assert publisher.stats_due()
+    assert publisher.publish_stats({"fps": np.float32(29.5), "beta": float("nan"), "drops": np.int64(3)})
+    assert not publisher.stats_due()
+    stats = subscriber.wait_for(TOPICS.stats, lambda m: True, "stats").json()
+    assert stats["fps"] == pytest.approx(29.5) and stats["beta"] is None and stats["drops"] == 3
+    assert stats["mqtt"]["connected"] is True and stats["mqtt"]["alerts_pending"] == 0
+
+
+# -- commands --------------------------------------------------------------------------------
+
+def test_commands_validated_dispatched_and_answered(broker, subscribers, publishers):
+    calls: list[tuple[str, Any]] = []
+
+    def handler(name: str, command: Any) -> dict[str, Any]:
+        calls.append((name, command))
+        if name == "rebaseline":
+            return {"ok": False, "error": "window not full yet"}
+        if name == "dark":
+            raise RuntimeError("relay jammed")
+        return {"laser": "on"}
+
+    replies = subscribers(broker.port, [f"{TOPICS.base}/cmd/+/reply"])
+    sender = replies.client
+    # A retained command (an operator's slip) would run again on every reconnection: it is
+    # refused when the broker replays it to the publisher's new subscription.
+    sender.publish(TOPICS.command("laser"), json.dumps({"state": "on"}), qos=1, retain=True).wait_for_publish(5)
+    publisher = publishers(_settings(broker.port), on_command=handler)
+    publisher.wait_connected(WAIT_S)
+    retained = replies.wait_for(TOPICS.reply("laser"), lambda m: True, "the reply to a retained command").json()
+    assert retained["ok"] is False and "retained" in retained["error"]
+    sender.publish(TOPICS.command("laser"), b"", qos=1, retain=True).wait_for_publish(5)  # clear it
+
+    def ask(name: str, payload: bytes | str) -> dict[str, Any]:
+        before = len(replies.on(TOPICS.reply(name)))
+        sender.publish(TOPICS.command(name), payload, qos=1)
+        _wait_until(lambda: len(replies.on(TOPICS.reply(name))) > before, WAIT_S, f"a reply to {name}")
+        return replies.on(TOPICS.reply(name))[-1].json()
+
+    bad_json = ask("laser", "{state: on")
+    assert bad_json["ok"] is False and "not valid JSON" in bad_json["error"]
+    unknown = ask("explode", json.dumps({"request_id": "r1"}))
+    assert unknown["ok"] is False and "unknown command 'explode'" in unknown["error"]
+    assert unknown["request_id"] == "r1"
+    bad_field = ask("laser", json.dumps({"state": "maybe", "request_id": 7}))
+    assert bad_field["ok"] is False and bad_field["error"].startswith("state:") and bad_field["request_id"] == 7
+    extra = ask("dark", json.dumps({"frames": 10}))
+    assert extra["ok"] is False and "frames: unknown key" in extra["error"]
+    not_object = ask("laser", "[1, 2]")
+    assert not_object["ok"] is False and "JSON object" in not_object["error"]
+    bad_id = ask("laser", json.dumps({"state": "on", "request_id": {"x": 1}}))
+    assert bad_id["ok"] is False and "request_id" in bad_id["error"]
+    assert calls == []  # nothing invalid reached the handler
+
+    good = ask("laser", json.dumps({"state": "on", "request_id": "abc"}))
+    assert good == {**good, "ok": True, "error": None, "request_id": "abc", "command": "laser",
+                    "result": {"laser": "on"}}
+    assert calls == [("laser", LaserCommand(state="on"))]
+    refused = ask("rebaseline", "{}")
+    assert refused["ok"] is False and refused["error"] == "window not full yet"
+    crashed = ask("dark", "{}")
+    assert crashed["ok"] is False and "relay jammed" in crashed["error"]
+    maps = ask("publish_maps", "{}")
+    assert maps["ok"] is True and publisher.maps_due()
+    assert [name for name, _ in calls] == ["laser", "rebaseline", "dark", "publish_maps"]
+    assert publisher.connected  # the handler's exception did not hurt the connection
+
+
+def test_mqtt5_response_topic_and_correlation_data(broker, subscribers, publishers):
+    publisher = publishers(_settings(broker.port), on_command=lambda name, command: {"done": name})
+    publisher.wait_connected(WAIT_S)
+    requester = subscribers(broker.port, ["ops/replies/7"], protocol=mqtt.MQTTv5)
+    properties = Properties(PacketTypes.PUBLISH)
+    properties.ResponseTopic = "ops/replies/7"
+    properties.CorrelationData = b"req-42"
+    requester.client.publish(TOPICS.command("rebaseline"), b"{}", qos=1, properties=properties)
+    reply = requester.wait_for("ops/replies/7", lambda m: True, "a reply on the response topic")
+    assert reply.json()["ok"] is True and reply.json()["result"] == {"done": "rebaseline"}
+    assert reply.properties.CorrelationData == b"req-42"
+
+
+def test_without_handler_daemon_commands_are_refused(broker, subscribers, publishers):
+    replies = subscribers(broker.port, [f"{TOPICS.base}/cmd/+/reply"])
+    publisher = publishers(_settings(broker.port))
+    publisher.wait_connected(WAIT_S)
+    replies.client.publish(TOPICS.command("dark"), b"{}", qos=1)
+    reply = replies.wait_for(TOPICS.reply("dark"), lambda m: True, "reply").json()
+    assert reply["ok"] is False and "no handler" in reply["error"]
+
+
+# -- TLS and passwords -----------------------------------------------------------------------
+
+def _openssl(*args: str, cwd: Path) -> None:
+    result = subprocess.run([_tool("openssl", "openssl"), *args], cwd=cwd, capture_output=True, text=True,
+                            timeout=30)
+    if result.returncode != 0:
+        pytest.fail(f"openssl {' '.join(args)} failed:\n{result.stderr}")
+
+
+def _make_certificates(directory: Path) -> TlsFiles:
+    """A CA, a server certificate for 127.0.0.1/localhost and a client certificate (EC P-256: fast)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    key = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    _openssl("req", "-x509", *key, "-keyout", "ca.key", "-out", "ca.crt", "-days", "2", "-subj", "/CN=edgedsm test CA",
+             "-addext", "basicConstraints=critical,CA:TRUE", "-addext", "keyUsage=critical,keyCertSign,cRLSign",
+             cwd=directory)
+    (directory / "server.ext").write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n"
+                                          "extendedKeyUsage=serverAuth\n")
+    (directory / "client.ext").write_text("extendedKeyUsage=clientAuth\n")
+    for name in ("server", "client"):
+        _openssl("req", *key, "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN=edgedsm-{name}",
+                 cwd=directory)
+        _openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
+                 "-out", f"{name}.crt", "-days", "2", "-extfile", f"{name}.ext", cwd=directory)
+    return TlsFiles(directory / "ca.crt", directory / "server.crt", directory / "server.key",
+                    directory / "client.crt", directory / "client.key")
+
+
+@pytest.fixture
+def secure_broker(make_broker: Callable[..., Broker], tmp_path: Path) -> tuple[Broker, TlsFiles]:
+    tls = _make_certificates(tmp_path / "pki")
+    passwords = tmp_path / "passwd"
+    result = subprocess.run([_tool("mosquitto_passwd", "mosquitto"), "-b", "-c", str(passwords), "line3", "s3cret"],
+                            capture_output=True, text=True, timeout=30)
+    if result.returncode != 0:
+        pytest.fail(f"mosquitto_passwd failed:\n{result.stderr}")
+    return make_broker(tls=tls, password_file=passwords), tls
+
+
+def _tls_settings(broker: Broker, tls: TlsFiles, **kwargs: Any) -> MqttSettings:
+    return _settings(broker.port, host="localhost", username="line3",
+                     tls={"ca_file": tls.ca, "cert_file": tls.client_cert, "key_file": tls.client_key}, **kwargs)
+
+
+def test_tls_with_client_certificate_and_password(secure_broker, subscribers, publishers, monkeypatch):
+    broker, tls = secure_broker
+    monkeypatch.setenv("EDGEDSM_MQTT_PASSWORD", "s3cret")  # the way the daemon gets it
+    publisher = publishers(_tls_settings(broker, tls))
+    publisher.wait_connected(WAIT_S)
+    publisher.publish_state({"regions": {"A": {"state": "dry"}}})
+    seq = publisher.publish_alert({"type": "transition", "region": "A", "to": "dry"})
+    subscriber = subscribers(broker.port, [TOPICS.state, TOPICS.alerts], tls=tls, username="line3",
+                             password="s3cret")
+    subscriber.wait_for(TOPICS.state, lambda m: m.json()["regions"]["A"]["state"] == "dry", "state over TLS")
+    assert publisher.flush_alerts(WAIT_S)
+    assert publisher.counters()["alerts_acked"] == 1 and seq == 1
+
+
+def test_wrong_password_is_a_clear_error(secure_broker, publishers):
+    broker, tls = secure_broker
+    publisher = publishers(_tls_settings(broker, tls), password="wrong")
+    with pytest.raises(PublishError, match=r"refused the connection: (Bad user name or password|Not authorized)") \
+            as error:
+        publisher.wait_connected(WAIT_S)
+    assert "user 'line3'" in str(error.value) and "wrong" not in str(error.value)
+
+
+# paho 2.2 does not close the socket of a failed TLS handshake (the GC does); not our leak.
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_untrusted_broker_certificate_is_a_clear_error(secure_broker, publishers, tmp_path):
+    broker, tls = secure_broker
+    other = _make_certificates(tmp_path / "other-pki")  # a CA that did not sign the broker
+    settings = _settings(broker.port, host="localhost", username="line3",
+                         tls={"ca_file": other.ca, "cert_file": tls.client_cert, "key_file": tls.client_key})
+    publisher = publishers(settings, password="s3cret")
+    with pytest.raises(PublishError, match=r"certificate .* was not accepted"):
+        publisher.wait_connected(1.5)
+    publisher.close()
+    gc.collect()  # let paho's leaked sockets be reported inside this test (see the mark)
+
+
+# -- edgedsm watch ---------------------------------------------------------------------------
+
+def _watch(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "edgedsm", "watch", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**_child_env(), **(env or {})})
+
+
+def _lines_until(process: subprocess.Popen[str], needle: str, lines: list[str], timeout: float = WAIT_S) -> None:
+    """Read the watcher's output until a line contains ``needle`` (bounded by a reader thread)."""
+    done = threading.Event()
+
+    def read() -> None:
+        assert process.stdout is not None
+        for line in process.stdout:
+            lines.append(line.rstrip("\n"))
+            if needle in line:
+                done.set()
+                return
+        done.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    if not done.wait(timeout) or not any(needle in line for line in lines):
+        process.kill()
+        _, err = process.communicate(timeout=10)
+        pytest.fail(f"watch never printed {needle!r}; it printed {lines!r}; stderr:\n{err}")
+
+
+@pytest.mark.slow  # starts `python -m edgedsm` (seconds of imports)
+def test_watch_prints_availability_states_and_alerts_once(broker, publishers, tmp_path):
+    publisher = publishers(_settings(broker.port))
+    publisher.wait_connected(WAIT_S)
+    publisher.publish_state({"t": 1.0, "regions": {"panel": {"state": "wet", "activity": 0.41}}})
+    maps_dir = tmp_path / "maps"
+    watch = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--device", "cam0", "--count", "2",
+                   "--timeout", "30", "--save-maps", str(maps_dir))
+    lines: list[str] = []
+    try:
+        _lines_until(watch, "panel: wet", lines)  # retained state seen: the subscription is active
+        publisher.publish_state({"t": 2.0, "regions": {"panel": {"state": "drying", "activity": 0.22}}})
+        alert = {"type": "transition", "region": "panel", "from": "wet", "to": "drying", "activity": 0.22,
+                 "t": time.time()}
+        publisher.publish_alert(alert)
+        assert publisher.flush_alerts(WAIT_S)
+        # a resend of alert 1, as after a reconnection: must not be printed again
+        _publish_raw(broker.port, TOPICS.alerts, json.dumps({**alert, "seq": 1, "stream": publisher.alert_stream}))
+        assert publisher.publish_maps({"s1": np.outer(np.arange(20.0), np.ones(30))}, seq=77)
+        _lines_until(watch, "map s1", lines)
+        publisher.publish_alert({**alert, "from": "drying", "to": "dry", "activity": 0.05})
+        out, err = watch.communicate(timeout=WAIT_S)
+    finally:
+        if watch.poll() is None:
+            watch.kill()
+            watch.communicate(timeout=10)
+    lines += out.splitlines()
+    text = "\n".join(lines)
+    assert watch.returncode == 0, err
+    assert any(line.endswith("availability  online (retained)") for line in lines), text
+    assert any("state         panel: wet (activity 0.41)" in line for line in lines), text
+    assert any("state         panel: wet -> drying (activity 0.22)" in line for line in lines), text
+    alert_lines = [line for line in lines if "  alert #" in line]
+    assert len(alert_lines) == 2, text  # the resend was deduplicated
+    assert "alert #1      panel: wet -> drying (activity 0.22) [transition]" in alert_lines[0]
+    assert "alert #2      panel: drying -> dry" in alert_lines[1]
+    assert (maps_dir / "s1-0000000077.png").stat().st_size > 1000
+    stamp = lines[0][:23]
+    assert time.strptime(stamp[:19], "%Y-%m-%d %H:%M:%S")  # every line starts with a timestamp
+
+
+def _publish_raw(port: int, topic: str, payload: str) -> None:
+    client = mqtt.Client(CallbackAPIVersion.VERSION2)
+    client.connect("127.0.0.1", port)
+    client.loop_start()
+    try:
+        client.publish(topic, payload, qos=1).wait_for_publish(5)
+    finally:
+        client.disconnect()
+        client.loop_stop()
+
+
+@pytest.mark.slow  # starts `python -m edgedsm` (seconds of imports)
+def test_watch_timeout_and_count_not_reached(broker):
+    started = time.monotonic()
+    quiet = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--timeout", "1")
+    out, err = quiet.communicate(timeout=WAIT_S)
+    assert quiet.returncode == 0, err
+    assert "watching edgedsm/cam0" in out
+    short = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--count", "1", "--timeout", "1")
+    out, err = short.communicate(timeout=WAIT_S)
+    assert short.returncode == 1 and "timed out after 1 s with 0 of 1 alert(s)" in err
+    assert time.monotonic() - started < 20
+
+
+@pytest.mark.slow  # starts `python -m edgedsm` (seconds of imports)
+def test_watch_over_tls_with_password_from_environment(secure_broker, publishers, monkeypatch):
+    broker, tls = secure_broker
+    monkeypatch.setenv("EDGEDSM_MQTT_PASSWORD", "s3cret")
+    publisher = publishers(_tls_settings(broker, tls))
+    publisher.wait_connected(WAIT_S)
+    common = ["--host", "localhost", "--port", str(broker.port), "--username", "line3", "--ca-file", str(tls.ca),
+              "--cert-file", str(tls.client_cert), "--key-file", str(tls.client_key), "--timeout", "2"]
+    good = _watch(*common, env={"EDGEDSM_MQTT_PASSWORD": "s3cret"})
+    out, err = good.communicate(timeout=WAIT_S)
+    assert good.returncode == 0, err
+    assert "availability  online" in out
+    bad = _watch(*common, env={"EDGEDSM_MQTT_PASSWORD": "nope"})
+    out, err = bad.communicate(timeout=WAIT_S)
+    assert bad.returncode == 1
+    assert "refused the connection" in err and "user 'line3'" in err

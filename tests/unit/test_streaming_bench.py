@@ -1,0 +1,31 @@
+"""`edgedsm bench engine` runs end to end on tiny sizes and writes its report."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import pytest
+
+from edgedsm.cli import main
+
+
+@pytest.mark.slow
+def test_bench_engine_writes_tables_and_plot(tmp_path, capsys):
+    report = tmp_path / "bench-engine.md"
+    code = main(["bench", "engine", "--quick", "--sizes", "64", "--window", "20", "--lag", "3",
+                 "--numpy-frames", "3", "--noise-frames", "60", "-o", str(report)])
+    assert code == 0
+    text = report.read_text()
+    assert "| 64x64 | sliding |" in text and "| 64x64 | exponential |" in text
+    # sliding and tumbling reproduce the batch S1 and S3 exactly
+    for line in text.splitlines():
+        if line.startswith(("| 64x64 | sliding | numba |", "| 64x64 | tumbling | numba |")) \
+                and "1 thread" not in line:
+            assert "| 0 / " in line and line.split("|")[-3].strip().endswith("/ 0")
+    if importlib.util.find_spec("numba"):
+        assert "state bit-identical to numba: yes" in text
+        assert "bit-identical to numba: NO" not in text
+    assert "## Map noise at constant activity" in text and "| 25 |" in text
+    if importlib.util.find_spec("matplotlib"):
+        assert (tmp_path / "bench-engine.png").stat().st_size > 10_000
+    assert "Measured memory bandwidth" in capsys.readouterr().out
