@@ -446,6 +446,7 @@ class Pipeline:
                     if self._capture.error is not None:
                         raise self._capture.error
                     log.info("camera stream ended")
+                    self._last_maps_t = -np.inf  # the final maps go out whatever the cadence
                     self._evaluate(self.clock())
                     break
         finally:
