@@ -30,7 +30,6 @@ is ~2x and the ambient light ~5x faster than ``Generator.poisson``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from types import ModuleType
 from typing import Literal
 
@@ -173,11 +172,18 @@ def poisson(rng: np.random.Generator, lam: float | np.ndarray, shape: tuple[int,
     else:
         rates = np.ascontiguousarray(lam, np.float64).reshape(-1)
         out = np.empty(np.shape(lam), np.float64)
-    if not (np.isfinite(rates).all() and (rates >= 0).all()):
+    if rates.size and not (rates.min() >= 0 and np.isfinite(rates.max())):  # NaN fails both
         raise ValueError("λ must be finite and >= 0")
+    flat = out.reshape(-1)
+    if flat.size == 0:
+        return out
+    uniforms = rng.random(2 * flat.size)
+    key = np.uint64(rng.bit_generator.random_raw())
     module = _kernel_module(kernel)
-    round_ = poisson_round_numpy if module is None else module.poisson_round
-    _rounds(rng, rates, out.reshape(-1), round_)
+    if module is None:
+        _rounds_numpy(rates, uniforms, key, flat, log_factorials())
+    else:
+        module.poisson_pixels(rates, uniforms, key, flat, log_factorials())
     return out
 
 
@@ -199,29 +205,24 @@ def counter_uniforms(key: np.uint64, counters: np.ndarray) -> np.ndarray:
     return (z >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
-def _rounds(rng: np.random.Generator, lam: np.ndarray, out: np.ndarray, round_: Callable[..., int]) -> None:
-    """Round 1 from ``rng`` (2n uniforms), later rounds (the PTRS rejects) from a counter-based
-    generator keyed by one more draw of ``rng``: every call takes exactly 2n + 1 draws."""
+def _rounds_numpy(lam: np.ndarray, uniforms: np.ndarray, key: np.uint64, out: np.ndarray,
+                  log_factorial: np.ndarray) -> None:
+    """Round 1 with ``uniforms``; the PTRS rejects then retry, round r >= 2 of pixel j using the
+    counter-based uniforms at positions ((r-2)·n + j)·2 (U) and +1 (V)."""
     n = out.size
-    if n == 0:
-        return
-    table = log_factorials()
-    uniforms = rng.random(2 * n)
-    key = np.uint64(rng.bit_generator.random_raw())
     accept = np.empty(n, np.bool_)
-    if not round_(lam, uniforms, out, accept, table):
+    if not poisson_round_numpy(lam, uniforms, out, accept, log_factorial):
         return
     constant = lam.size != n
     pending = np.flatnonzero(~accept)
     later = 0
     while pending.size:
-        # position of pixel p's U (V) in round 2 + later: ((later·n + p)·2 (+ 1)
         base = (np.uint64(later) * np.uint64(n) + pending.astype(np.uint64)) * np.uint64(2)
-        uniforms = np.concatenate([counter_uniforms(key, base), counter_uniforms(key, base + np.uint64(1))])
+        retry = np.concatenate([counter_uniforms(key, base), counter_uniforms(key, base + np.uint64(1))])
         m = pending.size
         counts = np.empty(m, np.float64)
         ok = np.empty(m, np.bool_)
-        round_(lam if constant else lam[pending], uniforms, counts, ok, table)
+        poisson_round_numpy(lam if constant else lam[pending], retry, counts, ok, log_factorial)
         out[pending[ok]] = counts[ok]
         pending = pending[~ok]
         later += 1

@@ -124,7 +124,8 @@ class Simulator:
 
     ``precision`` "single" computes fields in complex64 (fast), "double" in complex128;
     ``workers`` is the number of threads (random draws, FFTs, detector); the frames do not
-    depend on it.
+    depend on it. ``rngs`` maps each simulated effect to its own stream (the first of its
+    sub-streams, see the module docstring); absent effects have none.
     """
 
     def __init__(self, scene: Scene, precision: Precision = "single", workers: int = 1) -> None:

@@ -38,8 +38,10 @@ def make_pipeline(config, camera, relay, publisher, dt=0.05):
 
 def test_drying_plate_goes_wet_drying_dry_and_laser_ends_off(setup):
     config, camera, relay, publisher, _ = setup
+    config.acquisition.queue_frames = 10_000  # no drops: the run does not depend on the machine's load
     pipeline = make_pipeline(config, camera, relay, publisher)
     pipeline.run(lambda: False, max_frames=1300)
+    assert pipeline.counters["dropped_queue"] == 0
     moves = [(a["from"], a["to"]) for a in publisher.alerts]
     assert moves == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")]
     times = [a["t"] for a in publisher.alerts]
