@@ -109,8 +109,8 @@ def test_without_detector_frames_are_float_intensities():
     assert len(frames) == 3 and frames[0].dtype == np.float32
     double = list(simulate(make(size=32, frames=3), precision="double"))
     assert double[0].dtype == np.float64
-    # single and double precision draw their normals differently; statistics agree
-    assert np.mean(frames) == pytest.approx(np.mean(double), rel=0.15)
+    # single and double precision share every random draw: they differ by rounding only
+    assert np.allclose(frames[2], double[2], rtol=1e-4, atol=1e-4)
 
 
 def test_phase_noise_white_reduces_correlation_by_exp_minus_two_sigma_squared():
