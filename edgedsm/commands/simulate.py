@@ -32,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="override the scene's seed")
     parser.add_argument("--precision", choices=("single", "double"), default="single",
                         help="field precision: single = complex64 (fast), double = complex128")
-    parser.add_argument("--workers", type=int, default=1, help="simulator threads for draws, FFTs and detector (default 1; results do not depend on it)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="simulator threads for draws, FFTs and detector (default 1; results do not depend on it)")
     add_progress_flag(parser)
 
 

@@ -374,6 +374,7 @@ class Pipeline:
             self._last_maps_t = now
             est = self.config.estimator
             for name, values in maps.items():
+                self.counters["maps_published"] += 1  # handed to the publisher (see Service: final maps)
                 self.publisher.publish_map(name, values, {"estimator": name, "window": est.window,
                                                           "lag": est.lag, "frames": self.counters["frames"],
                                                           "t": self.wall()})

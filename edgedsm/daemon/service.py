@@ -32,6 +32,9 @@ from edgedsm.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
+#: How long the end of a finite stream waits for its final maps to be published.
+FINAL_MAPS_TIMEOUT_S = 5.0
+
 
 def open_camera_for(config: DaemonConfig) -> Camera:
     """The configured camera; relative replay and scene paths are relative to the config file."""
@@ -57,6 +60,24 @@ def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
     if isinstance(camera, SimulatedCamera) and isinstance(relay, SimulatedRelay):
         board = relay.board
         camera.illuminated = lambda: board.is_on
+
+
+def wait_maps_sent(publisher: Any, handed: int, timeout_s: float) -> bool:
+    """Wait (bounded) until the publisher has dealt with ``handed`` maps: each one handed to
+    ``publish_map`` ends counted as ``maps_sent`` or ``maps_dropped``. True if it has; publishers
+    without counters (log, recorder) keep nothing in flight."""
+    counters = getattr(publisher, "counters", None)
+    if counters is None:
+        return True
+    deadline = time.monotonic() + timeout_s
+    while True:
+        counts = counters()
+        if counts.get("maps_sent", 0) + counts.get("maps_dropped", 0) >= handed:
+            return True
+        if time.monotonic() >= deadline:
+            log.warning("the final maps were not all published within %.1f s", timeout_s)
+            return False
+        time.sleep(0.02)
 
 
 class Service:
@@ -162,6 +183,10 @@ class Service:
                     self._measure(pipeline)
             else:
                 self._measure(pipeline)
+            if not self._stop.is_set() and not self._reloaded:
+                # a finite stream (replay) ended: its final maps must leave before the publisher
+                # closes, which abandons maps still waiting for its map thread
+                wait_maps_sent(publisher, pipeline.counters["maps_published"], FINAL_MAPS_TIMEOUT_S)
         finally:
             close = getattr(publisher, "close", None)
             if close is not None:

@@ -175,3 +175,42 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
                 ratio_mean[p] = z + w_pair * (ratio - z)
 
     return kernel
+
+
+@functools.cache
+def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
+                parallel: bool = True) -> Callable[..., None]:
+    """Kernel turning the integer sums of a window into float64 maps, all pixels, one pass.
+
+    ``kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma)``
+    writes S1 = Σ|ΔI|/(N-m) (Eq. 1), S2 = ΣT·2^-K/(N-m) (Eq. 2), σ (Eq. 4) and S3 = S1/σ
+    (Eq. 3, 0 where σ = 0). N²σ² = N·Σ(I-k)² - r² with r = ΣI - kN holds for every integer
+    k; k = round(ΣI/N) keeps both terms small and exact in int64 (see streaming.py).
+    """
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3,
+               sigma):  # pragma: no cover - compiled
+        size = s1.size if do_abs else s2.size
+        limit = np.int64(9223372036854775807) // n  # N·Σ(I-k)² fits in int64 below this
+        for p in numba.prange(size):
+            value = 0.0
+            if do_abs:
+                value = np.float64(abs_sum[p]) / pairs
+                s1[p] = value
+            if do_ratio:
+                s2[p] = np.float64(ratio_sum[p]) * ratio_unit / pairs
+            if do_sigma:
+                s = np.int64(total[p])
+                k = np.int64(np.floor(np.float64(s) / n + 0.5))
+                r = s - k * n
+                centred = np.int64(total_sq[p]) - k * (s + r)
+                if centred <= limit:
+                    spread = np.float64(n * centred - r * r)
+                else:  # r² <= (N/2+1)² is negligible beside N·Σ(I-k)² >= 2^63
+                    spread = n * np.float64(centred) - np.float64(r * r)
+                deviation = np.sqrt(spread) / n
+                sigma[p] = deviation
+                s3[p] = value / deviation if deviation > 0.0 else 0.0
+
+    return kernel

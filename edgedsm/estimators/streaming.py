@@ -43,10 +43,11 @@ Exactness and bounds (u = 2^-53, the unit roundoff of float64)
 --------------------------------------------------------------
 - S1 and σ (Eq. 1, 4), sliding and tumbling: Σ|I_i - I_{i+m}|, ΣI and ΣI² are integer
   sums, exact for ever (what is added for a pair or frame is subtracted when it leaves). N²σ² = N·ΣI² - (ΣI)² is formed
-  exactly in int64 as N·Σ(I-k)² - r², k = ⌊ΣI/N⌋, r = ΣI - kN (no cancellation, no
+  exactly in int64 as N·Σ(I-k)² - r², k = round(ΣI/N), r = ΣI - kN (the identity holds for
+  any integer k; this one keeps Σ(I-k)² = ΣI² - k(ΣI + r) and r² small: no cancellation, no
   overflow while N·Σ(I-k)² < 2^63: for 16-bit data up to N = 92 000 frames, for 8-bit data
   up to N = 2.4e7; beyond, the same difference is taken in float64, relative error
-  <= 2^-51 since r² < N²). S1 is the
+  <= 2^-51 since r² <= (N/2 + 1)²). S1 is the
   correctly rounded quotient; S1, σ and S3 are bit-identical to the batch reference.
 - S2 (Eq. 2), sliding and tumbling: each term |a-b|/(a+b+q) enters an int64 sum as a fixed-point integer T with
   scale 2^K (:func:`ratio_scale_bits`; N-m terms stay below 2^63). Adding and removing use
@@ -193,25 +194,6 @@ def _load_kernels(kernel: str) -> ModuleType:
 def _sum_dtype(largest: int) -> type[np.signedinteger[Any]]:
     """int32 when the largest value a sum can reach fits, else int64 (less memory traffic)."""
     return np.int32 if largest <= _INT32_MAX else np.int64
-
-
-def _sigma_from_sums(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
-    """Eq. 4: σ = sqrt(N·ΣI² - (ΣI)²)/N from integer sums, float64.
-
-    N·ΣI² - (ΣI)² = N·Σ(I-k)² - r² with k = ⌊ΣI/N⌋, r = ΣI - kN, 0 <= r < N: every term is
-    an exact int64; only when N·Σ(I-k)² would pass 2^63 is the difference taken in float64
-    (relative error <= 2^-51: r² < N² is negligible there, nothing cancels).
-    """
-    s = total.astype(np.int64)
-    k = s // n
-    r = s - k * n
-    centred = total_sq.astype(np.int64) - k * (s + r)  # Σ(I-k)² >= 0, exact
-    fits = centred <= (2**63 - 1) // n
-    spread = (n * np.where(fits, centred, 0) - r * r).astype(np.float64)
-    if not fits.all():
-        wide = ~fits
-        spread[wide] = n * centred[wide].astype(np.float64) - (r[wide] * r[wide]).astype(np.float64)
-    return np.sqrt(spread) / n
 
 
 def _check_int(name: str, value: Any, low: int, high: int) -> int:
@@ -377,6 +359,7 @@ class SlidingWindow:
         if self.mode == "exponential":
             self._step_exp = kernels.exponential_kernel(*flags, parallel)
         else:
+            self._maps_step = kernels.maps_kernel(*flags, parallel)
             # "grow": add only (tumbling, and sliding until N frames are in); "slide": add+remove
             self._step_grow = kernels.window_kernel(*flags, kind, False, parallel)
             if self.mode == "sliding":
@@ -402,7 +385,8 @@ class SlidingWindow:
 
     @property
     def bytes_per_pixel(self) -> float:
-        """Memory of the engine's state per pixel, bytes (the shared S2 table excluded)."""
+        """Memory of the engine's state per pixel, bytes (the shared S2 table excluded;
+        before the bit depth is known, for 8-bit data)."""
         bits = self.bits if self.bits is not None else 8
         total = 0
         for shape, dtype in self._layout(bits).values():
@@ -417,7 +401,8 @@ class SlidingWindow:
         frame_bytes = 1 if bits <= 8 else 2
         layout = self._layout(bits)
         n_px = self.shape[0] * self.shape[1]
-        # new frame read + ring slot read and overwritten; sliding also reads i-m and i-N+m
+        # new frame and frame i-m read, a ring slot written; sliding also reads frames i-N
+        # (from the slot it overwrites) and i-N+m
         frames = (5 if self.mode == "sliding" else 3) * frame_bytes
         sums = sum(math.prod(shape) * np.dtype(dtype).itemsize for name, (shape, dtype)
                    in layout.items() if name != "ring" and not name.startswith("done_"))
@@ -543,19 +528,17 @@ class SlidingWindow:
         return {name: flat[name].reshape(self.shape) for name in self.estimators}
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:
+        """S1, S2, S3 and σ from the integer sums, one fused pass (see maps_kernel)."""
         arrays = self._arrays
-        out: dict[str, np.ndarray] = {}
-        if self._do_abs:
-            # exact integer / pairs: the correctly rounded S1 of Eq. 1, as in batch.s1
-            out["s1"] = arrays[prefix + "abs"].astype(np.float64) / self.pairs
-        if self._do_ratio:
-            ratio = arrays[prefix + "ratio"].astype(np.float64)
-            ratio *= 2.0**-self.scale_bits  # exact: a power of two
-            out["s2"] = ratio / self.pairs
-        if self._do_sigma:
-            sigma = _sigma_from_sums(arrays[prefix + "total"], arrays[prefix + "total_sq"],
-                                     self.window)
-            out["s3"] = _safe_ratio(out["s1"], sigma)
+        n_px = self.shape[0] * self.shape[1]
+        out = {name: np.empty(n_px if wanted else 0) for name, wanted in
+               (("s1", self._do_abs), ("s2", self._do_ratio), ("s3", self._do_sigma),
+                ("sigma", self._do_sigma))}
+        # S1 is the correctly rounded Σ|ΔI|/(N-m), as in batch.s1; 2^-K is exact
+        self._maps_step(arrays[prefix + "abs"], arrays[prefix + "ratio"],
+                        arrays[prefix + "total"], arrays[prefix + "total_sq"], self.pairs,
+                        2.0**-self.scale_bits, self.window, out["s1"], out["s2"], out["s3"],
+                        out["sigma"])
         return out
 
     def _exponential_maps(self) -> dict[str, np.ndarray]:
@@ -580,9 +563,7 @@ class SlidingWindow:
         if self.mode == "exponential":
             sigma = np.sqrt(self._arrays["m2"] / self._weight_frames)
         else:
-            prefix = "" if self.mode == "sliding" else "done_"
-            sigma = _sigma_from_sums(self._arrays[prefix + "total"],
-                                     self._arrays[prefix + "total_sq"], self.window)
+            sigma = self._window_maps("" if self.mode == "sliding" else "done_")["sigma"]
         return sigma.reshape(self.shape)
 
     def _snapshot(self) -> dict[str, Any]:

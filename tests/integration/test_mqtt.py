@@ -20,22 +20,20 @@ import contextlib
 import gc
 import json
 import os
-import shutil
 import signal
-import socket
 import subprocess
 import sys
 import textwrap
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import paho.mqtt.client as mqtt
 import pytest
+from helpers_mqtt import WAIT_S, Broker, Subscriber, TlsFiles, child_env, tool, wait_until
 from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
@@ -52,132 +50,8 @@ from edgedsm.publish import (
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
-REPO = Path(__file__).resolve().parents[2]
-START_TIMEOUT_S = 10.0
-WAIT_S = 15.0  # upper bound for anything that should happen "soon"
 
-
-# -- tools -----------------------------------------------------------------------------------
-
-def _tool(name: str, package: str) -> str:
-    path = shutil.which(name) or shutil.which(name, path="/usr/sbin:/usr/bin:/sbin")
-    if path is None:
-        pytest.fail(f"{name} is not installed, so the MQTT integration tests cannot run: install it with "
-                    f"'apt-get install -y {package}' (the README's test command does)")
-    return path
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def _wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.02)
-
-
-def _child_env() -> dict[str, str]:
-    path = os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
-    return {**os.environ, "PYTHONPATH": path}
-
-
-# -- the broker ------------------------------------------------------------------------------
-
-@dataclass
-class TlsFiles:
-    ca: Path
-    server_cert: Path
-    server_key: Path
-    client_cert: Path
-    client_key: Path
-
-
-class Broker:
-    """A mosquitto on 127.0.0.1:<free port>; the port stays the same across restarts."""
-
-    def __init__(self, directory: Path, *, persistence: bool = False, tls: TlsFiles | None = None,
-                 password_file: Path | None = None) -> None:
-        self.binary = _tool("mosquitto", "mosquitto")
-        self.directory = directory
-        self.directory.mkdir(parents=True, exist_ok=True)
-        self.port = _free_port()
-        self.persistence = persistence
-        self.tls = tls
-        self.password_file = password_file
-        self.log = directory / "mosquitto.log"
-        self.process: subprocess.Popen[bytes] | None = None
-
-    def _config(self) -> Path:
-        lines = [f"listener {self.port} 127.0.0.1"]
-        if self.tls is not None:
-            lines += [f"cafile {self.tls.ca}", f"certfile {self.tls.server_cert}",
-                      f"keyfile {self.tls.server_key}", "require_certificate true"]
-        if self.password_file is not None:
-            lines += ["allow_anonymous false", f"password_file {self.password_file}"]
-        else:
-            lines.append("allow_anonymous true")
-        if self.persistence:
-            lines += ["persistence true", f"persistence_location {self.directory}/",
-                      "autosave_interval 1"]
-        else:
-            lines.append("persistence false")
-        lines += [f"log_dest file {self.log}", "log_type error", "log_type warning", "log_type notice"]
-        if os.geteuid() == 0:
-            lines.append("user root")  # mosquitto would otherwise drop to 'mosquitto' and lose tmp_path
-        path = self.directory / "mosquitto.conf"
-        path.write_text("\n".join(lines) + "\n")
-        return path
-
-    def _accepts(self) -> bool:
-        with socket.socket() as sock:
-            sock.settimeout(0.2)
-            return sock.connect_ex(("127.0.0.1", self.port)) == 0
-
-    def start(self) -> Broker:
-        config = self._config()
-        self.process = subprocess.Popen([self.binary, "-c", str(config)], stdout=subprocess.DEVNULL,
-                                        stderr=subprocess.PIPE)
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while not self._accepts():
-            if self.process.poll() is not None:
-                err = self.process.stderr.read().decode(errors="replace") if self.process.stderr else ""
-                log = self.log.read_text() if self.log.exists() else ""
-                self._close_pipes()
-                pytest.fail(f"mosquitto exited with {self.process.returncode}:\n{err}\n{log}")
-            if time.monotonic() > deadline:
-                self.stop()
-                pytest.fail(f"mosquitto did not accept connections on port {self.port} within "
-                            f"{START_TIMEOUT_S} s")
-            time.sleep(0.02)
-        return self
-
-    def stop(self) -> None:
-        if self.process is None:
-            return
-        if self.process.poll() is None:
-            self.process.terminate()  # SIGTERM: mosquitto saves its persistence file on the way out
-            try:
-                self.process.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(timeout=5)
-        self._close_pipes()
-        self.process = None
-
-    def restart(self, pause: float = 0.3) -> None:
-        self.stop()
-        time.sleep(pause)
-        self.start()
-
-    def _close_pipes(self) -> None:
-        if self.process is not None and self.process.stderr is not None:
-            self.process.stderr.close()
-
+# -- the broker and a test subscriber (helpers_mqtt) -------------------------------------------
 
 @pytest.fixture
 def make_broker(tmp_path: Path) -> Iterator[Callable[..., Broker]]:
@@ -196,90 +70,6 @@ def make_broker(tmp_path: Path) -> Iterator[Callable[..., Broker]]:
 @pytest.fixture
 def broker(make_broker: Callable[..., Broker]) -> Broker:
     return make_broker()
-
-
-# -- a test subscriber -----------------------------------------------------------------------
-
-@dataclass
-class Received:
-    topic: str
-    payload: bytes
-    retain: bool
-    properties: Any = None
-
-    def json(self) -> Any:
-        return json.loads(self.payload)
-
-
-@dataclass
-class Subscriber:
-    """A paho client that records everything on its topics (resubscribing after reconnects)."""
-
-    port: int
-    topics: list[str]
-    client_id: str = ""
-    protocol: int = mqtt.MQTTv311
-    tls: TlsFiles | None = None
-    username: str | None = None
-    password: str | None = None
-    messages: list[Received] = field(default_factory=list)
-
-    def __post_init__(self) -> None:
-        self._lock = threading.Lock()
-        self.subscribed = threading.Event()
-        kwargs: dict[str, Any] = {}
-        if self.protocol != mqtt.MQTTv5:
-            kwargs["clean_session"] = not self.client_id
-        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=self.client_id, protocol=self.protocol,
-                                  **kwargs)
-        self.client.reconnect_delay_set(0.05, 0.3)
-        if self.tls is not None:
-            self.client.tls_set(ca_certs=str(self.tls.ca), certfile=str(self.tls.client_cert),
-                                keyfile=str(self.tls.client_key))
-        if self.username is not None:
-            self.client.username_pw_set(self.username, self.password)
-        self.client.on_connect = self._on_connect
-        self.client.on_subscribe = lambda *args: self.subscribed.set()
-        self.client.on_message = self._on_message
-
-    def _on_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
-        if not reason.is_failure:
-            client.subscribe([(topic, 1) for topic in self.topics])
-
-    def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
-        with self._lock:
-            self.messages.append(Received(message.topic, bytes(message.payload), bool(message.retain),
-                                          getattr(message, "properties", None)))
-
-    def start(self) -> Subscriber:
-        self.client.connect_async("127.0.0.1", self.port, keepalive=10)
-        self.client.loop_start()
-        if not self.subscribed.wait(WAIT_S):
-            self.stop()
-            pytest.fail(f"test subscriber could not subscribe on port {self.port}")
-        return self
-
-    def stop(self) -> None:
-        self.client.disconnect()
-        self.client.loop_stop()
-
-    def on(self, topic: str) -> list[Received]:
-        with self._lock:
-            return [m for m in self.messages if m.topic == topic]
-
-    def wait_for(self, topic: str, predicate: Callable[[Received], bool], what: str,
-                 timeout: float = WAIT_S) -> Received:
-        found: list[Received] = []
-
-        def check() -> bool:
-            found[:] = [m for m in self.on(topic) if predicate(m)]
-            return bool(found)
-
-        _wait_until(check, timeout, what)
-        return found[-1]
-
-    def alerts(self, topics: Topics) -> list[dict[str, Any]]:
-        return [m.json() for m in self.on(topics.alerts)]
 
 
 @pytest.fixture
@@ -355,7 +145,7 @@ class Child:
         config = {"settings": settings.model_dump(mode="json"), "state_dir": str(state_dir)}
         self.process = subprocess.Popen([sys.executable, str(script), json.dumps(config)], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                        env=_child_env())
+                                        env=child_env())
         self._expect("ready")
 
     def _expect(self, prefix: str, timeout: float = WAIT_S) -> str:
@@ -464,7 +254,7 @@ def test_retained_state_republished_after_broker_restart(broker, subscribers, pu
     first.stop()
 
     broker.stop()  # persistence off: the broker forgets every retained message
-    _wait_until(lambda: not publisher.connected, 5, "the publisher to notice the broker is gone")
+    wait_until(lambda: not publisher.connected, 5, "the publisher to notice the broker is gone")
     publisher.publish_state({"regions": {"A": {"state": "drying", "activity": 0.2}}})  # while down
     broker.start()
     publisher.wait_connected(WAIT_S)
@@ -494,12 +284,12 @@ def test_every_alert_exactly_once_across_broker_restart(make_broker, subscribers
 
     producer = threading.Thread(target=produce)
     producer.start()
-    _wait_until(lambda: len(produced) >= total // 3, 10, "the first alerts")
+    wait_until(lambda: len(produced) >= total // 3, 10, "the first alerts")
     broker.restart()  # in mid-run: some alerts in flight, some queued while it is down
     producer.join(timeout=20)
     assert len(produced) == total and produced == list(range(1, total + 1))
 
-    _wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= total, WAIT_S, f"{total} distinct alerts")
+    wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= total, WAIT_S, f"{total} distinct alerts")
     assert publisher.flush_alerts(WAIT_S)
     received = subscriber.alerts(TOPICS)
     distinct = _distinct(received)
@@ -532,7 +322,7 @@ def test_every_alert_exactly_once_across_publisher_kill_and_restart(make_broker,
     assert sent == list(range(1, 9))  # seq continues across the restart
     assert second.send("flush", "flushed") == "flushed True"
 
-    _wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= 8, WAIT_S, "8 distinct alerts")
+    wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= 8, WAIT_S, "8 distinct alerts")
     distinct = _distinct(subscriber.alerts(TOPICS))
     assert sorted(seq for _, seq in distinct) == sent
     assert [distinct[k]["n"] for k in sorted(distinct, key=lambda k: k[1])] == list(range(8))
@@ -550,7 +340,7 @@ def test_alerts_published_before_the_broker_exists_are_delivered(tmp_path, subsc
         late_broker.start()
         subscriber = subscribers(late_broker.port, [TOPICS.alerts])
         publisher.wait_connected(WAIT_S)
-        _wait_until(lambda: len(subscriber.alerts(TOPICS)) >= 3, WAIT_S, "3 alerts")
+        wait_until(lambda: len(subscriber.alerts(TOPICS)) >= 3, WAIT_S, "3 alerts")
         assert [a["seq"] for a in subscriber.alerts(TOPICS)] == seqs
     finally:
         late_broker.stop()
@@ -582,7 +372,7 @@ def test_maps_decode_within_one_quantization_step(broker, subscribers, publisher
     assert subscriber.on(TOPICS.map_meta("s1"))[-1].json()["downsampled"] is True
     assert subscriber.on(TOPICS.map_meta("s1"))[-1].json()["seq"] == 1234
     assert subscriber.on(TOPICS.map_meta("s2"))[-1].json()["seq"] == 99  # from "frames"
-    _wait_until(lambda: publisher.counters()["maps_sent"] == 3, 5, "3 maps counted as sent")
+    wait_until(lambda: publisher.counters()["maps_sent"] == 3, 5, "3 maps counted as sent")
 
 
 def test_stats_carry_the_publisher_counters_and_no_nan(broker, subscribers, publishers):
@@ -624,7 +414,7 @@ def test_commands_validated_dispatched_and_answered(broker, subscribers, publish
     def ask(name: str, payload: bytes | str) -> dict[str, Any]:
         before = len(replies.on(TOPICS.reply(name)))
         sender.publish(TOPICS.command(name), payload, qos=1)
-        _wait_until(lambda: len(replies.on(TOPICS.reply(name))) > before, WAIT_S, f"a reply to {name}")
+        wait_until(lambda: len(replies.on(TOPICS.reply(name))) > before, WAIT_S, f"a reply to {name}")
         return replies.on(TOPICS.reply(name))[-1].json()
 
     bad_json = ask("laser", "{state: on")
@@ -681,7 +471,7 @@ def test_without_handler_daemon_commands_are_refused(broker, subscribers, publis
 # -- TLS and passwords -----------------------------------------------------------------------
 
 def _openssl(*args: str, cwd: Path) -> None:
-    result = subprocess.run([_tool("openssl", "openssl"), *args], cwd=cwd, capture_output=True, text=True,
+    result = subprocess.run([tool("openssl", "openssl"), *args], cwd=cwd, capture_output=True, text=True,
                             timeout=30)
     if result.returncode != 0:
         pytest.fail(f"openssl {' '.join(args)} failed:\n{result.stderr}")
@@ -710,7 +500,7 @@ def _make_certificates(directory: Path) -> TlsFiles:
 def secure_broker(make_broker: Callable[..., Broker], tmp_path: Path) -> tuple[Broker, TlsFiles]:
     tls = _make_certificates(tmp_path / "pki")
     passwords = tmp_path / "passwd"
-    result = subprocess.run([_tool("mosquitto_passwd", "mosquitto"), "-b", "-c", str(passwords), "line3", "s3cret"],
+    result = subprocess.run([tool("mosquitto_passwd", "mosquitto"), "-b", "-c", str(passwords), "line3", "s3cret"],
                             capture_output=True, text=True, timeout=30)
     if result.returncode != 0:
         pytest.fail(f"mosquitto_passwd failed:\n{result.stderr}")
@@ -763,7 +553,7 @@ def test_untrusted_broker_certificate_is_a_clear_error(secure_broker, publishers
 
 def _watch(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "edgedsm", "watch", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env={**_child_env(), **(env or {})})
+                            stderr=subprocess.PIPE, text=True, env={**child_env(), **(env or {})})
 
 
 def _lines_until(process: subprocess.Popen[str], needle: str, lines: list[str], timeout: float = WAIT_S) -> None:

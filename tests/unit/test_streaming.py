@@ -17,9 +17,9 @@ import pytest
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import SlidingWindow, all_maps, s3
+from edgedsm.estimators.kernels_numpy import sigma_from_sums
 from edgedsm.estimators.streaming import (
     PARALLEL_MIN_PIXELS,
-    _sigma_from_sums,
     ratio_kind,
     ratio_lut,
     ratio_scale_bits,
@@ -305,16 +305,25 @@ def test_full_scale_16_bit_sums_do_not_overflow(kernel):
     np.testing.assert_array_equal(maps["s3"], s3(frames[-window:], lag))
 
 
-def test_sigma_from_sums_beyond_int64_uses_a_cancellation_free_float():
-    n = 2**21  # N·Σ(I-k)² ~ 2^72: the float branch
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_sigma_beyond_int64_uses_a_cancellation_free_float(kernel):
+    n = 2**21  # N·Σ(I-k)² ~ 2^72 for the first pixel: the float branch
     total = np.array([n // 2 * 65535, n * 65535, n * 30000 + 12345], np.int64)
-    total_sq = np.array([n // 2 * 65535**2, n * 65535**2, n * 30000**2 + 12345 * 60001], np.int64)
-    got = _sigma_from_sums(total, total_sq, n)
-    for value, s, s2 in zip(got, total.tolist(), total_sq.tolist(), strict=True):
+    total_sq = np.array([n // 2 * 65535**2, n * 65535**2, n * 30000**2 + 12345 * 60001],
+                        np.int64)
+    module = importlib.import_module(f"edgedsm.estimators.kernels_{kernel}")
+    s1, sigma, s3 = np.empty(3), np.empty(3), np.empty(3)
+    abs_sum = np.array([7, 0, 9], np.int64)
+    module.maps_kernel(True, False, True, False)(abs_sum, np.zeros(0, np.int64), total,
+                                                 total_sq, 5, 1.0, n, s1, np.empty(0), s3,
+                                                 sigma)
+    for value, s, s2 in zip(sigma, total.tolist(), total_sq.tolist(), strict=True):
         exact = math.sqrt(Fraction(n * s2 - s * s, n * n))
         assert abs(value - exact) <= 2**-50 * exact
-    assert got[1] == 0.0
-    assert got[0] == 32767.5
+    assert sigma[1] == 0.0 and s3[1] == 0.0
+    assert sigma[0] == 32767.5
+    np.testing.assert_array_equal(sigma, sigma_from_sums(total, total_sq, n))
+    np.testing.assert_array_equal(s3[[0, 2]], (abs_sum / 5)[[0, 2]] / sigma[[0, 2]])
 
 
 # --------------------------------------------------------------------------- kernels
