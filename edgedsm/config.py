@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from edgedsm import geometry
 from edgedsm.drying import Thresholds
@@ -40,10 +40,33 @@ class CameraSection(StrictModel):
     reconnect_initial_s: float = Field(0.5, gt=0, le=600, description="first reconnection delay after a loss")
     reconnect_max_s: float = Field(30.0, gt=0, le=3600, description="longest reconnection delay (backoff cap)")
 
+    @field_validator("uri")
+    @classmethod
+    def _camera_uri_parses(cls, value: str) -> str:
+        # a typo in the URI must be refused here (check-config, run, SIGHUP), not when opening
+        from edgedsm.devices.camera.uri import parse_camera_uri
+
+        try:
+            parse_camera_uri(value)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        return value
+
 
 class LaserSection(StrictModel):
     uri: str = Field(min_length=1, max_length=1024,
                      description="relay URI, e.g. serial:/dev/ttyUSB0?protocol=lcus&channel=1 or sim:")
+
+    @field_validator("uri")
+    @classmethod
+    def _relay_uri_parses(cls, value: str) -> str:
+        from edgedsm.devices.uri import parse_relay_uri
+
+        try:
+            parse_relay_uri(value)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        return value
 
 
 class AcquisitionSection(StrictModel):
@@ -72,6 +95,9 @@ class EstimatorSection(StrictModel):
     def _lag_fits(self) -> EstimatorSection:
         if self.lag >= self.window:
             raise ValueError(f"lag ({self.lag}) must be smaller than window ({self.window})")
+        cores = os.cpu_count() or 1
+        if self.threads is not None and self.threads > cores:
+            raise ValueError(f"threads ({self.threads}) is more than this machine's {cores} cores")
         return self
 
 

@@ -30,7 +30,7 @@ from edgedsm.config import DaemonConfig
 from edgedsm.devices.camera.base import Backoff, Camera
 from edgedsm.devices.laser.base import LaserRelay
 from edgedsm.drying import DryingMonitor, Transition
-from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout, EdgedsmError, FrameError
+from edgedsm.errors import ConfigError, DeviceError, DeviceLost, DeviceTimeout, EdgedsmError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
 from edgedsm.frames import Frame
 
@@ -41,6 +41,30 @@ log = logging.getLogger(__name__)
 AMBIENT_S2_WARNING = 0.1
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
 SMALL_FRAME_PIXELS = 1 << 18
+
+
+def available_memory() -> int | None:
+    """Bytes the kernel says can be allocated without swapping (None if unknown)."""
+    try:
+        with open("/proc/meminfo") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
+
+
+def check_engine_memory(frame: Frame, window: int, mode: str) -> None:
+    """Refuse, with the config key to change, a window whose ring cannot fit in memory."""
+    if mode != "sliding":
+        return  # tumbling and exponential keep m frames only
+    needed = frame.pixels.size * (window * frame.pixels.itemsize + 40)
+    free = available_memory()
+    if free is not None and needed > 0.8 * free:
+        raise ConfigError(f"estimator.window: a sliding window of {window} frames of {frame.shape[1]}x{frame.shape[0]} "
+                          f"needs {needed / 2**30:.1f} GiB; this machine has {free / 2**30:.1f} GiB available "
+                          "(use a shorter window, or mode = 'tumbling' or 'exponential')")
 
 
 class Publisher(Protocol):
@@ -259,6 +283,7 @@ class Pipeline:
             # a parallel pass over a small frame costs more in thread wake-ups than it saves, and
             # stalls badly when the capture thread competes for the cores
             threads = 1
+        check_engine_memory(frame, est.window, est.mode)
         self.engine = SlidingWindow(frame.shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
                                     estimators=ESTIMATORS, mode=est.mode, threads=threads)
         self.masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}

@@ -78,21 +78,32 @@ def temporal_sigma(frames: np.ndarray) -> np.ndarray:
     """Eq. 4: σ with the 1/N (population) normalisation, float64.
 
     Integer data: N·ΣI² - (ΣI)² is formed exactly in integers (no cancellation), then
-    σ = sqrt(that)/N. Float data: two-pass, mean-centred.
+    σ = sqrt(that)/N; for windows too long for int64 the deviations N·I - ΣI (exact integers)
+    are squared and summed in float64. Float data: two-pass, mean-centred.
     """
     stack = np.asarray(frames)
     n = stack.shape[0]
     if np.issubdtype(stack.dtype, np.integer) and stack.dtype.itemsize <= 2:
         flat = stack.reshape(n, -1)
+        top = int(np.iinfo(stack.dtype).max)
         total = np.zeros(flat.shape[1], np.int64)
-        total_sq = np.zeros(flat.shape[1], np.int64)
         for frame in flat:
-            f = frame.astype(np.int64)
-            total += f
-            total_sq += f * f
-        # exact while N·Σ I² < 2^63: N <= 2^31 frames of 16-bit data
-        spread = n * total_sq - total * total
-        return (np.sqrt(spread.astype(np.float64)) / n).reshape(stack.shape[1:])
+            total += frame
+        if n * n * top * top < 2**63:
+            # N·ΣI² ≤ N²·max² fits int64: N·ΣI² - (ΣI)² is exact (N <= 46340 for 16-bit data)
+            total_sq = np.zeros(flat.shape[1], np.int64)
+            for frame in flat:
+                f = frame.astype(np.int64)
+                total_sq += f * f
+            spread = n * total_sq - total * total
+            return (np.sqrt(spread.astype(np.float64)) / n).reshape(stack.shape[1:])
+        # longer windows: d = N·I - ΣI is an exact integer (< 2^53); σ² = Σd²/N³ sums positive
+        # terms only, so it cannot cancel (relative error <= N·2^-53)
+        spread_f = np.zeros(flat.shape[1], np.float64)
+        for frame in flat:
+            d = (n * frame.astype(np.int64) - total).astype(np.float64)
+            spread_f += d * d
+        return (np.sqrt(spread_f / n) / n).reshape(stack.shape[1:])
     data = stack.astype(np.float64)
     centred = data - data.mean(axis=0)
     return np.sqrt((centred * centred).mean(axis=0))

@@ -62,11 +62,8 @@ def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - co
         t = np.int64(np.floor(np.float64(diff) / np.float64(denominator) * scale + 0.5))
         # t is right iff 0 <= 2·(diff·2^K - t·d) + d < 2d; the estimate is off by <= 1
         rest = 2 * (diff * one - t * denominator) + denominator
-        if rest < 0:
-            t -= 1
-        elif rest >= 2 * denominator:
-            t += 1
-        return t
+        # arithmetic, not branches: the correction is data-dependent and must not stall
+        return t + np.int64(rest >= 2 * denominator) - np.int64(rest < 0)
     denominator = max(np.float64(a + b) + q, 1.0)
     return np.int64(np.floor(diff / denominator * scale + 0.5))
 

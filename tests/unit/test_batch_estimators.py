@@ -113,3 +113,11 @@ def test_against_a_direct_loop(stack, data):
     assert maps["s2"][0, 0] == pytest.approx(expect_s2)
     assert maps["s3"][0, 0] == pytest.approx(expect_s1 / sigma if sigma > 0 else 0.0)
     assert all(np.isfinite(m).all() for m in maps.values())
+
+
+def test_sigma_of_very_long_sixteen_bit_windows():
+    # 100 000 frames of 0/max alternation: N·ΣI² no longer fits int64
+    frames = np.tile(np.array([0, 65535], np.uint16), 50_000).reshape(-1, 1, 1)
+    assert temporal_sigma(frames)[0, 0] == pytest.approx(65535 / 2, rel=1e-12)
+    ramp = (np.arange(100_001) % 3).astype(np.uint16).reshape(-1, 1, 1) + 60000
+    assert temporal_sigma(ramp)[0, 0] == pytest.approx(np.std(np.arange(100_001) % 3), rel=1e-9)

@@ -123,3 +123,16 @@ def test_bad_frames_are_dropped_and_counted(setup):
     pipeline._push(good)
     assert pipeline.counters["dropped_invalid"] == 2
     assert pipeline.engine is not None and pipeline.engine.frames_seen == 2
+
+
+def test_a_window_that_cannot_fit_in_memory_is_a_config_error(monkeypatch):
+    from edgedsm.daemon import pipeline as pipeline_module
+    from edgedsm.errors import ConfigError
+    from edgedsm.frames import Frame
+
+    monkeypatch.setattr(pipeline_module, "available_memory", lambda: 24 * 2**30)
+    frame = Frame(np.zeros((2168, 4096), np.uint8), 0, 0, 8)
+    pipeline_module.check_engine_memory(frame, 2000, "sliding")  # 17 GiB: fits
+    with pytest.raises(ConfigError, match=r"estimator\.window: .* needs 827\.\d GiB"):
+        pipeline_module.check_engine_memory(frame, 100_000, "sliding")
+    pipeline_module.check_engine_memory(frame, 100_000, "tumbling")
