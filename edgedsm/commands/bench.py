@@ -2,6 +2,8 @@
 
   edgedsm bench sim      simulator frames/s per effect, complex64 vs complex128, vs pyspeckle
   edgedsm bench engine   streaming estimator engine vs batch recompute, memory bandwidth bound
+  edgedsm bench devices  camera drivers: frames/s and CPU per frame
+  edgedsm bench e2e      the daemon end to end at 2048²: sustained frames/s, CPU, latency, memory
 
 Every benchmark prints a markdown table and can write it to a file (--output).
 """
@@ -12,8 +14,9 @@ import argparse
 import importlib
 
 NAME = "bench"
-HELP = "measure speed and accuracy (simulator, streaming engine)"
-SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices"}
+HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
+SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices",
+          "e2e": "edgedsm.bench.e2e"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Iterable, Iterator
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
-from edgedsm.sim import Scene, load_scene
-from edgedsm.sim.defaults import default_scene
+if TYPE_CHECKING:
+    from edgedsm.sim import Scene
 
 T = TypeVar("T")
 
 
 def scene_argument(value: str) -> Scene:
     """A scene file path, or 'default' for the built-in logo scene."""
+    from edgedsm.sim import load_scene
+    from edgedsm.sim.defaults import default_scene
+
     return default_scene() if value == "default" else load_scene(value)
 
 

@@ -30,7 +30,6 @@ from edgedsm.config import DaemonConfig
 from edgedsm.errors import EdgedsmError
 from edgedsm.estimators import ESTIMATORS, all_maps
 from edgedsm.imageio import save_map_png
-from edgedsm.sim import Simulator, region_masks
 
 NAME = "demo"
 HELP = "activity maps of a simulated scene, then the daemon watching a plate dry (the README's first command)"
@@ -51,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from edgedsm.sim import Simulator, region_masks  # here: keeps the CLI's start-up light
     scene = scene_argument(args.scene)
     count = scene.scene.frames
     simulator = Simulator(scene)

@@ -27,8 +27,6 @@ import argparse
 import sys
 import time
 
-from edgedsm.report.reproduce import ProgressBar, Settings, plan_runs, reproduce
-
 NAME = "reproduce"
 HELP = "reproduce the paper's §2 noise analysis (Figs. 2-7) as a markdown report with figures"
 
@@ -53,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here: the report pulls in scipy.stats, which every other command can do without
+    from edgedsm.report.reproduce import ProgressBar, Settings, plan_runs, reproduce
+
     settings = Settings.make(size=args.size, frames=args.frames, seed=args.seed,
                              repeats=args.repeats, quick=args.quick)
     runs = len(plan_runs(settings))

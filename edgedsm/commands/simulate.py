@@ -18,7 +18,6 @@ import time
 
 from edgedsm.commands.common import add_progress_flag, progress, scene_argument
 from edgedsm.imageio import write_stack
-from edgedsm.sim import Simulator
 
 NAME = "simulate"
 HELP = "simulate speckle frames from a scene file"
@@ -38,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from edgedsm.sim import Simulator  # here: keeps the CLI's start-up light
     scene = scene_argument(args.scene)
     if args.seed is not None:
         scene.scene.seed = args.seed
