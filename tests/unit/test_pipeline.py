@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -28,6 +30,22 @@ def setup(repo):
     return config, camera, relay, publisher, scene
 
 
+def hold_back(camera, pipeline, depth=8):
+    """Make the simulated camera wait while the pipeline's queue holds ``depth`` frames.
+
+    A real camera runs at its own pace and the pipeline drops the oldest frames when it falls
+    behind; these tests want every frame processed whatever the machine's load.
+    """
+    grab = camera._do_grab
+
+    def waiting_grab(timeout_s):
+        while pipeline._capture.frames.qsize() >= depth and not pipeline._capture.stop.is_set():
+            time.sleep(0.001)
+        return grab(timeout_s)
+
+    camera._do_grab = waiting_grab
+
+
 def make_pipeline(config, camera, relay, publisher, dt=0.05):
     box = {}
     pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0),
@@ -38,8 +56,8 @@ def make_pipeline(config, camera, relay, publisher, dt=0.05):
 
 def test_drying_plate_goes_wet_drying_dry_and_laser_ends_off(setup):
     config, camera, relay, publisher, _ = setup
-    config.acquisition.queue_frames = 10_000  # no drops: the run does not depend on the machine's load
     pipeline = make_pipeline(config, camera, relay, publisher)
+    hold_back(camera, pipeline)  # no drops: the run does not depend on the machine's load
     pipeline.run(lambda: False, max_frames=1300)
     assert pipeline.counters["dropped_queue"] == 0
     moves = [(a["from"], a["to"]) for a in publisher.alerts]
@@ -61,7 +79,6 @@ def test_published_maps_equal_batch_maps_of_the_window(setup):
     config, camera, _relay, publisher, _ = setup
     config.estimator.ambient_correction = False
     config.acquisition.dark_frames = 0
-    config.acquisition.queue_frames = 10_000  # no drops: every recorded frame is pushed
     recorded = []
     original = camera._do_grab
 
@@ -72,6 +89,7 @@ def test_published_maps_equal_batch_maps_of_the_window(setup):
 
     camera._do_grab = grab
     pipeline = make_pipeline(config, camera, None, publisher)
+    hold_back(camera, pipeline)  # no drops: every recorded frame is pushed
     pipeline.run(lambda: False, max_frames=150)
     name, values, meta = publisher.maps[-1]
     pushed = pipeline.counters["frames"]
