@@ -41,3 +41,13 @@ def test_histogram_is_a_density():
     mask = values > 0
     density, edges = histogram(values, bins=10, mask=mask)
     assert edges[0] >= 0
+
+
+def test_percentiles_of_large_regions_from_a_stride():
+    rng = np.random.default_rng(2)
+    values = rng.exponential(size=(1024, 1024))
+    mask = np.ones_like(values, bool)
+    stats = region_stats(values, mask)
+    exact = np.percentile(values, [5, 50, 95])
+    assert stats.pixels == 1024 * 1024 and stats.mean == pytest.approx(values.mean(), rel=1e-12)
+    assert [stats.p05, stats.median, stats.p95] == pytest.approx(exact, rel=0.02)
