@@ -129,6 +129,7 @@ class Service:
         self.notifier.reloading()
         try:
             new = load_config(self.config_path)
+            open_camera_for(new)  # reads a scene file (a missing one is a ConfigError); opens nothing
         except ConfigError as exc:
             log.error("reload refused, keeping the running configuration:\n%s", exc)
             self.notifier.ready(status="reload refused: bad configuration (see the log)")

@@ -89,8 +89,10 @@ def temporal_sigma(frames: np.ndarray) -> np.ndarray:
         total = np.zeros(flat.shape[1], np.int64)
         for frame in flat:
             total += frame
-        if n * n * top * top < 2**63:
-            # N·ΣI² ≤ N²·max² fits int64: N·ΣI² - (ΣI)² is exact (N <= 46340 for 16-bit data)
+        if n * top <= 2**32:
+            # N·ΣI² - (ΣI)² = N²σ² <= (N·max/2)² < 2^63: exact in int64 even where N·ΣI² itself
+            # wraps around, because numpy's integer arithmetic is modulo 2^64 and the difference
+            # fits (N <= 65537 frames of 16-bit data)
             total_sq = np.zeros(flat.shape[1], np.int64)
             for frame in flat:
                 f = frame.astype(np.int64)
