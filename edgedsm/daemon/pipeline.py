@@ -19,7 +19,8 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FuturesTimeout
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -39,6 +40,8 @@ log = logging.getLogger(__name__)
 #: Plain S2 is judged unreliable (paper §2B) when the ambient level exceeds this fraction of
 #: the mean lit level.
 AMBIENT_S2_WARNING = 0.1
+#: How long stopping waits for an evaluation in flight (s); well inside SIGTERM's 2 s.
+EVALUATION_TIMEOUT_S = 1.0
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
 SMALL_FRAME_PIXELS = 1 << 18
 
@@ -135,6 +138,9 @@ class Pipeline:
         self._fault: str | None = None  # reported at the next evaluation, then cleared
         self._burst_started = -np.inf  # bursts mode: when the current burst began
         self._burst_frames = 0
+        self._evaluator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate")
+        self._pending: Future | None = None
+        self._monitor_lock = threading.Lock()  # the evaluator steps the monitor, commands reset it
 
     # -- laser ------------------------------------------------------------------------------
     def _set_laser(self, on: bool, why: str) -> None:
@@ -272,8 +278,9 @@ class Pipeline:
         if self.engine is not None:
             self.engine.reset()
         if states:
-            for transition in self.monitor.reset(self.clock(), why):
-                self._alert(transition)
+            with self._monitor_lock:
+                for transition in self.monitor.reset(self.clock(), why):
+                    self._alert(transition)
         log.info("measurement restarted (%s)", why)
 
     def _make_engine(self, frame: Frame) -> None:
@@ -363,46 +370,71 @@ class Pipeline:
         if self.counters["frames"] % 16 == 0:
             self.lit_level = float(frame.pixels.mean())
 
-    def _evaluate(self, now: float) -> None:
+    def _evaluate(self, now: float, wait: bool = False) -> None:
+        """Snapshot the maps here, analyse and publish them on the evaluator thread.
+
+        The pipeline thread only pays for ``engine.maps()``; region statistics, drying states
+        and publishing run beside the next pushes. An evaluation that is due while the previous
+        one still runs is skipped (counted); ``wait`` makes this one run to its end.
+        """
+        if self._pending is not None:
+            if not self._pending.done() and not wait:
+                self.counters["evaluations_skipped"] += 1
+                return
+            pending, self._pending = self._pending, None
+            pending.result()  # re-raises an error of the evaluator thread here
+        snapshot = self._snapshot(now)
+        self._pending = self._evaluator.submit(self._analyse, snapshot)
+        if wait:
+            pending, self._pending = self._pending, None
+            pending.result()
+
+    def _snapshot(self, now: float) -> dict[str, Any]:
         engine = self.engine
         ready = engine is not None and engine.ready
-        estimator = self.config.estimator.activity
         stats: dict[str, Any] = {"t": self.wall(), "frames": self.counters["frames"], "ready": ready,
                                  "fps": self._fps(), "laser": "on" if self.laser_on else "off",
                                  "drops": {k: v for k, v in self.counters.items() if k.startswith("dropped")},
                                  "camera": dict(self.camera.stats), "ambient_level": self.ambient_level,
-                                 "estimator": estimator, "regions": {}}
-        activities: dict[str, float] = {}
-        maps: dict[str, np.ndarray] = {}
-        if ready:
-            assert engine is not None
-            maps = engine.maps()
-            for name, mask in self.masks.items():
-                per_map = {key: region_stats(values, mask).as_dict() for key, values in maps.items()}
-                stats["regions"][name] = per_map
-                activities[name] = per_map[estimator]["mean"]
+                                 "estimator": self.config.estimator.activity, "regions": {}}
         warning = self._ambient_warning()
         if warning:
             stats["warning"] = warning
         fault = "camera lost" if self._capture.lost.is_set() else self._fault
         self._fault = None
-        transitions = self.monitor.step(now, activities, ready=ready and fault is None, fault=fault)
-        for transition in transitions:
-            self._alert(transition)
-        state = {"t": self.wall(), "estimator": estimator, "regions": self.monitor.snapshot()}
+        maps = engine.maps() if ready and engine is not None else {}  # fresh arrays: safe to hand over
+        publish_maps = bool(maps) and now - self._last_maps_t >= self.cadence.maps_every_s
+        if publish_maps:
+            self._last_maps_t = now
+        return {"now": now, "ready": ready, "fault": fault, "stats": stats, "maps": maps,
+                "publish_maps": publish_maps}
+
+    def _analyse(self, snapshot: dict[str, Any]) -> None:
+        """Region statistics, drying states, publishing (evaluator thread)."""
+        now, ready, fault, stats, maps = (snapshot[k] for k in ("now", "ready", "fault", "stats", "maps"))
+        estimator = stats["estimator"]
+        activities: dict[str, float] = {}
+        for name, mask in self.masks.items() if maps else ():
+            per_map = {key: region_stats(values, mask).as_dict() for key, values in maps.items()}
+            stats["regions"][name] = per_map
+            activities[name] = per_map[estimator]["mean"]
+        with self._monitor_lock:
+            transitions = self.monitor.step(now, activities, ready=ready and fault is None, fault=fault)
+            for transition in transitions:
+                self._alert(transition)
+            state = {"t": self.wall(), "estimator": estimator, "regions": self.monitor.snapshot()}
         stats["state"] = {name: s["state"] for name, s in state["regions"].items()}
         self.publisher.publish_stats(stats)
         if transitions or self._state_published is None:
             self.publisher.publish_state(state)
             self._state_published = state
-        if maps and now - self._last_maps_t >= self.cadence.maps_every_s:
-            self._last_maps_t = now
+        if snapshot["publish_maps"]:
             est = self.config.estimator
             for name, values in maps.items():
                 self.counters["maps_published"] += 1  # handed to the publisher (see Service: final maps)
                 self.publisher.publish_map(name, values, {"estimator": name, "window": est.window,
-                                                          "lag": est.lag, "frames": self.counters["frames"],
-                                                          "t": self.wall()})
+                                                          "lag": est.lag, "frames": stats["frames"],
+                                                          "t": stats["t"]})
 
     def _alert(self, transition: Transition) -> None:
         alert = transition.as_dict()
@@ -473,11 +505,24 @@ class Pipeline:
                         raise self._capture.error
                     log.info("camera stream ended")
                     self._last_maps_t = -np.inf  # the final maps go out whatever the cadence
-                    self._evaluate(self.clock())
+                    self._evaluate(self.clock(), wait=True)
                     break
         finally:
             self._capture.stop.set()
             self._laser_off_quietly("stop")
+            self._finish_evaluation()
             if self._thread is not None:
                 self._thread.join(timeout=1.0)
             self.camera.close()
+
+    def _finish_evaluation(self) -> None:
+        """Let a running evaluation end (bounded), so its alerts and maps are not lost."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            try:
+                pending.result(timeout=EVALUATION_TIMEOUT_S)
+            except FuturesTimeout:
+                log.warning("the last evaluation did not finish within %.1f s", EVALUATION_TIMEOUT_S)
+            except Exception:
+                log.exception("the last evaluation failed")
+        self._evaluator.shutdown(wait=False)
