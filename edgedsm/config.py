@@ -197,6 +197,12 @@ def load_config(path: str | Path) -> DaemonConfig:
     path = Path(path)
     config = validate(DaemonConfig, read_toml(path), str(path))
     config.base_dir = path.resolve().parent
+    for index, region in enumerate(config.regions):
+        # a mask image is read at the first frame: check it now, so that a reload refuses it
+        if region.shape == "mask" and region.path is not None:
+            mask_path = region.path if region.path.is_absolute() else config.base_dir / region.path
+            if geometry.load_mask_image_or_none(mask_path) is None:
+                raise ConfigError(f"{path}: regions.{index}.path: {mask_path} cannot be read as an image")
     return config
 
 

@@ -67,12 +67,17 @@ def text_mask(shape: tuple[int, int], text: str, x: float, y: float, height: flo
 
 def load_mask_image(path: Path, shape: tuple[int, int], threshold: int = 128) -> np.ndarray:
     """A grey image resized (nearest neighbour) to ``shape``; pixels >= threshold are inside."""
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    image = load_mask_image_or_none(path)
     if image is None:
         raise ConfigError(f"mask image {path}: cannot be read (missing or not an image)")
     if image.shape != shape:
         image = cv2.resize(image, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
     return image >= threshold
+
+
+def load_mask_image_or_none(path: Path) -> np.ndarray | None:
+    """The grey image at ``path``, or None when it is missing or not an image."""
+    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
 
 
 def _grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

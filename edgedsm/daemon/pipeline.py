@@ -209,6 +209,15 @@ class Pipeline:
 
     def _enqueue(self, frame: Frame) -> None:
         frames = self._capture.frames
+        if not self.camera.paced:
+            # a source that can wait (replay as fast as possible) is held back, not dropped
+            while not self._capture.stop.is_set():
+                try:
+                    frames.put(frame, timeout=0.1)
+                    return
+                except queue.Full:
+                    continue
+            return
         while True:
             try:
                 frames.put_nowait(frame)

@@ -10,6 +10,7 @@ systemd notification and watchdog, configuration reload.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import signal
@@ -154,9 +155,7 @@ class Service:
 
     def _run_once(self) -> None:
         config = self.config
-        relay = open_relay(config.laser.uri) if config.laser is not None else None
-        camera = open_camera_for(config)
-        couple_simulated_laser(camera, relay)
+        camera = open_camera_for(config)  # touches no device until the pipeline opens it
         holder: dict[str, Pipeline] = {}
 
         def on_command(name: str, command: Any) -> dict:
@@ -165,7 +164,6 @@ class Service:
             args = command.model_dump() if hasattr(command, "model_dump") else dict(command or {})
             return pipeline.submit(name, args) if pipeline else {"ok": False, "error": "not running"}
 
-        publisher: Publisher = make_publisher(config, on_command)
         last_ping = [0.0]
 
         def alive() -> None:
@@ -175,14 +173,15 @@ class Service:
                 last_ping[0] = now
                 self.notifier.watchdog()
 
-        pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=self.cadence or self._cadence(config),
-                            on_alive=alive)
-        holder["pipeline"] = self.pipeline = pipeline
+        publisher: Publisher = make_publisher(config, on_command)
         try:
-            if relay is not None:
-                with LaserSafety(relay):
-                    self._measure(pipeline)
-            else:
+            # opened last and closed by LaserSafety (switched off) whatever happens after
+            relay = open_relay(config.laser.uri) if config.laser is not None else None
+            couple_simulated_laser(camera, relay)
+            pipeline = Pipeline(config, camera, publisher, relay=relay,
+                                cadence=self.cadence or self._cadence(config), on_alive=alive)
+            holder["pipeline"] = self.pipeline = pipeline
+            with LaserSafety(relay) if relay is not None else contextlib.nullcontext():
                 self._measure(pipeline)
             if not self._stop.is_set() and not self._reloaded:
                 # a finite stream (replay) ended: its final maps must leave before the publisher

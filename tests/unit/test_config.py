@@ -98,3 +98,10 @@ dry_below = 1
     assert 20 < config.regions[1].mask((8, 8), tmp_path).sum() < 40
     with pytest.raises(ConfigError, match=r"regions\.outside: the region has no pixel"):
         config.regions[2].mask((8, 8), tmp_path)
+
+
+def test_missing_mask_image_is_refused_at_load(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[[regions]]\nname = 'm'\nshape = 'mask'\npath = 'nope.png'\nwet_above = 2\ndry_below = 1\n")
+    with pytest.raises(ConfigError, match=r"regions\.0\.path: .*nope\.png cannot be read as an image"):
+        load_config(path)

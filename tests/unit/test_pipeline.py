@@ -122,6 +122,7 @@ def test_camera_loss_switches_laser_off_and_faults(setup):
 def test_queue_drops_oldest_and_counts(setup):
     config, camera, relay, publisher, _ = setup
     config.acquisition.queue_frames = 2
+    camera.time_scale = 1.0  # a camera at its own pace: the queue must drop, not wait
     pipeline = make_pipeline(config, camera, relay, publisher)
     for seq in range(5):
         pipeline._enqueue(seq)
@@ -154,3 +155,17 @@ def test_a_window_that_cannot_fit_in_memory_is_a_config_error(monkeypatch):
     with pytest.raises(ConfigError, match=r"estimator\.window: .* needs 827\.\d GiB"):
         pipeline_module.check_engine_memory(frame, 100_000, "sliding")
     pipeline_module.check_engine_memory(frame, 100_000, "tumbling")
+
+
+def test_a_source_that_can_wait_is_held_back_not_dropped(repo, tmp_path):
+    from edgedsm.devices.camera import ReplayCamera
+
+    config = load_config(repo / "config" / "daemon" / "demo.toml")
+    config.mqtt, config.acquisition.dark_frames, config.acquisition.queue_frames = None, 0, 2
+    frames = np.random.default_rng(0).integers(0, 256, size=(300, 16, 16), dtype=np.uint8)
+    np.save(tmp_path / "rec.npy", frames)
+    camera = ReplayCamera(tmp_path / "rec.npy", rate=0)
+    assert not camera.paced
+    pipeline = Pipeline(config, camera, RecordingPublisher())
+    pipeline.run(lambda: False)
+    assert pipeline.counters["frames"] == 300 and pipeline.counters["dropped_queue"] == 0

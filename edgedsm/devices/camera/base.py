@@ -109,6 +109,13 @@ class Camera(abc.ABC):
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.description}>"
 
+    @property
+    def paced(self) -> bool:
+        """True when frames come at the source's own pace (a real camera cannot wait): a slow
+        consumer must drop frames. False for a source that can wait (a replay as fast as
+        possible), which a consumer should hold back instead."""
+        return True
+
     # -- lifecycle ------------------------------------------------------------------------
     @property
     def is_open(self) -> bool:

@@ -72,6 +72,10 @@ class ReplayCamera(Camera):
             self._interval = 0.0 if self.rate == 0 else 1.0 / float(self.rate)
         self._timestamp_dt = recorded_dt if recorded_dt is not None else (self._interval or None)
 
+    @property
+    def paced(self) -> bool:
+        return self.rate != 0  # "recorded" or a rate: paced; 0: as fast as the consumer takes them
+
     def _do_close(self) -> None:
         if self._video is not None:
             self._video.release()

@@ -47,6 +47,10 @@ class SimulatedCamera(Camera):
         self._lost_once = False
 
     @property
+    def paced(self) -> bool:
+        return self.time_scale > 0
+
+    @property
     def bits(self) -> int:
         return self.scene.detector.bits if self.scene.detector is not None else 16
 
