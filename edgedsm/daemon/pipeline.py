@@ -440,7 +440,7 @@ class Pipeline:
         if snapshot["publish_maps"]:
             est = self.config.estimator
             for name, values in maps.items():
-                self.counters["maps_published"] += 1  # handed to the publisher (see Service: final maps)
+                self.counters["maps_published"] += 1
                 self.publisher.publish_map(name, values, {"estimator": name, "window": est.window,
                                                           "lag": est.lag, "frames": stats["frames"],
                                                           "t": stats["t"]})

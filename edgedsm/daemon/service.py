@@ -63,24 +63,6 @@ def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
         camera.illuminated = lambda: board.is_on
 
 
-def wait_maps_sent(publisher: Any, handed: int, timeout_s: float) -> bool:
-    """Wait (bounded) until the publisher has dealt with ``handed`` maps: each one handed to
-    ``publish_map`` ends counted as ``maps_sent`` or ``maps_dropped``. True if it has; publishers
-    without counters (log, recorder) keep nothing in flight."""
-    counters = getattr(publisher, "counters", None)
-    if counters is None:
-        return True
-    deadline = time.monotonic() + timeout_s
-    while True:
-        counts = counters()
-        if counts.get("maps_sent", 0) + counts.get("maps_dropped", 0) >= handed:
-            return True
-        if time.monotonic() >= deadline:
-            log.warning("the final maps were not all published within %.1f s", timeout_s)
-            return False
-        time.sleep(0.02)
-
-
 class Service:
     """Runs pipelines for a config file until stopped (see the module docstring)."""
 
@@ -186,7 +168,9 @@ class Service:
             if not self._stop.is_set() and not self._reloaded:
                 # a finite stream (replay) ended: its final maps must leave before the publisher
                 # closes, which abandons maps still waiting for its map thread
-                wait_maps_sent(publisher, pipeline.counters["maps_published"], FINAL_MAPS_TIMEOUT_S)
+                flush = getattr(publisher, "flush_maps", None)
+                if flush is not None and not flush(FINAL_MAPS_TIMEOUT_S):
+                    log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
         finally:
             close = getattr(publisher, "close", None)
             if close is not None:

@@ -243,6 +243,7 @@ class MqttPublisher:
         # Latest map per name waiting for the map thread; a newer one replaces (and drops) it.
         self._map_jobs: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
         self._map_wake = threading.Event()
+        self._map_sending = False  # the map worker holds a map it has taken off _map_jobs
         # None wakes the command thread at shutdown.
         self._commands: queue.Queue[tuple[str, Command, Any, str | None, bytes | None] | None] = \
             queue.Queue(maxsize=COMMAND_BACKLOG)
@@ -421,6 +422,20 @@ class MqttPublisher:
                 self._counts["maps_dropped"] += 1
         self._map_wake.set()
         return True
+
+    def flush_maps(self, timeout: float) -> bool:
+        """Wait at most ``timeout`` s until every map handed over has left (or was dropped);
+        True if so. ``close()`` abandons maps still waiting, so a finite run flushes first."""
+        deadline = time.monotonic() + timeout
+        while True:
+            with self._lock:
+                idle = not self._map_jobs and not self._map_sending
+            if idle:
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            self._map_wake.set()
+            time.sleep(0.02)
 
     def flush_alerts(self, timeout: float) -> bool:
         """Wait at most ``timeout`` s until every queued alert is acknowledged; True if so."""
@@ -706,14 +721,18 @@ class MqttPublisher:
                         break
                     name = next(iter(self._map_jobs))
                     values, meta = self._map_jobs.pop(name)
-                if not self._connected.is_set():
-                    self._count("maps_dropped")
-                    continue
+                    self._map_sending = True
                 try:
+                    if not self._connected.is_set():
+                        self._count("maps_dropped")
+                        continue
                     self._send_map(name, values, meta)
                 except Exception:  # keep the worker alive for the next maps
                     self._count("maps_dropped")
                     log.exception("map %r could not be published", name)
+                finally:
+                    with self._lock:
+                        self._map_sending = False
 
     def _send_map(self, name: str, values: np.ndarray, meta: dict[str, Any]) -> None:
         extra = {key: value for key, value in meta.items() if key not in ("seq", "t", "window", "lag")}
