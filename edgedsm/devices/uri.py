@@ -56,6 +56,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from urllib.parse import parse_qsl
 
+from edgedsm.devices.uriopts import UriOptions
 from edgedsm.errors import ConfigError
 
 PROTOCOLS = ("lcus", "numato", "kmtronic", "modbus")
@@ -101,37 +102,18 @@ class RelaySpec:
         return "://" in self.port
 
 
+def _opts(uri: str) -> UriOptions:
+    return UriOptions("relay", uri)
+
+
 def _fail(uri: str, reason: str) -> ConfigError:
-    return ConfigError(f"relay URI {uri!r}: {reason}")
+    return _opts(uri).fail(reason)
 
 
-def _int(uri: str, key: str, text: str, low: int, high: int) -> int:
-    try:
-        value = int(text, 10)
-    except ValueError:
-        raise _fail(uri, f"{key}={text!r} is not a whole number") from None
-    if not low <= value <= high:
-        raise _fail(uri, f"{key}={value} is out of range {low}..{high}")
-    return value
 
 
-def _float(uri: str, key: str, text: str, low: float, high: float) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise _fail(uri, f"{key}={text!r} is not a number") from None
-    if not low <= value <= high:  # also refuses nan
-        raise _fail(uri, f"{key}={text} is out of range {low}..{high} seconds")
-    return value
 
 
-def _bool(uri: str, key: str, text: str) -> bool:
-    lowered = text.lower()
-    if lowered in ("true", "1", "yes", "on"):
-        return True
-    if lowered in ("false", "0", "no", "off"):
-        return False
-    raise _fail(uri, f"{key}={text!r} must be true or false")
 
 
 def _options(uri: str, query: str, allowed: set[str]) -> dict[str, str]:
@@ -179,12 +161,12 @@ def _parse_sim(uri: str, name: str, query: str) -> RelaySpec:
     opts = _options(uri, query, _SIM_KEYS)
     extras: dict[str, object] = {}
     if "readback" in opts:
-        extras["readback"] = _bool(uri, "readback", opts["readback"])
+        extras["readback"] = _opts(uri).boolean("readback", opts["readback"])
     if "fault" in opts:
         if opts["fault"] not in SIM_FAULTS:
             raise _fail(uri, f"fault={opts['fault']!r} is not one of {', '.join(SIM_FAULTS)}")
         extras["fault"] = opts["fault"]
-    timeout = (_float(uri, "timeout", opts["timeout"], *TIMEOUT_RANGE)
+    timeout = (_opts(uri).number("timeout", opts["timeout"], *TIMEOUT_RANGE, unit="seconds")
                if "timeout" in opts else DEFAULT_SIM_TIMEOUT)
     return RelaySpec(uri=uri, kind="sim", port=name, protocol="sim", channel=0,
                      timeout=timeout, options=extras)
@@ -204,22 +186,22 @@ def _parse_serial(uri: str, port: str, query: str) -> RelaySpec:
     # Now that the protocol is known, refuse another protocol's options (slave= on an LCUS...).
     opts = _options(uri, query, _COMMON_KEYS | _PROTOCOL_KEYS[protocol])
     low, high, default_channel = CHANNEL_RANGE[protocol]
-    channel = (_int(uri, "channel", opts["channel"], low, high)
+    channel = (_opts(uri).integer("channel", opts["channel"], low, high)
                if "channel" in opts else default_channel)
-    baud = (_int(uri, "baud", opts["baud"], *BAUD_RANGE)
+    baud = (_opts(uri).integer("baud", opts["baud"], *BAUD_RANGE)
             if "baud" in opts else DEFAULT_BAUD[protocol])
-    timeout = (_float(uri, "timeout", opts["timeout"], *TIMEOUT_RANGE)
+    timeout = (_opts(uri).number("timeout", opts["timeout"], *TIMEOUT_RANGE, unit="seconds")
                if "timeout" in opts else DEFAULT_TIMEOUT)
-    verify = _bool(uri, "verify", opts["verify"]) if "verify" in opts else True
+    verify = _opts(uri).boolean("verify", opts["verify"]) if "verify" in opts else True
     extras: dict[str, object] = {}
     if protocol == "modbus":
-        extras["slave"] = _int(uri, "slave", opts["slave"], 1, 247) if "slave" in opts else 1
+        extras["slave"] = _opts(uri).integer("slave", opts["slave"], 1, 247) if "slave" in opts else 1
         parity = opts.get("parity", "N").upper()
         if parity not in ("N", "E", "O"):
             raise _fail(uri, f"parity={opts['parity']!r} must be N, E or O")
         extras["parity"] = parity
     if protocol == "kmtronic":
-        relays = _int(uri, "relays", opts["relays"], 1, 8) if "relays" in opts else 8
+        relays = _opts(uri).integer("relays", opts["relays"], 1, 8) if "relays" in opts else 8
         if relays not in KMTRONIC_RELAY_COUNTS:
             raise _fail(uri, f"relays={relays}: KMTronic USB boards have 1, 2, 4 or 8 relays")
         if channel > relays:

@@ -45,7 +45,6 @@ never goes unnoticed. Options per scheme:
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -53,6 +52,7 @@ from pathlib import Path
 from urllib.parse import parse_qsl
 
 from edgedsm.devices.camera.base import Camera
+from edgedsm.devices.uriopts import UriOptions
 from edgedsm.errors import ConfigError
 
 SCHEMES = ("aravis", "v4l2", "replay", "sim")
@@ -78,8 +78,12 @@ class CameraSpec:
     options: dict[str, object] = field(default_factory=dict)
 
 
+def _opts(uri: str) -> UriOptions:
+    return UriOptions("camera", uri)
+
+
 def _fail(uri: str, reason: str) -> ConfigError:
-    return ConfigError(f"camera URI {uri!r}: {reason}")
+    return _opts(uri).fail(reason)
 
 
 def _options(uri: str, scheme: str, query: str) -> dict[str, str]:
@@ -102,34 +106,10 @@ def _options(uri: str, scheme: str, query: str) -> dict[str, str]:
     return options
 
 
-def _int(uri: str, key: str, text: str, low: int, high: int) -> int:
-    try:
-        value = int(text, 10)
-    except ValueError:
-        raise _fail(uri, f"{key}={text!r} is not a whole number") from None
-    if not low <= value <= high:
-        raise _fail(uri, f"{key}={value} is out of range {low}..{high}")
-    return value
 
 
-def _float(uri: str, key: str, text: str, low: float, high: float = math.inf, open_low: bool = False) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise _fail(uri, f"{key}={text!r} is not a number") from None
-    if not (low < value if open_low else low <= value) or not value <= high:  # also refuses nan
-        bound = f"> {low:g}" if open_low else f">= {low:g}"
-        raise _fail(uri, f"{key}={text} must be {bound}" + (f" and <= {high:g}" if high < math.inf else ""))
-    return value
 
 
-def _bool(uri: str, key: str, text: str) -> bool:
-    lowered = text.lower()
-    if lowered in ("true", "1", "yes", "on"):
-        return True
-    if lowered in ("false", "0", "no", "off"):
-        return False
-    raise _fail(uri, f"{key}={text!r} must be true or false")
 
 
 def parse_camera_uri(uri: str) -> CameraSpec:
@@ -153,10 +133,10 @@ def _parse_aravis(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict
         raise _fail(uri, f"device id {target!r} may hold only letters, digits and - _ . :")
     options: dict[str, object] = {}
     if "buffers" in raw:
-        options["buffers"] = _int(uri, "buffers", raw["buffers"], 1, 1024)
+        options["buffers"] = _opts(uri).integer("buffers", raw["buffers"], 1, 1024)
     if "packet_size" in raw:
         text = raw["packet_size"]
-        options["packet_size"] = "auto" if text == "auto" else _int(uri, "packet_size", text, 576, 65535)
+        options["packet_size"] = "auto" if text == "auto" else _opts(uri).integer("packet_size", text, 576, 65535)
     return target, options
 
 
@@ -174,7 +154,7 @@ def _parse_v4l2(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict[s
         options["fourcc"] = fourcc
     for key in ("width", "height"):
         if key in raw:
-            options[key] = _int(uri, key, raw[key], 1, 16384)
+            options[key] = _opts(uri).integer(key, raw[key], 1, 16384)
     return target, options
 
 
@@ -183,13 +163,13 @@ def _parse_replay(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict
         raise _fail(uri, "no path: expected replay:FILE_OR_FOLDER")
     options: dict[str, object] = {}
     if "rate" in raw:
-        options["rate"] = "recorded" if raw["rate"] == "recorded" else _float(uri, "rate", raw["rate"], 0.0, 1e6)
+        options["rate"] = "recorded" if raw["rate"] == "recorded" else _opts(uri).number("rate", raw["rate"], 0.0, 1e6)
     if "dt" in raw:
-        options["dt"] = _float(uri, "dt", raw["dt"], 0.0, 3600.0, open_low=True)
+        options["dt"] = _opts(uri).number("dt", raw["dt"], 0.0, 3600.0, open_low=True)
     if "loop" in raw:
-        options["loop"] = _bool(uri, "loop", raw["loop"])
+        options["loop"] = _opts(uri).boolean("loop", raw["loop"])
     if "bits" in raw:
-        options["bits"] = _int(uri, "bits", raw["bits"], 1, 16)
+        options["bits"] = _opts(uri).integer("bits", raw["bits"], 1, 16)
     return target, options
 
 
@@ -197,15 +177,15 @@ def _parse_sim(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict[st
     target = "" if target in ("", "default") else target
     options: dict[str, object] = {}
     if "time_scale" in raw:
-        options["time_scale"] = _float(uri, "time_scale", raw["time_scale"], 0.0, 1e6)
+        options["time_scale"] = _opts(uri).number("time_scale", raw["time_scale"], 0.0, 1e6)
     if "precision" in raw:
         if raw["precision"] not in ("single", "double"):
             raise _fail(uri, f"precision={raw['precision']!r} must be single or double")
         options["precision"] = raw["precision"]
     if "lose_after" in raw:
-        options["lose_after"] = _int(uri, "lose_after", raw["lose_after"], 0, 2**62)
+        options["lose_after"] = _opts(uri).integer("lose_after", raw["lose_after"], 0, 2**62)
     if "corrupt_every" in raw:
-        options["corrupt_every"] = _int(uri, "corrupt_every", raw["corrupt_every"], 2, 2**62)
+        options["corrupt_every"] = _opts(uri).integer("corrupt_every", raw["corrupt_every"], 2, 2**62)
     return target, options
 
 

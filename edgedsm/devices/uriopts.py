@@ -1,0 +1,49 @@
+"""Typed options of device URIs (``?key=value&...``), shared by the camera and relay schemes.
+
+Every error is a ConfigError that names the URI and the offending option.
+"""
+
+from __future__ import annotations
+
+import math
+
+from edgedsm.errors import ConfigError
+
+
+class UriOptions:
+    """Converts the option texts of one URI; ``kind`` ("camera", "relay") prefixes the errors."""
+
+    def __init__(self, kind: str, uri: str) -> None:
+        self.prefix = f"{kind} URI {uri!r}"
+
+    def fail(self, reason: str) -> ConfigError:
+        return ConfigError(f"{self.prefix}: {reason}")
+
+    def integer(self, key: str, text: str, low: int, high: int) -> int:
+        try:
+            value = int(text, 10)
+        except ValueError:
+            raise self.fail(f"{key}={text!r} is not a whole number") from None
+        if not low <= value <= high:
+            raise self.fail(f"{key}={value} is out of range {low}..{high}")
+        return value
+
+    def number(self, key: str, text: str, low: float, high: float = math.inf, open_low: bool = False,
+               unit: str = "") -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise self.fail(f"{key}={text!r} is not a number") from None
+        if not (low < value if open_low else low <= value) or not value <= high:  # also refuses nan
+            bound = f"> {low:g}" if open_low else f">= {low:g}"
+            upper = f" and <= {high:g}" if high < math.inf else ""
+            raise self.fail(f"{key}={text} must be {bound}{upper}{(' ' + unit) if unit else ''}")
+        return value
+
+    def boolean(self, key: str, text: str) -> bool:
+        lowered = text.lower()
+        if lowered in ("true", "1", "yes", "on"):
+            return True
+        if lowered in ("false", "0", "no", "off"):
+            return False
+        raise self.fail(f"{key}={text!r} must be true or false")
