@@ -201,34 +201,6 @@ def daemons() -> Iterator[Callable[..., Daemon]]:
 
 
 @pytest.fixture
-def make_broker(tmp_path: Path) -> Iterator[Callable[..., Broker]]:
-    brokers: list[Broker] = []
-
-    def make(**kwargs: Any) -> Broker:
-        broker = Broker(tmp_path / f"broker{len(brokers)}", **kwargs)
-        brokers.append(broker)
-        return broker.start()
-
-    yield make
-    for broker in brokers:
-        broker.stop()
-
-
-@pytest.fixture
-def subscribers() -> Iterator[Callable[..., Subscriber]]:
-    made: list[Subscriber] = []
-
-    def make(port: int, topics: list[str], **kwargs: Any) -> Subscriber:
-        subscriber = Subscriber(port, topics, **kwargs)
-        made.append(subscriber)
-        return subscriber.start()
-
-    yield make
-    for subscriber in made:
-        subscriber.stop()
-
-
-@pytest.fixture
 def sim_board_name() -> Iterator[str]:
     """A fresh process-wide simulated relay board for an in-process daemon."""
     forget_simulated_boards()

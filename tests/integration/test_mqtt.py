@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import paho.mqtt.client as mqtt
 import pytest
-from helpers_mqtt import WAIT_S, Broker, Subscriber, TlsFiles, child_env, tool, wait_until
+from helpers_mqtt import WAIT_S, Broker, TlsFiles, child_env, tool, wait_until
 from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
@@ -51,39 +51,7 @@ from edgedsm.publish import (
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
 
-# -- the broker and a test subscriber (helpers_mqtt) -------------------------------------------
-
-@pytest.fixture
-def make_broker(tmp_path: Path) -> Iterator[Callable[..., Broker]]:
-    brokers: list[Broker] = []
-
-    def make(**kwargs: Any) -> Broker:
-        broker = Broker(tmp_path / f"broker{len(brokers)}", **kwargs)
-        brokers.append(broker)
-        return broker.start()
-
-    yield make
-    for broker in brokers:
-        broker.stop()
-
-
-@pytest.fixture
-def broker(make_broker: Callable[..., Broker]) -> Broker:
-    return make_broker()
-
-
-@pytest.fixture
-def subscribers() -> Iterator[Callable[..., Subscriber]]:
-    made: list[Subscriber] = []
-
-    def make(port: int, topics: list[str], **kwargs: Any) -> Subscriber:
-        subscriber = Subscriber(port, topics, **kwargs)
-        made.append(subscriber)
-        return subscriber.start()
-
-    yield make
-    for subscriber in made:
-        subscriber.stop()
+# the broker and subscriber fixtures (make_broker, broker, subscribers) are in conftest.py
 
 
 # -- publishers ------------------------------------------------------------------------------
