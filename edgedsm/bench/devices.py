@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edgedsm.bench.report import write_markdown
 from edgedsm.devices.camera.base import Camera, Region
 from edgedsm.errors import DeviceError
 
@@ -229,9 +230,7 @@ def run(args: argparse.Namespace) -> int:
          "frame about six-fold. A CPU share well below 100 % on a CPU-bound row (replay, consumer) means "
          "the machine was shared with other work during the run.")
     if args.output:
-        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.output).write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
-        print(f"wrote {args.output}", file=sys.stderr)
+        write_markdown(args.output, out)
     return 0
 
 

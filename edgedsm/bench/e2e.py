@@ -66,6 +66,7 @@ from typing import Any
 
 import numpy as np
 
+from edgedsm.bench.report import write_markdown
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.service import open_camera_for
@@ -675,9 +676,7 @@ def run(args: argparse.Namespace) -> int:
          "process allocated); *file* is the part of the memory-mapped recording that was resident, which "
          f"a camera would not have (peak resident set of the whole run: {memory.peak:.0f} MiB).")
     if args.output:
-        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.output).write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
-        say(f"wrote {args.output}")
+        write_markdown(args.output, out)
     return 0
 
 

@@ -37,7 +37,6 @@ import gc
 import importlib.util
 import math
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
@@ -48,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from edgedsm.bench.report import cpu_model, versions, write_markdown
 from edgedsm.estimators import SlidingWindow, all_maps
 
 HELP = "streaming engine vs batch recompute: ms/frame, memory, bandwidth bound, error, map noise"
@@ -287,25 +287,8 @@ def noise_study(size: int, frames: int, windows: list[int], lag: int
 
 
 # -- report --------------------------------------------------------------------------------
-def _versions() -> str:
-    parts = [f"Python {platform.python_version()}", f"numpy {np.__version__}"]
-    try:
-        import numba
-
-        parts.append(f"numba {numba.__version__} ({numba.config.NUMBA_NUM_THREADS} threads)")
-    except ImportError:
-        parts.append("numba not installed")
-    return ", ".join(parts)
 
 
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def _available_bytes() -> int:
@@ -460,8 +443,8 @@ def run(args: argparse.Namespace) -> int:
         (" --paper-size" if args.paper_size else "")
     emit("# Streaming engine benchmark")
     emit()
-    emit(f"`{command}` on {datetime.date.today().isoformat()}: {_cpu()}, "
-         f"{os.cpu_count()} logical CPUs; {_versions()}. Load average "
+    emit(f"`{command}` on {datetime.date.today().isoformat()}: {cpu_model()}, "
+         f"{os.cpu_count()} logical CPUs; {versions('numba')}. Load average "
          f"{load_start[0]:.2f} at the start, {load_end[0]:.2f} at the end (other work on the "
          f"machine slows rows at random); {elapsed:.0f} s in all.")
     emit()
@@ -522,8 +505,7 @@ def run(args: argparse.Namespace) -> int:
             out.append("")
             out.append(f"![ms per frame and map noise]({picture.name})")
             print(f"wrote {picture}")
-        path.write_text("\n".join(out) + "\n")
-        print(f"wrote {path}")
+        write_markdown(path, out)
     return 0
 
 

@@ -26,17 +26,16 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import statistics
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from edgedsm.analysis import contrast
+from edgedsm.bench.report import cpu_model, versions, write_markdown
 from edgedsm.estimators.batch import all_maps
 from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
 from edgedsm.sim.poisson import _numba as poisson_numba
@@ -220,14 +219,6 @@ def precision_drift(size: int, checkpoints: tuple[int, ...]) -> list[tuple[int, 
 
 
 # -- report ---------------------------------------------------------------------------------
-def _versions() -> str:
-    parts = [f"Python {platform.python_version()}", f"numpy {np.__version__}"]
-    for module in ("scipy", "pyspeckle", "numba"):
-        try:
-            parts.append(f"{module} {__import__(module).__version__}")
-        except ImportError:
-            parts.append(f"{module} (not installed)")
-    return ", ".join(parts)
 
 
 def _load() -> str:
@@ -237,14 +228,6 @@ def _load() -> str:
         return "unknown"
 
 
-def _cpu() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -267,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
     emit("# Simulator benchmark")
     emit()
     emit(f"`edgedsm bench sim{' --quick' if quick else ''}` on {datetime.date.today().isoformat()}: "
-         f"{_cpu()}, {os.cpu_count()} logical CPUs; {_versions()}.")
+         f"{cpu_model()}, {os.cpu_count()} logical CPUs; {versions('scipy', 'pyspeckle', 'numba')}.")
     emit(f"Threads: `workers` = {' and '.join(map(str, workers))} (the simulator's threads for random "
          f"draws, FFTs and detector; scipy.fft itself runs single-threaded inside them); detector "
          f"Poisson kernel: {'numba' if poisson_numba() is not None else 'numpy'}. Speckle size "
@@ -405,9 +388,7 @@ def run(args: argparse.Namespace) -> int:
              "fft2 of it (the same grid as ours at this speckle size), with numpy's single-threaded FFT.")
     emit()
     if args.output:
-        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.output).write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
-        print(f"wrote {args.output}", file=sys.stderr)
+        write_markdown(args.output, out)
     return 0
 
 
