@@ -461,6 +461,14 @@ class Pipeline:
                     "use S3 or estimator.ambient_correction")
         return None
 
+    def summary(self) -> str:
+        """One line for systemd's STATUS: rate, frames, drops and the state of each region."""
+        with self._monitor_lock:
+            states = ", ".join(f"{name} {machine.state}" for name, machine in self.monitor.regions.items())
+        drops = sum(v for k, v in self.counters.items() if k.startswith("dropped"))
+        return (f"{self._fps():.1f} frames/s, {self.counters['frames']} frames, {drops} dropped, "
+                f"laser {'on' if self.laser_on else 'off'}; {states}")
+
     def _fps(self) -> float:
         times = self._frames_t
         if len(times) < 2 or times[-1] <= times[0]:

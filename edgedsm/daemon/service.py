@@ -33,6 +33,9 @@ from edgedsm.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
+#: Seconds between the STATUS lines `systemctl status` shows.
+STATUS_EVERY_S = 10.0
+
 #: How long the end of a finite stream waits for its final maps to be published.
 FINAL_MAPS_TIMEOUT_S = 5.0
 
@@ -146,14 +149,19 @@ class Service:
             args = command.model_dump() if hasattr(command, "model_dump") else dict(command or {})
             return pipeline.submit(name, args) if pipeline else {"ok": False, "error": "not running"}
 
-        last_ping = [0.0]
+        last_ping = [0.0, 0.0]  # watchdog, status
 
         def alive() -> None:
+            # called by the pipeline thread while frames keep arriving
             now = time.monotonic()
             interval = self.notifier.watchdog_s
             if interval and now - last_ping[0] >= interval:
                 last_ping[0] = now
                 self.notifier.watchdog()
+            pipeline = holder.get("pipeline")
+            if self.notifier.enabled and pipeline is not None and now - last_ping[1] >= STATUS_EVERY_S:
+                last_ping[1] = now
+                self.notifier.status(pipeline.summary())
 
         publisher: Publisher = make_publisher(config, on_command)
         try:

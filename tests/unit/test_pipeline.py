@@ -73,6 +73,7 @@ def test_drying_plate_goes_wet_drying_dry_and_laser_ends_off(setup):
     assert last["state"] == {"plate": "dry"} and last["ready"]
     assert set(last["regions"]["plate"]) == {"s1", "s2", "s3"}
     assert publisher.states[-1]["regions"]["plate"]["state"] == "dry"
+    assert pipeline.summary().endswith("1300 frames, 0 dropped, laser off; plate dry")
 
 
 def test_published_maps_equal_batch_maps_of_the_window(setup):
