@@ -170,3 +170,24 @@ def test_a_source_that_can_wait_is_held_back_not_dropped(repo, tmp_path):
     pipeline = Pipeline(config, camera, RecordingPublisher())
     pipeline.run(lambda: False)
     assert pipeline.counters["frames"] == 300 and pipeline.counters["dropped_queue"] == 0
+
+
+def test_bursts_spare_the_laser(setup):
+    config, camera, relay, publisher, _ = setup
+    config.acquisition.mode = "bursts"
+    config.acquisition.burst_frames = 120
+    config.acquisition.burst_period_s = 20.0  # 400 frames of 0.05 s: laser on for 120 of them
+    config.acquisition.dark_frames = 0
+    pipeline = make_pipeline(config, camera, relay, publisher)
+    hold_back(camera, pipeline)
+    switched = []
+    relay.board.add_listener(lambda on: switched.append((on, pipeline.counters["frames"])))
+    pipeline.run(lambda: False, max_frames=1000)
+    ons = [frame for on, frame in switched if on]
+    offs = [frame for on, frame in switched if not on and frame > 0]
+    # bursts start every 400 frames (0, 400, 800) and end 120 pushed frames later
+    assert len(ons) == 3 and ons[1] - ons[0] == pytest.approx(400, abs=3)
+    assert all(90 <= off - on <= 130 for on, off in zip(ons, offs, strict=False))
+    assert not relay.board.is_on
+    # each burst's window filled: states were judged (warming_up only before the first)
+    assert publisher.alerts and publisher.alerts[0]["from"] == "warming_up"
