@@ -650,8 +650,13 @@ def test_watchdog_pings_only_while_frames_arrive(tmp_path: Path, daemons: Callab
     finally:
         notify.close()
     fields = notify.fields()
+    statuses = [f for f in fields if f.startswith("STATUS=")]
+    fields = [f for f in fields if not f.startswith("STATUS=")]
     assert fields[0] == "READY=1" and fields[-1] == "STOPPING=1"
     assert set(fields) == {"READY=1", "WATCHDOG=1", "STOPPING=1"}
+    # periodic STATUS lines for `systemctl status`: rate, frames, drops, laser, region states
+    assert statuses and all(re.fullmatch(r"STATUS=[\d.]+ frames/s, \d+ frames, \d+ dropped, laser (on|off); "
+                                         r"plate (warming_up|wet|drying|dry|fault)", f) for f in statuses), statuses
     pings = notify.times("WATCHDOG=1")
     ready = notify.times("READY=1")[0]
     assert ready < pings[0]
