@@ -193,6 +193,7 @@ class Watcher:
                 raise PublishError(f"no connection to the MQTT broker within {wait_s:g} s: {why}")
 
     def stop(self) -> None:
+        self.done.set()  # our own disconnect is not a lost connection
         self.client.disconnect()
         stopper = threading.Thread(target=self.client.loop_stop, daemon=True)
         stopper.start()
