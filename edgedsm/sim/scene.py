@@ -156,9 +156,10 @@ class PhaseNoise(StrictModel):
 
     alpha: float = Field(ge=0, le=10, description="α: noise spread relative to the process")
     tau_noise: float = Field(1.0, gt=0, le=1e9, description="correlation radius τ_noise of the noise, in Δt")
-    model: Literal["white", "ou"] = Field(
+    model: Literal["white", "ou", "walk"] = Field(
         "white", description="white: fresh θ each frame (paper literal); ou: Ornstein-Uhlenbeck, "
-                             "stationary std σ_noise, correlation time τ_noise")
+                             "stationary std σ_noise, correlation time τ_noise; walk: a random walk "
+                             "with step σ_noise, like the process phase")
 
 
 class AmbientLight(StrictModel):

@@ -8,7 +8,9 @@ Per frame i (0-based here; the paper counts from 1):
 2. Environmental phase noise ψ (from i = 1 on), σ_noise = α·sqrt(Δt/τ_noise). The paper draws
    θ independently per frame ("white", the default here). Because it also speaks of a noise
    correlation radius, the "ou" model offers an Ornstein-Uhlenbeck process with stationary
-   standard deviation σ_noise and correlation time τ_noise, for the β-versus-τ_noise study.
+   standard deviation σ_noise and correlation time τ_noise, for the β-versus-τ_noise study,
+   and "walk" a random walk with step σ_noise ("similarly to the phase change related to the
+   observed process"), which decorrelates like an extra activity 1/τ = α²/τ_noise.
 3. Field U_S = sqrt(I0)·exp(-j(φ + ψ)), imaged through a circular pupil:
    U_cam = IFT{H·FT{U_S}}, and |U_cam|² averaged over 2x2 grid points per camera pixel
    (the paper sums; the factor 4 is absorbed by the detector gain).
@@ -159,11 +161,18 @@ class Simulator:
         self._band = np.empty((self.grid, self._pupil_band.shape[1]), self._complex)
         self._noise_sigma = 0.0
         self._noise_decay = 0.0
+        self._noise_step = 0.0
         if "phase_noise" in self.effects:
             noise = scene.phase_noise
             self._noise_sigma = noise.alpha * math.sqrt(1.0 / noise.tau_noise)
             if noise.model == "ou":
                 self._noise_decay = math.exp(-1.0 / noise.tau_noise)
+            elif noise.model == "walk":
+                self._noise_decay = 1.0
+            # innovation of ψ_i = a·ψ_{i-1} + step·θ: OU keeps the stationary σ_noise, the walk
+            # adds σ_noise per frame
+            self._noise_step = self._noise_sigma * math.sqrt(1.0 - self._noise_decay**2) \
+                if self._noise_decay < 1.0 else self._noise_sigma
         self._ambient: ConstantPoisson | None = None
         if "ambient_light" in self.effects and scene.detector.shot_noise:  # else: its mean, no noise
             self._ambient = ConstantPoisson(scene.ambient_light.eta * scene.detector.n_max)
@@ -271,11 +280,13 @@ class Simulator:
             self._normals(rng, noise, scratch)
             noise *= self._real(self._noise_sigma)
         else:
-            a = self._noise_decay
             draw = self._normals(rng, scratch.normals[:rows], scratch)
-            draw *= self._real(self._noise_sigma * math.sqrt(1.0 - a * a))
-            noise *= self._real(a)
+            draw *= self._real(self._noise_step)
+            if self._noise_decay != 1.0:
+                noise *= self._real(self._noise_decay)
             noise += draw
+            if self._noise_decay == 1.0 and i % _REWRAP_EVERY == 0:
+                np.remainder(noise, _TWO_PI, out=noise)  # the walk grows like the phase itself
         return np.add(phase, noise, out=scratch.angle[:rows])
 
     def _field_block(self, block: int, angle: np.ndarray, scratch: _Scratch) -> np.ndarray:

@@ -182,3 +182,15 @@ def test_frames_are_produced_one_at_a_time():
     generator = simulate(make(size=32, frames=10**7))  # would need 40 GB if materialised
     first = next(generator)
     assert first.shape == (32, 32)
+
+
+def test_walk_phase_noise_decorrelates_like_extra_activity():
+    alpha, tau_noise = 0.3, 1.0
+    sim = Simulator(make(size=64, tau_c=1e9, phase_noise={"alpha": alpha, "tau_noise": tau_noise,
+                                                          "model": "walk"}))
+    frames = np.stack([sim.next_intensity() for _ in range(300)]).astype(np.float64)
+    mu, var = frames.mean(), frames.var()
+    for lag in (2, 5, 10):
+        # ψ(t+τ)-ψ(t) has variance τ·α²/τ_noise: ρ(τ) = exp(-τ α²/τ_noise), a τc of τ_noise/α²
+        cov = ((frames[:-lag] - mu) * (frames[lag:] - mu)).mean()
+        assert cov / var == pytest.approx(np.exp(-lag * alpha**2 / tau_noise), abs=0.035), lag
