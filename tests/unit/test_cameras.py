@@ -135,3 +135,23 @@ def test_replay_errors_are_clear(tmp_path):
     np.save(tmp_path / "g.npy", np.zeros((3, 4, 4), np.uint8))
     with pytest.raises(DeviceError, match="no frame interval"):
         ReplayCamera(tmp_path / "g.npy", rate="recorded").open()
+
+
+def test_replay_of_a_lossless_video_at_its_recorded_rate(tmp_path):
+    import cv2
+
+    frames = np.random.default_rng(0).integers(0, 256, size=(5, 32, 48), dtype=np.uint8)
+    path = tmp_path / "rec.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 25.0, (48, 32), isColor=False)
+    assert writer.isOpened()
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+    with ReplayCamera(path, rate="recorded") as camera:
+        start = time.monotonic()
+        got = list(camera.frames())
+        elapsed = time.monotonic() - start
+    assert [f.pixels.shape for f in got] == [(32, 48)] * 5
+    assert all(np.array_equal(f.pixels, g) for f, g in zip(got, frames, strict=True))
+    assert [f.t_ns for f in got] == [i * 40_000_000 for i in range(5)]  # 25 frames/s
+    assert elapsed >= 4 * 0.04 - 1e-3
