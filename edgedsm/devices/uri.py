@@ -54,7 +54,6 @@ without readback), ``fault`` (``none``, ``no-answer``, ``garbage``, ``stuck``, `
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from urllib.parse import parse_qsl
 
 from edgedsm.devices.uriopts import UriOptions
 from edgedsm.errors import ConfigError
@@ -110,31 +109,8 @@ def _fail(uri: str, reason: str) -> ConfigError:
     return _opts(uri).fail(reason)
 
 
-
-
-
-
-
-
 def _options(uri: str, query: str, allowed: set[str]) -> dict[str, str]:
-    """Split ``a=1&b=2`` strictly: no empty keys, no repeats, only ``allowed`` keys."""
-    if not query:
-        return {}
-    try:
-        pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=True)
-    except ValueError:
-        raise _fail(uri, f"cannot read the options {query!r}: expected key=value&key=value") \
-            from None
-    options: dict[str, str] = {}
-    for key, value in pairs:
-        if key in options:
-            raise _fail(uri, f"option {key!r} is given twice")
-        if key not in allowed:
-            raise _fail(uri, f"unknown option {key!r} (known here: {', '.join(sorted(allowed))})")
-        if value == "":
-            raise _fail(uri, f"option {key!r} has no value")
-        options[key] = value
-    return options
+    return _opts(uri).split(query, allowed)
 
 
 def parse_relay_uri(uri: str) -> RelaySpec:

@@ -6,6 +6,7 @@ Every error is a ConfigError that names the URI and the offending option.
 from __future__ import annotations
 
 import math
+from urllib.parse import parse_qsl
 
 from edgedsm.errors import ConfigError
 
@@ -18,6 +19,26 @@ class UriOptions:
 
     def fail(self, reason: str) -> ConfigError:
         return ConfigError(f"{self.prefix}: {reason}")
+
+    def split(self, query: str, allowed: set[str], scheme: str = "") -> dict[str, str]:
+        """``a=1&b=2`` as a dict, strictly: no empty values, no repeats, only ``allowed`` keys."""
+        if not query:
+            return {}
+        try:
+            pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=True)
+        except ValueError:
+            raise self.fail(f"cannot read the options {query!r}: expected key=value&key=value") from None
+        options: dict[str, str] = {}
+        for key, value in pairs:
+            if key in options:
+                raise self.fail(f"option {key!r} is given twice")
+            if key not in allowed:
+                where = f" for {scheme}" if scheme else ""
+                raise self.fail(f"unknown option {key!r}{where} (known: {', '.join(sorted(allowed))})")
+            if value == "":
+                raise self.fail(f"option {key!r} has no value")
+            options[key] = value
+        return options
 
     def integer(self, key: str, text: str, low: int, high: int) -> int:
         try:

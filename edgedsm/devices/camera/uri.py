@@ -49,7 +49,6 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import parse_qsl
 
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.uriopts import UriOptions
@@ -87,29 +86,7 @@ def _fail(uri: str, reason: str) -> ConfigError:
 
 
 def _options(uri: str, scheme: str, query: str) -> dict[str, str]:
-    if not query:
-        return {}
-    allowed = _KEYS[scheme]
-    try:
-        pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=True)
-    except ValueError:
-        raise _fail(uri, f"cannot read the options {query!r}: expected key=value&key=value") from None
-    options: dict[str, str] = {}
-    for key, value in pairs:
-        if key not in allowed:
-            raise _fail(uri, f"unknown option {key!r} for {scheme} (known: {', '.join(sorted(allowed))})")
-        if key in options:
-            raise _fail(uri, f"option {key!r} is given twice")
-        if value == "":
-            raise _fail(uri, f"option {key!r} has no value")
-        options[key] = value
-    return options
-
-
-
-
-
-
+    return _opts(uri).split(query, _KEYS[scheme], scheme)
 
 
 def parse_camera_uri(uri: str) -> CameraSpec:
