@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from edgedsm.publish import _json
+from edgedsm import _json
 from edgedsm.publish.errors import PublishError
 
 log = logging.getLogger(__name__)

@@ -67,7 +67,7 @@ from paho.mqtt.reasoncodes import ReasonCode
 from pydantic import ValidationError
 
 from edgedsm.errors import ConfigError, EdgedsmError
-from edgedsm.publish import _json
+from edgedsm import _json
 from edgedsm.publish.alertqueue import AlertQueue
 from edgedsm.publish.commands import COMMANDS, Command
 from edgedsm.publish.errors import MapCodecError, PublishError

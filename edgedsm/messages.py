@@ -1,0 +1,157 @@
+"""Typed messages the daemon emits: region states, alerts, statistics and maps.
+
+Every sink (MQTT JSON, and the Sparkplug B / Home Assistant / Prometheus sinks to come) receives
+these, and every consumer (``edgedsm watch``, the tests, the dashboard) parses the same types,
+so the wire format is defined once, here. ``docs/mqtt.md`` documents each field with an example.
+
+Clock convention: every time in a message (``t``, ``since``) is wall-clock UTC in seconds since
+the Unix epoch. Inside the daemon, time is monotonic (immune to clock steps); it is converted
+once, at the boundary, with :meth:`Clock.to_wall`.
+
+Parsing is tolerant of keys it does not know (a newer daemon may add fields), strict about the
+ones it does (types and bounds are checked, a bad payload raises ``pydantic.ValidationError``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from edgedsm import _json
+
+#: States a region can be in (``edgedsm.drying.DryingState`` values).
+RegionStateName = Literal["warming_up", "wet", "drying", "dry", "fault"]
+#: The laser as the daemon knows it: ``unknown`` after any relay error (never guessed).
+LaserState = Literal["on", "off", "unknown"]
+
+
+@dataclass(frozen=True)
+class Clock:
+    """The daemon's two clocks: ``monotonic`` for intervals, ``wall`` (UTC epoch s) for messages."""
+
+    monotonic: Callable[[], float] = time.monotonic
+    wall: Callable[[], float] = time.time
+
+    def to_wall(self, monotonic_t: float) -> float:
+        """Wall-clock time (UTC epoch s) of an instant given on the monotonic clock."""
+        return self.wall() - (self.monotonic() - monotonic_t)
+
+
+class Message(BaseModel):
+    """Base of the JSON messages: immutable, unknown keys ignored when parsing."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore", populate_by_name=True)
+
+    def to_json(self) -> dict[str, Any]:
+        """The payload as published: field aliases, enums as strings, non-finite floats as null."""
+        return _json.jsonable(self.model_dump(mode="python", by_alias=True))
+
+    def to_bytes(self) -> bytes:
+        """Compact UTF-8 JSON of :meth:`to_json`."""
+        return _json.dumps(self.to_json())
+
+
+class RegionState(Message):
+    """The drying state of one region (``<base>/state`` and ``<base>/state/<region>``)."""
+
+    region: str = Field(description="region name from the config")
+    state: RegionStateName = Field(description="drying state")
+    since: float = Field(description="when the region entered this state, UTC epoch s")
+    activity: float | None = Field(None, description="latest region mean of the judged estimator")
+    time_to_dry_s: float | None = Field(None, ge=0, description="extrapolated seconds until dry; 0 when dry")
+
+
+class StateReport(Message):
+    """Every region's state at once (retained on ``<base>/state``)."""
+
+    t: float = Field(description="UTC epoch s")
+    estimator: str = Field(description="estimator the states are judged on (s1, s2, s3, tau_c)")
+    laser: LaserState = Field("off", description="the laser relay as last confirmed")
+    regions: dict[str, RegionState] = Field(default_factory=dict, description="by region name")
+
+
+class AlertKind(StrEnum):
+    """What an alert reports."""
+
+    TRANSITION = "transition"  # a region changed drying state
+    RESET = "reset"            # measurement restarted (reload, rebaseline): states start again
+    FAULT = "fault"            # no trustworthy data (camera lost, laser unknown, storage)
+    WARNING = "warning"        # measuring goes on, but something needs attention
+
+
+class Alert(Message):
+    """One event on ``<base>/alerts`` (QoS 1, durable; ``stream`` + ``seq`` identify it)."""
+
+    kind: AlertKind = Field(alias="type", description="transition, reset, fault or warning")
+    t: float = Field(description="UTC epoch s")
+    reason: str = Field("", description="why, in words")
+    region: str | None = Field(None, description="region concerned (None: the whole device)")
+    from_state: RegionStateName | None = Field(None, alias="from", description="transition: state left")
+    to_state: RegionStateName | None = Field(None, alias="to", description="transition: state entered")
+    activity: float | None = Field(None, description="activity that caused it, if any")
+    seq: int | None = Field(None, ge=1, description="set by the alert queue: 1, 2, 3... per stream")
+    stream: str | None = Field(None, description="set by the alert queue: id of the durable queue")
+
+    def describe(self) -> str:
+        """One line for logs and ``edgedsm watch``."""
+        where = f"{self.region}: " if self.region else ""
+        change = f"{self.from_state} -> {self.to_state}" if self.kind == AlertKind.TRANSITION else str(self.kind)
+        return f"{where}{change}" + (f" - {self.reason}" if self.reason else "")
+
+
+class MapStats(Message):
+    """Statistics of one map over one region (units of the map)."""
+
+    pixels: int = Field(ge=0)
+    mean: float | None
+    std: float | None
+    p05: float | None
+    median: float | None
+    p95: float | None
+
+
+class Stats(Message):
+    """Periodic statistics (``<base>/stats``, every ``stats_interval_s``)."""
+
+    t: float = Field(description="UTC epoch s")
+    frames: int = Field(ge=0, description="frames taken off the queue since start")
+    ready: bool = Field(description="the estimator window is full")
+    fps: float = Field(ge=0, description="frames per second over the last 64 frames")
+    laser: LaserState = Field(description="the laser relay as last confirmed")
+    estimator: str = Field(description="estimator the states are judged on")
+    drops: dict[str, int] = Field(default_factory=dict, description="frames dropped, by cause")
+    camera: dict[str, float | int | str | None] = Field(default_factory=dict, description="camera driver counters")
+    ambient_level: float | None = Field(None, description="mean of the latest dark frames, grey levels")
+    regions: dict[str, dict[str, MapStats]] = Field(default_factory=dict,
+                                                    description="region -> estimator -> statistics")
+    states: dict[str, RegionStateName] = Field(default_factory=dict, alias="state",
+                                               description="region -> drying state")
+    warning: str | None = Field(None, description="a condition that makes a map unreliable")
+    mqtt: dict[str, Any] | None = Field(None, description="the MQTT sink's own counters (added on the wire)")
+
+
+@dataclass(frozen=True)
+class MapFrame:
+    """One activity map as computed (float64, units of the estimator), with where it came from.
+
+    ``values`` must not be modified after it is handed over (``SlidingWindow.maps()`` makes new
+    arrays); sinks read it on their own threads.
+    """
+
+    name: str
+    values: np.ndarray
+    seq: int
+    t: float
+    window: int
+    lag: int
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def meta(self) -> dict[str, Any]:
+        """What goes beside the picture (the codec adds scale, offset, shape, checksum)."""
+        return {**self.extra, "seq": self.seq, "t": self.t, "window": self.window, "lag": self.lag}
