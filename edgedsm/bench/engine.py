@@ -31,7 +31,6 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import datetime
 import functools
 import gc
 import importlib.util
@@ -47,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from edgedsm.bench.report import cpu_model, versions, write_markdown
+from edgedsm.bench.report import Report, add_output_argument, load_average, markdown_table
 from edgedsm.estimators import SlidingWindow, all_maps
 
 HELP = "streaming engine vs batch recompute: ms/frame, memory, bandwidth bound, error, map noise"
@@ -313,31 +312,27 @@ def _fmt_err(errors: dict[str, float] | None) -> str:
 
 
 def speed_table(rows: list[Row]) -> list[str]:
-    lines = ["| frame | mode | kernel | ms/frame best (median) | Mpx/s | state B/px | moved B/px | "
-             "x bandwidth bound | maps() ms | speed-up vs batch: push / push+maps | "
-             "max abs error S1 / S2 / S3 | note |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|"]
-    for row in rows:
-        lines.append(
-            f"| {row.size[1]}x{row.size[0]} | {row.mode} | {row.kernel} | {row.ms:.2f} "
-            f"({row.median_ms:.2f}) | "
-            f"{row.pixels / row.ms / 1e3:.0f} | {row.state_bytes:.0f} | "
-            f"{row.traffic_bytes:.0f} | {row.ms / row.bound_ms:.2f} | {row.maps_ms:.1f} | "
-            f"{row.batch_ms / row.ms:.0f}x / {row.batch_ms / (row.ms + row.maps_ms):.0f}x | "
-            f"{_fmt_err(row.errors)} | {row.note} |")
-    return lines
+    header = ["frame", "mode", "kernel", "ms/frame best (median)", "Mpx/s", "state B/px", "moved B/px",
+              "x bandwidth bound", "maps() ms", "speed-up vs batch: push / push+maps",
+              "max abs error S1 / S2 / S3", "note"]
+    return markdown_table(header, [
+        [f"{row.size[1]}x{row.size[0]}", row.mode, row.kernel, f"{row.ms:.2f} ({row.median_ms:.2f})",
+         f"{row.pixels / row.ms / 1e3:.0f}", f"{row.state_bytes:.0f}", f"{row.traffic_bytes:.0f}",
+         f"{row.ms / row.bound_ms:.2f}", f"{row.maps_ms:.1f}",
+         f"{row.batch_ms / row.ms:.0f}x / {row.batch_ms / (row.ms + row.maps_ms):.0f}x",
+         _fmt_err(row.errors), row.note] for row in rows], align="lll" + "r" * 7 + "ll")
 
 
 def noise_table(noise: list[dict[str, Any]]) -> list[str]:
-    lines = ["| N | sliding S1 | sliding S2 | sliding S3 | exponential S1 | exponential S2 | "
-             "exponential S3 | mean S1 / S2 / S3 (sliding) |",
-             "|---:|---:|---:|---:|---:|---:|---:|---|"]
+    header = ["N", "sliding S1", "sliding S2", "sliding S3", "exponential S1", "exponential S2",
+              "exponential S3", "mean S1 / S2 / S3 (sliding)"]
+    rows = []
     for row in noise:
         cells = [f"{100 * row[(mode, name)]:.1f} %" for mode in ("sliding", "exponential")
                  for name in ("s1", "s2", "s3")]
         means = " / ".join(f"{row[('sliding', name, 'mean')]:.3g}" for name in ("s1", "s2", "s3"))
-        lines.append(f"| {row['N']} | " + " | ".join(cells) + f" | {means} |")
-    return lines
+        rows.append([row["N"], *cells, means])
+    return markdown_table(header, rows, align="r" * 7 + "l")
 
 
 def plot(rows: list[Row], noise: list[dict[str, Any]], path: Path) -> bool:
@@ -404,16 +399,10 @@ def run(args: argparse.Namespace) -> int:
         sizes.append(PAPER_SIZE)
     numpy_frames = args.numpy_frames or (10 if quick else 30)
     kernels = ["numba", "numpy"] if importlib.util.find_spec("numba") else ["numpy"]
-    out: list[str] = []
-
-    def emit(line: str = "") -> None:
-        out.append(line)
-        print(line, flush=True)
-
     def log(line: str) -> None:
         print(line, flush=True)
 
-    load_start = os.getloadavg()
+    load_start = load_average()
     started = time.perf_counter()
     measurements = [measure_bandwidth(128 if quick else 512)]
     rows: list[Row] = []
@@ -436,17 +425,15 @@ def run(args: argparse.Namespace) -> int:
     noise_frames = args.noise_frames or (400 if quick else 1600)
     noise = noise_study(64 if quick else 128, noise_frames,
                         [n for n in noise_windows if n <= noise_frames], lag)
-    load_end = os.getloadavg()
+    load_end = load_average()
     elapsed = time.perf_counter() - started
 
     command = "edgedsm bench engine" + (" --quick" if quick else "") + \
         (" --paper-size" if args.paper_size else "")
-    emit("# Streaming engine benchmark")
-    emit()
-    emit(f"`{command}` on {datetime.date.today().isoformat()}: {cpu_model()}, "
-         f"{os.cpu_count()} logical CPUs; {versions('numba')}. Load average "
-         f"{load_start[0]:.2f} at the start, {load_end[0]:.2f} at the end (other work on the "
-         f"machine slows rows at random); {elapsed:.0f} s in all.")
+    report = Report("Streaming engine benchmark")
+    emit = report.line
+    emit(report.machine(command, "numba", load=load_start, load_after=load_end)
+         + f" Other work on the machine slows rows at random; {elapsed:.0f} s in all.")
     emit()
     emit(f"Measured memory bandwidth: **{bandwidth / 1e9:.1f} GB/s**, the highest of "
          f"{len(measurements)} measurements, one before each frame size ({how}; all: "
@@ -462,8 +449,7 @@ def run(args: argparse.Namespace) -> int:
          f"whose last block is the same frames); S1 in grey levels. For the exponential mode "
          f"it is the difference between the two estimators, not a rounding error.")
     emit()
-    for line in speed_table(rows):
-        emit(line)
+    report.extend(speed_table(rows))
     emit()
     emit(f"S2 against exact rational arithmetic on {EXACT_SAMPLE} sampled pixels of the "
          f"sliding window (max abs error): " + "; ".join(
@@ -495,17 +481,15 @@ def run(args: argparse.Namespace) -> int:
          f"contrast a map of window N can show. The exponential window of the same N "
          f"averages about as many frames but weighs them unevenly.")
     emit()
-    for line in noise_table(noise):
-        emit(line)
+    report.extend(noise_table(noise))
     if args.output:
         path = Path(args.output)
         path.parent.mkdir(parents=True, exist_ok=True)
         picture = path.with_suffix(".png")
         if plot(rows, noise, picture):
-            out.append("")
-            out.append(f"![ms per frame and map noise]({picture.name})")
+            report.lines += ["", f"![ms per frame and map noise]({picture.name})"]
             print(f"wrote {picture}")
-        write_markdown(path, out)
+        report.save(path)
     return 0
 
 
@@ -526,6 +510,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="timed pushes of the numpy kernel (default 30; 10 with --quick)")
     parser.add_argument("--noise-frames", type=int, metavar="n",
                         help="simulated frames for the noise study (default 1600; 400 quick)")
-    parser.add_argument("-o", "--output", metavar="FILE.md",
-                        help="also write the report as markdown, and FILE.png when "
-                             "matplotlib is installed")
+    add_output_argument(parser, "docs/bench-engine.md", extra=", and FILE.png when matplotlib is installed")
