@@ -24,9 +24,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -38,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.bench.report import write_markdown
+from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.devices.camera.base import Camera, Region
 from edgedsm.errors import DeviceError
 
@@ -68,10 +66,11 @@ class Result:
     def cpu_ms(self) -> float:
         return 1e3 * self.cpu_s / self.frames
 
-    def row(self) -> str:
+    def cells(self) -> list[object]:
+        """The cells of this result's table row (see ``run``)."""
         peer = f"{1e3 * self.peer_cpu_s / self.frames:.2f}" if self.peer_cpu_s is not None else "–"
-        return (f"| {self.driver} | {self.setup} | {self.frames} | {self.fps:.1f} | {self.cpu_ms:.2f} | "
-                f"{100 * self.cpu_s / self.seconds:.0f} % | {peer} | {self.dropped} | {self.note} |")
+        return [self.driver, self.setup, self.frames, f"{self.fps:.1f}", f"{self.cpu_ms:.2f}",
+                f"{100 * self.cpu_s / self.seconds:.0f} %", peer, self.dropped, self.note]
 
 
 def _proc_cpu_s(pid: int) -> float:
@@ -189,12 +188,7 @@ def run(args: argparse.Namespace) -> int:
     frames = args.frames or (60 if args.quick else 200)
     warmup = 5 if args.quick else 20
     repeats = args.repeats or (1 if args.quick else 3)
-    load = os.getloadavg()[0]
-    out: list[str] = []
-
-    def emit(line: str = "") -> None:
-        out.append(line)
-        print(line, flush=True)
+    load = load_average()
 
     steps: list[tuple[str, Callable[[], list[Result]]]] = [
         ("Aravis", lambda: bench_aravis(frames, warmup, (1400, 8000), repeats)),
@@ -207,19 +201,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"measuring {name} ...", file=sys.stderr, flush=True)
             results += step()
 
-    emit("# Camera driver benchmark")
-    emit()
-    emit(f"`edgedsm bench devices{' --quick' if args.quick else ''}` on {datetime.date.today().isoformat()}: "
-         f"{platform.machine()}, {os.cpu_count()} logical CPUs, Python {platform.python_version()}, "
-         f"numpy {np.__version__}; load average before the run {load:.1f}. Best of {repeats} trial(s) of "
+    report = Report("Camera driver benchmark")
+    emit = report.line
+    emit(report.machine(f"edgedsm bench devices{' --quick' if args.quick else ''}", load=load)
+         + f" Best of {repeats} trial(s) of "
          f"{frames} frames per Aravis case ({fast_frames} for replay) after {warmup} warm-up frames; "
          f"the consumer reads every pixel of each frame (its own cost is the first row).")
     emit()
-    emit("| driver | set-up | frames | frames/s | CPU ms/frame (this process) | CPU (one core = 100 %) "
-         "| fake camera CPU ms/frame | dropped | notes |")
-    emit("|---|---|---:|---:|---:|---:|---:|---:|---|")
-    for result in results:
-        emit(result.row())
+    report.table(["driver", "set-up", "frames", "frames/s", "CPU ms/frame (this process)",
+                  "CPU (one core = 100 %)", "fake camera CPU ms/frame", "dropped", "notes"],
+                 [result.cells() for result in results], align="ll" + "r" * 6 + "l")
     emit()
     emit("CPU ms/frame is this process's CPU time (all threads, the consumer included) divided by the "
          "frames delivered. "
@@ -230,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
          "frame about six-fold. A CPU share well below 100 % on a CPU-bound row (replay, consumer) means "
          "the machine was shared with other work during the run.")
     if args.output:
-        write_markdown(args.output, out)
+        report.save(args.output)
     return 0
 
 
@@ -238,4 +229,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="fewer frames (60 per case)")
     parser.add_argument("--frames", type=int, metavar="N", help="frames per Aravis trial (default 200; replay 20x)")
     parser.add_argument("--repeats", type=int, metavar="R", help="trials per case, the best is shown (default 3)")
-    parser.add_argument("-o", "--output", metavar="FILE.md", help="also write the report as markdown")
+    add_output_argument(parser, "docs/bench-devices.md")

@@ -31,7 +31,6 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import datetime
 import functools
 import gc
 import importlib.util
@@ -40,44 +39,21 @@ import os
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from edgedsm.bench.report import cpu_model, versions, write_markdown
+from edgedsm.bench.engine_report import MODES, Row, noise_table, plot, speed_table
+from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.estimators import SlidingWindow, all_maps
 
 HELP = "streaming engine vs batch recompute: ms/frame, memory, bandwidth bound, error, map noise"
 
-MODES = ("sliding", "tumbling", "exponential")
 PAPER_SIZE = (2168, 4096)  # rows x columns of the paper's camera
 POOL = 16  # distinct frames cycled through the engines
 EXACT_SAMPLE = 400  # pixels whose S2 is also computed in exact arithmetic
-
-
-@dataclass
-class Row:
-    """One (size, mode, kernel) measurement."""
-
-    size: tuple[int, int]
-    mode: str
-    kernel: str
-    ms: float  # best push
-    median_ms: float
-    maps_ms: float
-    state_bytes: float
-    traffic_bytes: float
-    bound_ms: float
-    batch_ms: float
-    errors: dict[str, float] | None  # max |map - batch| per map; None: not measured
-    note: str = ""
-
-    @property
-    def pixels(self) -> int:
-        return self.size[0] * self.size[1]
 
 
 # -- measurements --------------------------------------------------------------------------
@@ -306,95 +282,6 @@ def _needed_bytes(shape: tuple[int, int], window: int) -> int:
     return shape[0] * shape[1] * (2 * window + 250)
 
 
-def _fmt_err(errors: dict[str, float] | None) -> str:
-    if errors is None:
-        return "as the first kernel"
-    return " / ".join("0" if value == 0 else f"{value:.1e}" for value in errors.values())
-
-
-def speed_table(rows: list[Row]) -> list[str]:
-    lines = ["| frame | mode | kernel | ms/frame best (median) | Mpx/s | state B/px | moved B/px | "
-             "x bandwidth bound | maps() ms | speed-up vs batch: push / push+maps | "
-             "max abs error S1 / S2 / S3 | note |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|"]
-    for row in rows:
-        lines.append(
-            f"| {row.size[1]}x{row.size[0]} | {row.mode} | {row.kernel} | {row.ms:.2f} "
-            f"({row.median_ms:.2f}) | "
-            f"{row.pixels / row.ms / 1e3:.0f} | {row.state_bytes:.0f} | "
-            f"{row.traffic_bytes:.0f} | {row.ms / row.bound_ms:.2f} | {row.maps_ms:.1f} | "
-            f"{row.batch_ms / row.ms:.0f}x / {row.batch_ms / (row.ms + row.maps_ms):.0f}x | "
-            f"{_fmt_err(row.errors)} | {row.note} |")
-    return lines
-
-
-def noise_table(noise: list[dict[str, Any]]) -> list[str]:
-    lines = ["| N | sliding S1 | sliding S2 | sliding S3 | exponential S1 | exponential S2 | "
-             "exponential S3 | mean S1 / S2 / S3 (sliding) |",
-             "|---:|---:|---:|---:|---:|---:|---:|---|"]
-    for row in noise:
-        cells = [f"{100 * row[(mode, name)]:.1f} %" for mode in ("sliding", "exponential")
-                 for name in ("s1", "s2", "s3")]
-        means = " / ".join(f"{row[('sliding', name, 'mean')]:.3g}" for name in ("s1", "s2", "s3"))
-        lines.append(f"| {row['N']} | " + " | ".join(cells) + f" | {means} |")
-    return lines
-
-
-def plot(rows: list[Row], noise: list[dict[str, Any]], path: Path) -> bool:
-    """Two panels: ms/frame per mode and kernel; map spread against N. False without mpl."""
-    try:
-        import matplotlib
-        import matplotlib.ticker
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return False
-    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
-    labels = sorted({(r.mode, r.kernel, r.note == "1 thread") for r in rows},
-                    key=lambda k: (MODES.index(k[0]), k[1], k[2]))
-    sizes = sorted({r.size for r in rows}, key=lambda s: s[0] * s[1])
-    width = 0.8 / max(1, len(labels))
-    for k, (mode, kernel, single) in enumerate(labels):
-        values, bounds = [], []
-        for size in sizes:
-            match = [r for r in rows if r.size == size and r.mode == mode and
-                     r.kernel == kernel and (r.note == "1 thread") == single]
-            values.append(match[0].ms if match else np.nan)
-            bounds.append(match[0].bound_ms if match else np.nan)
-        x = np.arange(len(sizes)) + k * width
-        left.bar(x, values, width, label=f"{mode} / {kernel}{' (1 thread)' if single else ''}")
-        # each bar's own memory-bandwidth bound as a black tick across it
-        left.hlines(bounds, x - width / 2, x + width / 2, colors="black", linewidth=2,
-                    label="bandwidth bound" if k == 0 else None)
-    left.set_xticks(np.arange(len(sizes)) + width * (len(labels) - 1) / 2,
-                    [f"{s[1]}x{s[0]}" for s in sizes])
-    left.set_yscale("log")
-    left.set_ylabel("ms per frame (all three maps)")
-    left.set_title("streaming engine, N = 200, m = 10")
-    left.legend(fontsize=7, ncol=2)
-    if noise:
-        windows = [row["N"] for row in noise]
-        for name, colour in (("s1", "C0"), ("s2", "C1"), ("s3", "C2")):
-            for mode, style in (("sliding", "-o"), ("exponential", "--s")):
-                right.plot(windows, [100 * row[(mode, name)] for row in noise], style,
-                           color=colour, label=f"{name.upper()} {mode}")
-        right.set_xscale("log")
-        right.set_yscale("log")
-        right.set_xticks(windows, [str(n) for n in windows])
-        right.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-        right.yaxis.set_minor_formatter(matplotlib.ticker.ScalarFormatter())
-        right.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-        right.set_xlabel("window N (frames)")
-        right.set_ylabel("spatial spread std/mean (%)")
-        right.set_title("map noise at constant activity (τc = 20 frames)")
-        right.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return True
-
-
 def run(args: argparse.Namespace) -> int:
     quick = args.quick
     window, lag = args.window, args.lag
@@ -404,16 +291,10 @@ def run(args: argparse.Namespace) -> int:
         sizes.append(PAPER_SIZE)
     numpy_frames = args.numpy_frames or (10 if quick else 30)
     kernels = ["numba", "numpy"] if importlib.util.find_spec("numba") else ["numpy"]
-    out: list[str] = []
-
-    def emit(line: str = "") -> None:
-        out.append(line)
-        print(line, flush=True)
-
     def log(line: str) -> None:
         print(line, flush=True)
 
-    load_start = os.getloadavg()
+    load_start = load_average()
     started = time.perf_counter()
     measurements = [measure_bandwidth(128 if quick else 512)]
     rows: list[Row] = []
@@ -436,17 +317,15 @@ def run(args: argparse.Namespace) -> int:
     noise_frames = args.noise_frames or (400 if quick else 1600)
     noise = noise_study(64 if quick else 128, noise_frames,
                         [n for n in noise_windows if n <= noise_frames], lag)
-    load_end = os.getloadavg()
+    load_end = load_average()
     elapsed = time.perf_counter() - started
 
     command = "edgedsm bench engine" + (" --quick" if quick else "") + \
         (" --paper-size" if args.paper_size else "")
-    emit("# Streaming engine benchmark")
-    emit()
-    emit(f"`{command}` on {datetime.date.today().isoformat()}: {cpu_model()}, "
-         f"{os.cpu_count()} logical CPUs; {versions('numba')}. Load average "
-         f"{load_start[0]:.2f} at the start, {load_end[0]:.2f} at the end (other work on the "
-         f"machine slows rows at random); {elapsed:.0f} s in all.")
+    report = Report("Streaming engine benchmark")
+    emit = report.line
+    emit(report.machine(command, "numba", load=load_start, load_after=load_end)
+         + f" Other work on the machine slows rows at random; {elapsed:.0f} s in all.")
     emit()
     emit(f"Measured memory bandwidth: **{bandwidth / 1e9:.1f} GB/s**, the highest of "
          f"{len(measurements)} measurements, one before each frame size ({how}; all: "
@@ -462,8 +341,7 @@ def run(args: argparse.Namespace) -> int:
          f"whose last block is the same frames); S1 in grey levels. For the exponential mode "
          f"it is the difference between the two estimators, not a rounding error.")
     emit()
-    for line in speed_table(rows):
-        emit(line)
+    report.extend(speed_table(rows))
     emit()
     emit(f"S2 against exact rational arithmetic on {EXACT_SAMPLE} sampled pixels of the "
          f"sliding window (max abs error): " + "; ".join(
@@ -495,17 +373,15 @@ def run(args: argparse.Namespace) -> int:
          f"contrast a map of window N can show. The exponential window of the same N "
          f"averages about as many frames but weighs them unevenly.")
     emit()
-    for line in noise_table(noise):
-        emit(line)
+    report.extend(noise_table(noise))
     if args.output:
         path = Path(args.output)
         path.parent.mkdir(parents=True, exist_ok=True)
         picture = path.with_suffix(".png")
         if plot(rows, noise, picture):
-            out.append("")
-            out.append(f"![ms per frame and map noise]({picture.name})")
+            report.lines += ["", f"![ms per frame and map noise]({picture.name})"]
             print(f"wrote {picture}")
-        write_markdown(path, out)
+        report.save(path)
     return 0
 
 
@@ -526,6 +402,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="timed pushes of the numpy kernel (default 30; 10 with --quick)")
     parser.add_argument("--noise-frames", type=int, metavar="n",
                         help="simulated frames for the noise study (default 1600; 400 quick)")
-    parser.add_argument("-o", "--output", metavar="FILE.md",
-                        help="also write the report as markdown, and FILE.png when "
-                             "matplotlib is installed")
+    add_output_argument(parser, "docs/bench-engine.md", extra=", and FILE.png when matplotlib is installed")

@@ -24,7 +24,6 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 import statistics
 import sys
@@ -35,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edgedsm.analysis import contrast
-from edgedsm.bench.report import cpu_model, versions, write_markdown
+from edgedsm.bench.report import Report, add_output_argument, format_load, load_average
 from edgedsm.estimators.batch import all_maps
 from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
 from edgedsm.sim.poisson import _numba as poisson_numba
@@ -221,15 +220,6 @@ def precision_drift(size: int, checkpoints: tuple[int, ...]) -> list[tuple[int, 
 # -- report ---------------------------------------------------------------------------------
 
 
-def _load() -> str:
-    try:
-        return f"{os.getloadavg()[0]:.2f}"
-    except OSError:
-        return "unknown"
-
-
-
-
 def run(args: argparse.Namespace) -> int:
     quick = args.quick
     sizes = args.sizes
@@ -241,16 +231,9 @@ def run(args: argparse.Namespace) -> int:
             return args.frames
         return max(2, int((15 if quick else 40) * (256 / size) ** 2))
 
-    out: list[str] = []
-
-    def emit(line: str = "") -> None:
-        out.append(line)
-        print(line, flush=True)
-
-    emit("# Simulator benchmark")
-    emit()
-    emit(f"`edgedsm bench sim{' --quick' if quick else ''}` on {datetime.date.today().isoformat()}: "
-         f"{cpu_model()}, {os.cpu_count()} logical CPUs; {versions('scipy', 'pyspeckle', 'numba')}.")
+    report = Report("Simulator benchmark")
+    emit = report.line
+    emit(report.machine(f"edgedsm bench sim{' --quick' if quick else ''}", "scipy", "pyspeckle", "numba"))
     emit(f"Threads: `workers` = {' and '.join(map(str, workers))} (the simulator's threads for random "
          f"draws, FFTs and detector; scipy.fft itself runs single-threaded inside them); detector "
          f"Poisson kernel: {'numba' if poisson_numba() is not None else 'numpy'}. Speckle size "
@@ -280,37 +263,32 @@ def run(args: argparse.Namespace) -> int:
         if peer is not None:
             steps[f"pyspeckle/{size}"], counts[f"pyspeckle/{size}"] = peer, frames_for(size)
     print(f"timing {len(steps)} cases ...", file=sys.stderr, flush=True)
-    load_before = _load()
+    load_before = load_average()
     timings = measure(steps, counts, repeats)
-    emit(f"Machine load (1-minute load average) before / after the timing: {load_before} / {_load()}; "
+    emit(f"Machine load (1-minute load average) before / after the timing: "
+         f"{format_load(load_before)} / {format_load(load_average())}; "
          f"anything above ~0.2 means other programs shared the {os.cpu_count()} CPUs and the "
          "two-thread figures in particular are low.")
     emit()
 
     emit("## Frames per second by effect (complex64)")
     emit()
-    header = "| case |"
-    rule = "|---|"
+    header = ["case"]
     for size in sizes:
-        for w in workers:
-            header += f" {size}², {w} thr. fps |"
-            rule += "---:|"
-        header += f" {size}² cost, CPU ms/frame |"
-        rule += "---:|"
-    emit(header)
-    emit(rule)
+        header += [f"{size}², {w} thr. fps" for w in workers] + [f"{size}² cost, CPU ms/frame"]
+    table = []
     for case in CASES:
-        line = f"| {case.label} |"
+        cells = [case.label]
         for size in sizes:
-            for w in workers:
-                line += f" {timings[f'{case.key}/{size}/{w}/single'].fps()} |"
+            cells += [timings[f"{case.key}/{size}/{w}/single"].fps() for w in workers]
             own = timings[f"{case.key}/{size}/1/single"].cpu_best
             if case.reference is None:
-                line += f" {own * 1e3:.2f} (total) |"
+                cells.append(f"{own * 1e3:.2f} (total)")
             else:
                 ref = timings[f"{case.reference}/{size}/1/single"].cpu_best
-                line += f" {(own - ref) * 1e3:+.2f} |"
-        emit(line)
+                cells.append(f"{(own - ref) * 1e3:+.2f}")
+        table.append(cells)
+    report.table(header, table)
     emit()
     emit("Cost: extra CPU time per frame over the base (the ambient light: over the detector with "
          "shot noise), 1 thread, least of the trials (CPU time is little affected by other load); a "
@@ -321,14 +299,14 @@ def run(args: argparse.Namespace) -> int:
     # 2. precision -------------------------------------------------------------------------
     emit("## complex64 against complex128 (all effects)")
     emit()
-    emit("| size | threads | complex64 fps | complex128 fps | complex64 CPU ms/frame | "
-         "complex128 CPU ms/frame | complex128 / complex64 (CPU) |")
-    emit("|---|---:|---:|---:|---:|---:|---:|")
+    table = []
     for size in sizes:
         for w in workers:
             single, double = timings[f"all/{size}/{w}/single"], timings[f"all/{size}/{w}/double"]
-            emit(f"| {size}² | {w} | {single.fps()} | {double.fps()} | {single.cpu_best * 1e3:.2f} | "
-                 f"{double.cpu_best * 1e3:.2f} | {double.cpu_best / single.cpu_best:.2f} |")
+            table.append([f"{size}²", w, single.fps(), double.fps(), f"{single.cpu_best * 1e3:.2f}",
+                          f"{double.cpu_best * 1e3:.2f}", f"{double.cpu_best / single.cpu_best:.2f}"])
+    report.table(["size", "threads", "complex64 fps", "complex128 fps", "complex64 CPU ms/frame",
+                  "complex128 CPU ms/frame", "complex128 / complex64 (CPU)"], table)
     emit()
     emit("Most of the extra cost of complex128 is not the FFT (1.8x) but sin/cos/log: numpy "
          "vectorises them (AVX-512/AVX2) for float32 only; float64 sin and cos are scalar libm "
@@ -345,12 +323,11 @@ def run(args: argparse.Namespace) -> int:
          f"S(complex128); spread = standard deviation of the complex128 map over the image; "
          f"β = (S_active - S_background)/S_active.")
     emit()
-    emit("| scene | map | max \\|ΔS\\| / spread | rms ΔS / spread | rms ΔS / spread, another seed | "
-         "β complex64 | β complex128 |")
-    emit("|---|---|---:|---:|---:|---:|---:|")
-    for row in rows:
-        emit(f"| {row.case} | {row.estimator.upper()} | {row.max_rel:.1e} | {row.rms_rel:.1e} | "
-             f"{row.seed_rms_rel:.2f} | {row.beta_single:.6f} | {row.beta_double:.6f} |")
+    report.table(["scene", "map", "max |ΔS| / spread", "rms ΔS / spread", "rms ΔS / spread, another seed",
+                  "β complex64", "β complex128"],
+                 [[row.case, row.estimator.upper(), f"{row.max_rel:.1e}", f"{row.rms_rel:.1e}",
+                   f"{row.seed_rms_rel:.2f}", f"{row.beta_single:.6f}", f"{row.beta_double:.6f}"]
+                  for row in rows], align="llrrrrr")
     emit()
     for name, text in extra.items():
         emit(f"- {name}: {text}.")
@@ -371,24 +348,22 @@ def run(args: argparse.Namespace) -> int:
     if not any(key.startswith("pyspeckle/") for key in timings):
         emit("pyspeckle is not installed (`pip install edgedsm[peers]`); no peer timing.")
     else:
-        emit("| generator | one frame is | " + " | ".join(f"{s}² fps" for s in sizes) + " |")
-        emit("|---|---|" + "---:|" * len(sizes))
-        emit(f"| pyspeckle `create_Exponential(M, {SPECKLE_SIZE:g})` | one static pattern, "
-             f"independent of the last (no time correlation, no noise, no detector), complex128 | "
-             + " | ".join(timings[f"pyspeckle/{s}"].fps() for s in sizes) + " |")
-        emit("| edgedsm base, 1 thread, complex64 | next frame of a dynamic pattern (random walk per "
-             "grid point, τc map), 2x2 pixels | "
-             + " | ".join(timings[f"base/{s}/1/single"].fps() for s in sizes) + " |")
-        for w in workers:
-            emit(f"| edgedsm all effects, {w} thr., complex64 | the same plus Gaussian light, OU noise, "
-                 "drying, shot noise, ambient light, 8-bit output | "
-                 + " | ".join(timings[f"all/{s}/{w}/single"].fps() for s in sizes) + " |")
+        table = [[f"pyspeckle `create_Exponential(M, {SPECKLE_SIZE:g})`",
+                  "one static pattern, independent of the last (no time correlation, no noise, "
+                  "no detector), complex128", *(timings[f"pyspeckle/{s}"].fps() for s in sizes)],
+                 ["edgedsm base, 1 thread, complex64", "next frame of a dynamic pattern (random walk "
+                  "per grid point, τc map), 2x2 pixels", *(timings[f"base/{s}/1/single"].fps() for s in sizes)]]
+        table += [[f"edgedsm all effects, {w} thr., complex64", "the same plus Gaussian light, OU noise, "
+                   "drying, shot noise, ambient light, 8-bit output",
+                   *(timings[f"all/{s}/{w}/single"].fps() for s in sizes)] for w in workers]
+        report.table(["generator", "one frame is", *(f"{s}² fps" for s in sizes)], table,
+                     align="ll" + "r" * len(sizes))
         emit()
         emit(f"pyspeckle draws an M·{SPECKLE_SIZE:g} square of random phases and does one complex128 "
              "fft2 of it (the same grid as ours at this speckle size), with numpy's single-threaded FFT.")
     emit()
     if args.output:
-        write_markdown(args.output, out)
+        report.save(args.output)
     return 0
 
 
@@ -402,4 +377,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, metavar="R", help="trials per case (default 15; 3 with --quick)")
     parser.add_argument("--accuracy-frames", type=int, metavar="n",
                         help="frames of the single/double precision study (default 200; 40 with --quick)")
-    parser.add_argument("-o", "--output", metavar="FILE.md", help="also write the report as markdown")
+    add_output_argument(parser, "docs/bench-sim.md")

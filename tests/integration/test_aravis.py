@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from camera_contract import run_contract
 
 from edgedsm.cli import main
 from edgedsm.devices.camera import Backoff, Region
 from edgedsm.devices.camera.aravis import AravisCamera, list_cameras, load_aravis
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
+from edgedsm.testing import check_camera_contract
 
 pytestmark = pytest.mark.integration
 
@@ -110,7 +110,7 @@ def gv_factory(tmp_path) -> Iterator:
 @pytest.mark.timeout(30)
 def test_fake_interface_contract():
     require_aravis()
-    run_contract(lambda: AravisCamera("Fake_1"))
+    check_camera_contract(lambda: AravisCamera("Fake_1"))
 
 
 @pytest.mark.timeout(30)
@@ -166,7 +166,7 @@ def test_missing_camera_is_a_clear_device_error():
 @pytest.mark.timeout(60)
 def test_gige_contract_and_acquisition(gv_factory):
     fake = gv_factory()
-    run_contract(lambda: AravisCamera(ADDRESS))
+    check_camera_contract(lambda: AravisCamera(ADDRESS))
     with open_camera(f"aravis:{fake.device_id}?buffers=6") as camera:
         assert fake.serial in camera.description
         camera.set_frame_interval(0.01)

@@ -19,7 +19,7 @@ import subprocess
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,12 +43,12 @@ from helpers_relay import (
 
 from edgedsm.cli import main
 from edgedsm.devices.laser import (
-    LaserSafety,
     forget_simulated_boards,
     open_relay,
     simulated_board,
 )
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
+from edgedsm.testing import RELAY_CHECKS, RelayRig
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
@@ -330,53 +330,37 @@ def test_modbus_over_socket_url(tmp_path: Path) -> None:
         stop_process(process)
 
 
-# -- the contract, shared by the simulated relay and every emulated board -------------------
+# -- the contract (edgedsm.testing), shared by the simulated relay and every emulated board --
 
-def test_contract_close_leaves_it_off(any_rig: Rig) -> None:
-    relay = open_relay(any_rig.uri)
-    relay.on()
-    assert any_rig.settled(True)
-    relay.close()
-    assert any_rig.settled(False)
-    relay.close()  # again: nothing happens
-    with pytest.raises(DeviceError, match="closed"):
-        relay.on()
-    assert any_rig.settled(False)
+@pytest.mark.parametrize("contract_check", list(RELAY_CHECKS.values()), ids=list(RELAY_CHECKS))
+def test_contract(any_rig: Rig, contract_check: Callable[[RelayRig], None]) -> None:
+    contract_check(RelayRig(open=lambda: open_relay(any_rig.uri), is_on=lambda: any_rig.is_on,
+                            readback=any_rig.readback, force=any_rig.force))
 
 
-def test_contract_exit_on_exception_leaves_it_off(any_rig: Rig) -> None:
-    with pytest.raises(RuntimeError, match="camera lost"), open_relay(any_rig.uri) as relay:
-        relay.on()
-        assert any_rig.settled(True)
-        raise RuntimeError("camera lost")
-    assert any_rig.settled(False)
+def test_contract_catches_a_board_left_on(any_rig: Rig) -> None:
+    """The checks watch the contact, not the driver: a relay that never switches off fails."""
+    class LeftOn:
+        def __init__(self) -> None:
+            self.relay = open_relay(any_rig.uri)
 
+        def __getattr__(self, name: str) -> object:
+            return getattr(self.relay, name)
 
-def test_contract_safety_off_at_start_and_on_error(any_rig: Rig) -> None:
-    any_rig.force(True)  # someone left the laser on
-    with pytest.raises(ValueError), LaserSafety(open_relay(any_rig.uri)) as relay:
-        assert any_rig.settled(False)
-        relay.on()
-        assert any_rig.settled(True)
-        raise ValueError("bad frame")
-    assert any_rig.settled(False)
+        def close(self) -> None:
+            self.relay.detach()  # releases the port WITHOUT switching off
 
+        def __enter__(self) -> LeftOn:
+            return self
 
-def test_contract_readback_is_reported_honestly(any_rig: Rig) -> None:
-    with open_relay(any_rig.uri) as relay:
-        assert relay.readback is any_rig.readback
-        assert relay.on().confirmed is any_rig.readback
-        assert relay.state().on is True
+        def __exit__(self, *exc: object) -> None:
+            self.close()
 
-
-def test_contract_sigterm_leaves_it_off(any_rig: Rig) -> None:
-    safety = LaserSafety(open_relay(any_rig.uri), signals=(signal.SIGTERM,))
-    with pytest.raises(SystemExit), safety as relay:
-        relay.on()
-        assert any_rig.settled(True)
-        signal.raise_signal(signal.SIGTERM)
-        time.sleep(5)
-    assert any_rig.settled(False)
+    rig = RelayRig(open=LeftOn, is_on=lambda: any_rig.is_on,  # type: ignore[arg-type]
+                   readback=any_rig.readback, settle_s=0.3)
+    with pytest.raises(AssertionError, match=r"the contact is ON after close\(\)"):
+        RELAY_CHECKS["close_leaves_it_off"](rig)
+    any_rig.force(False)
 
 
 # -- the field tool, end to end ------------------------------------------------------------

@@ -6,12 +6,12 @@ import time
 
 import numpy as np
 import pytest
-from camera_contract import run_contract
 
 from edgedsm.devices.camera import Backoff, ReplayCamera, SimulatedCamera
 from edgedsm.errors import DeviceError, DeviceLost
 from edgedsm.imageio import write_stack
 from edgedsm.sim import scene_from_dict
+from edgedsm.testing import check_camera_contract
 
 SCENE = {"scene": {"size": 32, "frames": 10, "seed": 4, "dt": 0.01}, "activity": {"tau_c": 5.0},
          "detector": {"n_max": 1000, "bits": 8}}
@@ -31,7 +31,7 @@ def recording(tmp_path):
 
 
 def test_simulated_camera_contract():
-    run_contract(lambda: SimulatedCamera(sim_scene(), time_scale=0))
+    check_camera_contract(lambda: SimulatedCamera(sim_scene(), time_scale=0))
 
 
 @pytest.mark.parametrize("kind", ["npy", "tif", "png-folder"])
@@ -41,7 +41,7 @@ def test_replay_camera_contract(tmp_path, recording, kind):
         path = write_stack(tmp_path / "rec.tif", iter(frames), len(frames))
     elif kind == "png-folder":
         path = write_stack(tmp_path / "seq" / "%03d.png", iter(frames), len(frames))
-    run_contract(lambda: ReplayCamera(path, bits=12))
+    check_camera_contract(lambda: ReplayCamera(path, bits=12))
     with ReplayCamera(path, bits=12) as camera:
         replayed = [f.pixels for f in camera.frames()]
     assert len(replayed) == 6 and all(np.array_equal(a, b) for a, b in zip(replayed, frames, strict=True))

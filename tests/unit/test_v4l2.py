@@ -6,7 +6,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from camera_contract import run_contract
 
 from edgedsm.devices.camera.v4l2 import (
     V4L2Camera,
@@ -17,6 +16,7 @@ from edgedsm.devices.camera.v4l2 import (
     to_mono,
 )
 from edgedsm.errors import DeviceError, DeviceLost
+from edgedsm.testing import check_camera_contract
 
 
 class FakeCapture:
@@ -124,7 +124,7 @@ def test_controls_the_device_lacks_are_reported(node, caplog):
 
 @pytest.mark.parametrize("raw_rows", [False, True])
 def test_contract_against_a_stand_in_capture(node, raw_rows):
-    run_contract(lambda: V4L2Camera(node, capture_factory=FakeCapture(raw_rows=raw_rows)))
+    check_camera_contract(lambda: V4L2Camera(node, capture_factory=FakeCapture(raw_rows=raw_rows)))
     with V4L2Camera(node, capture_factory=FakeCapture(raw_rows=raw_rows)) as camera:
         frame = next(camera.frames(1))
     assert frame.pixels.shape == (6, 8) and frame.bits == 8
