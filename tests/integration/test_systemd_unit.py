@@ -80,7 +80,7 @@ def test_devices_and_networks_the_drivers_need_stay_allowed() -> None:
     assert {"char-ttyUSB", "char-ttyACM", "char-video4linux", "char-usb_device"} <= allowed
     families = service["RestrictAddressFamilies"][0].split()
     assert {"AF_UNIX", "AF_INET", "AF_INET6", "AF_NETLINK"} <= set(families)
-    assert set(service["SupplementaryGroups"][0].split()) == {"dialout", "video"}
+    assert set(service["SupplementaryGroups"][0].split()) == {"dialout", "video", "edgedsm"}
     assert service["CapabilityBoundingSet"] == [""]
     assert service["SystemCallFilter"][0] == "@system-service"
     assert service["UMask"] == ["0077"]
