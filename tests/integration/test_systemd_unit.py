@@ -7,6 +7,7 @@ systemd-analyze is required: without it these tests FAIL (scripts/test.sh instal
 
 from __future__ import annotations
 
+import grp
 import re
 import shutil
 import subprocess
@@ -105,3 +106,22 @@ def test_security_exposure_is_at_most_2(testable_unit: Path) -> None:
     limited = subprocess.run([systemd_analyze(), "security", "--offline=yes", "--threshold=20",
                               str(testable_unit)], capture_output=True, text=True, timeout=60)
     assert limited.returncode == 0
+
+
+def test_sysusers_file_creates_the_config_group() -> None:
+    sysusers = shutil.which("systemd-sysusers")
+    if sysusers is None:
+        pytest.fail("systemd-sysusers is not installed: install it with 'apt-get install -y systemd'")
+    done = subprocess.run([sysusers, "--dry-run", str(UNIT.parent / "edgedsm.sysusers")],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    # 'Creating group' on a fresh machine; nothing to do where the group exists already
+    assert "Creating group 'edgedsm'" in done.stdout + done.stderr or _group_exists("edgedsm")
+
+
+def _group_exists(name: str) -> bool:
+    try:
+        grp.getgrnam(name)
+    except KeyError:
+        return False
+    return True
