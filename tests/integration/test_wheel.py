@@ -49,6 +49,11 @@ def test_wheel_installs_and_runs_from_package_data(tmp_path: Path) -> None:
     (wheel,) = (tmp_path / "dist").glob("edgedsm-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     assert set(SHIPPED) <= names
+    # every file of the package data, through the links too, and nothing else from the tree
+    data = source / "edgedsm" / "data"
+    packaged = {f"edgedsm/data/{Path(root, name).relative_to(data).as_posix()}"
+                for root, _, files in os.walk(data, followlinks=True) for name in files}
+    assert packaged <= names and len(packaged) >= len(SHIPPED)
     assert not any(name.startswith(("config/", "systemd/")) for name in names)  # only inside the package
 
     venv = tmp_path / "venv"
