@@ -14,7 +14,8 @@ import sys
 from edgedsm import __version__
 from edgedsm.errors import ConfigError, EdgedsmError
 
-COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "probe")
+COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "probe",
+            "init")
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2

@@ -2,8 +2,9 @@
 # The README's second command: install everything the tests need (Debian packages included),
 # check the code with ruff, and run the whole test suite.
 source "$(dirname "${BASH_SOURCE[0]}")/_env.sh"
-# socat: PTY pairs for the emulated relay boards.
-apt_install socat mosquitto openssl gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev
+# socat: PTY pairs for the emulated relay boards; systemd: systemd-analyze checks the unit
+# (procps: the unit's ExecReload=/bin/kill, which `verify` checks).
+apt_install socat systemd procps mosquitto openssl gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev
 ensure_venv test
 cd "$ROOT"
 "$VENV/bin/ruff" check edgedsm tests

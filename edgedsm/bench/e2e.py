@@ -71,6 +71,7 @@ from edgedsm.config import DaemonConfig
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.service import open_camera_for
 from edgedsm.frames import Frame
+from edgedsm.resources import data_file
 
 HELP = "the daemon end to end at 2048² (replay → pipeline → MQTT): sustained frames/s, CPU, latency, memory"
 
@@ -81,7 +82,7 @@ TARGET_FPS = 60.0
 RECORDED_FRAMES = 240
 HOUR_FRAMES = 216_000  # an hour at 60 frames/s
 MEMORY_SIZE = 128
-SCENE = Path(__file__).resolve().parents[2] / "config" / "scenes" / "constant.toml"
+SCENE = data_file("config/scenes/constant.toml")
 
 
 # -- the recording -------------------------------------------------------------------------

@@ -30,10 +30,11 @@ from edgedsm.config import DaemonConfig
 from edgedsm.errors import EdgedsmError
 from edgedsm.estimators import ESTIMATORS, all_maps
 from edgedsm.imageio import save_map_png
+from edgedsm.resources import data_file
 
 NAME = "demo"
 HELP = "activity maps of a simulated scene, then the daemon watching a plate dry (the README's first command)"
-DEMO_CONFIG = Path(__file__).resolve().parents[2] / "config" / "daemon" / "demo.toml"
+DEMO_CONFIG = data_file("config/daemon/demo.toml")  # package data, also in an installed wheel
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -38,6 +38,13 @@ Serial options (unknown keys are refused, so a typo never goes unnoticed):
     Modbus slave address 1..247, default 1.
 ``parity`` (modbus)
     ``N`` (default; what cheap relay boards use), ``E`` (the Modbus standard) or ``O``.
+``pulse`` (modbus)
+    Seconds, 0.5..6553.5 in steps of 0.1: a hardware dead man's switch for boards with
+    Waveshare's "flash on" command (Waveshare Modbus RTU Relay and compatible boards): 'on'
+    is sent as "on for ``pulse`` s, then off by itself" (function 05 on coil 0x0200 +
+    channel, value = tenths of a second) and renewed every ``pulse``/3 s while the laser is
+    meant to be on. If the host dies, hangs or loses the cable, the board switches the laser
+    off within ``pulse`` s. Channel 0..255.
 ``relays`` (kmtronic)
     Number of relays on the board: 1, 2, 4 or 8 (default 8). Boards with 4 or 8 relays
     answer the status request ``FF 09 00`` with one byte per relay; 1- and 2-relay boards
@@ -77,7 +84,8 @@ KMTRONIC_RELAY_COUNTS = (1, 2, 4, 8)
 
 _COMMON_KEYS = {"protocol", "channel", "baud", "timeout", "verify"}
 _PROTOCOL_KEYS = {"lcus": set(), "numato": set(), "kmtronic": {"relays"},
-                  "modbus": {"slave", "parity"}}
+                  "modbus": {"slave", "parity", "pulse"}}
+PULSE_RANGE = (0.5, 6553.5)  # seconds; the board counts tenths in 16 bits
 _SIM_KEYS = {"readback", "fault", "timeout"}
 
 
@@ -176,6 +184,14 @@ def _parse_serial(uri: str, port: str, query: str) -> RelaySpec:
         if parity not in ("N", "E", "O"):
             raise _fail(uri, f"parity={opts['parity']!r} must be N, E or O")
         extras["parity"] = parity
+        if "pulse" in opts:
+            pulse = _opts(uri).number("pulse", opts["pulse"], *PULSE_RANGE, unit="seconds")
+            if abs(pulse * 10 - round(pulse * 10)) > 1e-6:
+                raise _fail(uri, f"pulse={opts['pulse']}: the board counts tenths of a second")
+            if channel > 0xFF:
+                raise _fail(uri, f"pulse= needs channel 0..255 (the flash command's coil is 0x0200 + channel), "
+                                 f"not {channel}")
+            extras["pulse"] = pulse
     if protocol == "kmtronic":
         relays = _opts(uri).integer("relays", opts["relays"], 1, 8) if "relays" in opts else 8
         if relays not in KMTRONIC_RELAY_COUNTS:

@@ -412,7 +412,7 @@ def test_cli_reports_a_dead_board(pty_pair: PtyPair, capsys: pytest.CaptureFixtu
         assert rig.board is not None
         rig.board.mode = "silent"
         started = time.monotonic()
-        assert main(["laser", "on", rig.uri_with("timeout=0.2"), "--for", "5"]) == 1
+        assert main(["laser", "on", rig.uri_with("timeout=0.2"), "--for", "5"]) == 69
         assert time.monotonic() - started < 3 * BOUND_S
         err = capsys.readouterr().err
         assert "edgedsm: error:" in err and "no answer within 0.2 s" in err

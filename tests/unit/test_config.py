@@ -16,8 +16,13 @@ def test_demo_config_is_valid(repo):
     assert config.regions[0].thresholds().wet_above == 0.30
 
 
-def test_example_config_only_lacks_the_plant_files(repo, capsys):
-    assert main(["check-config", str(repo / "config" / "daemon" / "example.toml")]) == 78
+def test_example_config_only_lacks_the_plant_files(repo, tmp_path, capsys):
+    # valid as shipped (TLS commented out); with its TLS lines uncommented only the CA file is missing
+    text = (repo / "config" / "daemon" / "example.toml").read_text()
+    assert "\n# [mqtt.tls]\n# ca_file = " in text
+    tls = tmp_path / "tls.toml"
+    tls.write_text(text.replace("\n# [mqtt.tls]\n# ca_file = ", "\n[mqtt.tls]\nca_file = "))
+    assert main(["check-config", str(tls)]) == 78
     err = capsys.readouterr().err
     assert "mqtt.tls.ca_file: Path does not point to a file" in err
     assert len([line for line in err.splitlines() if ": " in line and "toml" in line]) == 1

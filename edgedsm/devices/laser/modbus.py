@@ -15,12 +15,23 @@ Known vector (a relay board's manual, quoted by huynguyen2310/IO-Box):
 ``01 05 00 00 FF 00 8C 3A`` switches coil 0 of slave 1 on; ``01 01 00 00 00 08 3D CC``
 reads 8 coils and ``01 01 01 41 91 B8`` is an answer (coils 0 and 6 on).
 
+Optional hardware dead man's switch (URI option ``pulse=SECONDS``): boards with Waveshare's
+"flash on" command (Waveshare Modbus RTU Relay and compatible boards; a vendor extension of
+function 05) take ``slave 05 02 ch t_hi t_lo`` as "relay ``ch`` on for t tenths of a second,
+then off by itself" and echo it like any write-coil request, e.g. ``01 05 02 00 00 07 8D B0``
+(relay 0 on for 0.7 s). With ``pulse`` set, 'on' is sent that way and a keeper thread renews
+it every pulse/3 s while the laser is meant to be on; 'off' is the ordinary write-coil 0000.
+If the process dies (kill -9, OOM), hangs, or the cable is pulled, nobody renews and the
+board switches the laser off within ``pulse`` seconds.
+
 Frames are separated by at least 3.5 character times of silence on the line (1.75 ms above
 19200 baud): the driver waits that long after the last byte it saw before each request.
 """
 
 from __future__ import annotations
 
+import logging
+import threading
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -35,6 +46,10 @@ READ_COILS = 0x01
 WRITE_SINGLE_COIL = 0x05
 COIL_ON = 0xFF00
 COIL_OFF = 0x0000
+FLASH_ON_BASE = 0x0200  # Waveshare's "flash on": coil address 0x0200 + channel, value in 0.1 s
+RENEWALS_PER_PULSE = 3   # renew three times per pulse: two renewals may fail before the board drops
+
+log = logging.getLogger(__name__)
 
 EXCEPTION_CODES = {
     0x01: "illegal function",
@@ -96,6 +111,16 @@ def encode_read_coils(slave: int, coil: int, count: int = 1) -> bytes:
     if not 1 <= count <= 2000:
         raise ValueError(f"Modbus can read 1..2000 coils at once, not {count}")
     return frame(bytes((slave, READ_COILS)) + coil.to_bytes(2, "big") + count.to_bytes(2, "big"))
+
+
+def encode_flash_on(slave: int, channel: int, pulse_s: float) -> bytes:
+    """Waveshare "flash on": relay ``channel`` (0..255) on for ``pulse_s`` seconds, then off."""
+    _check_args(slave, channel)
+    tenths = round(pulse_s * 10)
+    if not 0 <= channel <= 0xFF or not 1 <= tenths <= 0xFFFF:
+        raise ValueError(f"flash on needs channel 0..255 and 0.1..6553.5 s, not {channel}, {pulse_s} s")
+    return frame(bytes((slave, WRITE_SINGLE_COIL)) + (FLASH_ON_BASE + channel).to_bytes(2, "big")
+                 + tenths.to_bytes(2, "big"))
 
 
 def answer_length(head: bytes) -> int:
@@ -160,8 +185,11 @@ class ModbusCoilRelay(SerialRelay):
     supports_readback = True
 
     def __init__(self, port: SerialBase, *, channel: int, timeout: float = 0.5,
-                 verify: bool = True, description: str | None = None, slave: int = 1) -> None:
+                 verify: bool = True, description: str | None = None, slave: int = 1,
+                 pulse: float | None = None) -> None:
         _check_args(slave, channel)
+        if pulse is not None:
+            encode_flash_on(slave, channel, pulse)  # refuses what the board cannot do
         name = getattr(port, "portstr", None) or getattr(port, "port", None) or "serial port"
         super().__init__(port, channel=channel, timeout=timeout, verify=verify,
                          description=description
@@ -169,10 +197,12 @@ class ModbusCoilRelay(SerialRelay):
         self.slave = slave
         self._gap = silent_interval(int(getattr(port, "baudrate", 9600) or 9600))
         self._last_activity = 0.0
+        self.pulse = pulse
+        self._keeper_stop: threading.Event | None = None
 
     @classmethod
     def _spec_options(cls, spec: RelaySpec) -> dict[str, Any]:
-        return {"slave": spec.options.get("slave", 1)}
+        return {"slave": spec.options.get("slave", 1), "pulse": spec.options.get("pulse")}
 
     def _transact(self, request: bytes, what: str) -> bytes:
         wait = self._last_activity + self._gap - time.monotonic()
@@ -190,9 +220,55 @@ class ModbusCoilRelay(SerialRelay):
         return head + rest
 
     def _do_switch(self, on: bool) -> None:
+        if self.pulse is not None and on:
+            self._flash_on()
+            self._start_keeper()
+            return
+        self._stop_keeper()
         request = encode_write_coil(self.slave, self.channel, on)
         answer = self._transact(request, f"write coil {self.channel} (function 05)")
         decode_write_coil(answer, request)
+
+    def _do_close(self) -> None:
+        self._stop_keeper()  # the board switches off by itself within pulse s if still on
+        super()._do_close()
+
+    # -- pulse mode: the board's own timer switches off unless renewed ----------------------
+
+    def _flash_on(self) -> None:
+        assert self.pulse is not None
+        request = encode_flash_on(self.slave, self.channel, self.pulse)
+        answer = self._transact(request, f"flash on relay {self.channel} for {self.pulse:g} s")
+        decode_write_coil(answer, request)
+
+    def _start_keeper(self) -> None:
+        if self._keeper_stop is not None and not self._keeper_stop.is_set():
+            return  # already renewing
+        stop = self._keeper_stop = threading.Event()
+        threading.Thread(target=self._keep_on, args=(stop,), daemon=True,
+                         name=f"edgedsm-relay-pulse-{self.channel}").start()
+
+    def _stop_keeper(self) -> None:
+        # never joins: the keeper may be waiting for the lock the caller holds
+        if self._keeper_stop is not None:
+            self._keeper_stop.set()
+
+    def _keep_on(self, stop: threading.Event) -> None:
+        assert self.pulse is not None
+        while not stop.wait(self.pulse / RENEWALS_PER_PULSE):
+            with self._lock:
+                if stop.is_set() or self.closed or self._commanded is not True:
+                    return
+                try:
+                    self._flash_on()
+                except DeviceError as exc:
+                    # Not renewed: the board switches the laser off within pulse s by itself,
+                    # so the state is unknown, not "on"; the next on() starts a new keeper.
+                    self._commanded = None
+                    stop.set()
+                    log.error("%s: could not renew the %g s pulse (the board will switch off by "
+                              "itself): %s", self.description, self.pulse, exc)
+                    return
 
     def _do_read_state(self) -> bool:
         request = encode_read_coils(self.slave, self.channel, 1)

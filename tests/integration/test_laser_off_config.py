@@ -1,0 +1,176 @@
+"""`edgedsm laser off --config FILE`: what the unit's ExecStopPost= runs after any end of the
+service. Real relay drivers against the emulated boards on socat PTY pairs (helpers_relay),
+byte for byte; exit 0 off (confirmed where the board can), 69 unreachable, 78 bad config.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from helpers_relay import OFF, READ, KmtronicBoard, LcusBoard, ModbusBoard, NumatoBoard, PtyPair, open_pty_pair
+
+from edgedsm.cli import main
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
+
+QUERIES = {
+    "lcus": (LcusBoard, "protocol=lcus&channel=2", {"channel": 2}),
+    "numato": (NumatoBoard, "protocol=numato&channel=11", {"channel": 11}),
+    "kmtronic": (KmtronicBoard, "protocol=kmtronic&channel=3&relays=4", {"channel": 3, "relays": 4}),
+    "modbus": (ModbusBoard, "protocol=modbus&slave=7&channel=5", {"channel": 5, "slave": 7}),
+}
+
+
+@pytest.fixture
+def pty_pair(tmp_path: Path) -> Iterator[PtyPair]:
+    with open_pty_pair(tmp_path) as pair:
+        yield pair
+
+
+def write_config(directory: Path, relay_uri: str | None, extra: str = "") -> Path:
+    laser = f'[laser]\nuri = "{relay_uri}"\n' if relay_uri is not None else ""
+    path = directory / "line3.toml"
+    path.write_text(f'[device]\nname = "line3"\n\n[camera]\nuri = "sim:default"\n{extra}\n{laser}')
+    return path
+
+
+def start_board(name: str, pair: PtyPair, mode: str = "normal"):
+    cls, query, kwargs = QUERIES[name]
+    board = cls(pair.board, **kwargs)
+    board.mode = mode
+    board.is_on = True  # the daemon died with the laser on
+    board.start()
+    return board, f"serial:{pair.app}?{query}"
+
+
+@pytest.mark.parametrize("name", list(QUERIES))
+def test_switches_off_the_configured_relay_byte_exact(name: str, pty_pair: PtyPair, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    board, uri = start_board(name, pty_pair)
+    try:
+        config = write_config(tmp_path, uri)
+        assert main(["laser", "off", "--config", str(config)]) == 0
+        # off() with its readback, then close() switches off once more (and reads back again)
+        expected = [OFF[name], READ[name]] * 2 if name in READ else [OFF[name]] * 2
+        assert board.wait_frames(len(expected)) == expected
+        deadline = time.monotonic() + 2
+        while board.is_on and time.monotonic() < deadline:  # LCUS never answers: let it settle
+            time.sleep(0.01)
+        assert board.is_on is False
+    finally:
+        board.stop()
+    assert board.errors == []
+    out = capsys.readouterr().out
+    if name in READ:
+        assert out.splitlines() == ["laser: off (readback confirmed)"]
+    else:
+        assert out.splitlines() == ["laser: off (as commanded; this board has no readback)"]
+
+
+def test_readback_even_when_the_uri_says_verify_false(pty_pair: PtyPair, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    board, uri = start_board("numato", pty_pair)
+    try:
+        assert main(["laser", "off", "--config", str(write_config(tmp_path, uri + "&verify=false"))]) == 0
+        assert board.wait_frames(3)[:2] == [OFF["numato"], READ["numato"]]
+    finally:
+        board.stop()
+    assert capsys.readouterr().out.splitlines() == ["laser: off (readback confirmed)"]
+
+
+@pytest.mark.parametrize("name", ["numato", "kmtronic", "modbus"])
+def test_silent_board_exits_69_with_a_clear_message(name: str, pty_pair: PtyPair, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    board, uri = start_board(name, pty_pair, mode="silent")
+    try:
+        started = time.monotonic()
+        assert main(["laser", "off", "--config", str(write_config(tmp_path, uri + "&timeout=0.2"))]) == 69
+        took = time.monotonic() - started
+        # three attempts, each: off (0.2 s timeout) and close()'s second off (0.2 s), 0.5 s apart
+        assert took < 5.0
+        frames = board.frames()
+    finally:
+        board.stop()
+    assert frames[0] == OFF[name] and frames.count(OFF[name]) == 6
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("edgedsm: error: the laser may still be ON: 3 attempts to switch it off failed")
+    assert "no answer within 0.2 s" in err[-1]
+    assert [line for line in err if "attempt" in line and "failed:" in line][:2] == err[:2]
+
+
+def test_stuck_relay_exits_69(pty_pair: PtyPair, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    board, uri = start_board("modbus", pty_pair, mode="stuck")
+    try:
+        assert main(["laser", "off", "--config", str(write_config(tmp_path, uri))]) == 69
+    finally:
+        board.stop()
+    assert board.is_on is True
+    assert "commanded off but the board reports on" in capsys.readouterr().err
+
+
+def test_missing_port_exits_69(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = write_config(tmp_path, f"serial:{tmp_path}/ttyUSB-gone?protocol=lcus")
+    assert main(["laser", "off", "--config", str(config)]) == 69
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "the laser may still be ON" in err and "cannot open relay port" in err
+
+
+def test_config_without_laser_is_nothing_to_switch(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = write_config(tmp_path, None)
+    assert main(["laser", "off", "--config", str(config)]) == 0
+    assert capsys.readouterr().out.strip() == f"laser: {config} has no [laser] table: no relay to switch"
+
+
+def test_bad_config_exits_78(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "absent.toml"
+    assert main(["laser", "off", "--config", str(missing)]) == 78
+    assert f"{missing}: file not found" in capsys.readouterr().err
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[laser\nuri = 1\n")
+    assert main(["laser", "off", "--config", str(broken)]) == 78
+    assert "not valid TOML" in capsys.readouterr().err
+    bad_uri = write_config(tmp_path, "serial:/dev/ttyUSB0?protocol=lcus&chanel=1")
+    assert main(["laser", "off", "--config", str(bad_uri)]) == 78
+    assert "unknown option 'chanel'" in capsys.readouterr().err
+
+
+def test_invalid_config_elsewhere_still_switches_off_then_exits_78(
+        pty_pair: PtyPair, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    board, uri = start_board("kmtronic", pty_pair)
+    try:
+        config = write_config(tmp_path, uri, extra="[estimator]\nwindwo = 100\n")
+        assert main(["laser", "off", "--config", str(config)]) == 78
+        assert board.wait_frames(2)[:2] == [OFF["kmtronic"], READ["kmtronic"]]
+        assert board.is_on is False
+    finally:
+        board.stop()
+    captured = capsys.readouterr()
+    assert captured.out.splitlines() == ["laser: off (readback confirmed)"]
+    assert "the laser was switched off all the same" in captured.err
+    assert "estimator.windwo: unknown key" in captured.err
+
+
+def test_relay_uri_and_config_are_exclusive(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["laser", "off", "sim:", "--config", str(write_config(tmp_path, "sim:"))]) == 78
+    assert main(["laser", "off"]) == 78
+    assert "give either RELAY_URI or --config FILE" in capsys.readouterr().err
+
+
+def test_as_the_unit_runs_it(pty_pair: PtyPair, tmp_path: Path) -> None:
+    """A separate process, as ExecStopPost= starts it after the daemon is gone."""
+    board, uri = start_board("numato", pty_pair)
+    try:
+        config = write_config(tmp_path, uri)
+        env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+        done = subprocess.run([sys.executable, "-m", "edgedsm", "laser", "off", "--config", str(config)],
+                              capture_output=True, text=True, timeout=30, env=env)
+        assert (done.returncode, done.stdout, done.stderr) == (0, "laser: off (readback confirmed)\n", "")
+        assert board.is_on is False
+    finally:
+        board.stop()
