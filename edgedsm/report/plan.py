@@ -124,7 +124,7 @@ class Optical:
 
 
 # -- scenes -------------------------------------------------------------------------------------
-LOGOS_RESOURCE = "data/scenes/logos.toml"  # package data of edgedsm, the paper's logo object
+LOGOS_RESOURCE = "data/config/scenes/logos.toml"  # package data (the example scene), the paper's logo object
 
 
 def _logos_file() -> Traversable:
@@ -134,8 +134,8 @@ def _logos_file() -> Traversable:
 def logo_regions(settings: Settings) -> tuple[list[dict[str, Any]], str]:
     """The logo regions at ``settings.size`` with the paper's τc, and where the geometry came from.
 
-    Geometry comes from the package's ``edgedsm/data/scenes/logos.toml`` (the same object as
-    ``config/scenes/logos.toml``), else from the built-in default scene; coordinates scale to
+    Geometry comes from the package's ``edgedsm/data/config/scenes/logos.toml`` (the example
+    ``config/scenes/logos.toml``, shipped in the wheel), else from the built-in default scene; coordinates scale to
     the size.
     """
     regions: list[dict[str, Any]] = [dict(r) for r in DEFAULT_SCENE["activity"]["regions"]]

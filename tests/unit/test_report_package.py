@@ -13,16 +13,16 @@ REPO = Path(__file__).resolve().parents[2]
 def test_logo_geometry_comes_from_package_data_not_the_repository(monkeypatch, tmp_path) -> None:
     monkeypatch.chdir(tmp_path)  # no config/ here: only the package's data can supply it
     regions, source = logo_regions(Settings.make(size=128, quick=True))
-    assert source == "edgedsm/data/scenes/logos.toml"
+    assert source == "edgedsm/data/config/scenes/logos.toml"
     assert [r["text"] for r in regions] == ["IOMT", "ETRI"]
     assert regions[0]["x"] == 48 * 96 / 256  # quick caps size at 96 px; coordinates scale with it
     assert all(r["tau_c"] == 10.0 for r in regions)
 
 
 def test_packaged_logo_scene_is_the_example_in_config() -> None:
-    packaged = tomllib.loads((REPO / "edgedsm/data/scenes/logos.toml").read_text(encoding="utf-8"))
+    packaged = tomllib.loads((REPO / "edgedsm/data/config/scenes/logos.toml").read_text(encoding="utf-8"))
     example = tomllib.loads((REPO / "config/scenes/logos.toml").read_text(encoding="utf-8"))
-    assert packaged == example
+    assert packaged == example and packaged["activity"]["regions"]
 
 
 def test_quick_plan_size() -> None:
