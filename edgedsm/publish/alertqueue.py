@@ -23,7 +23,9 @@ words, and :class:`edgedsm.publish.alertstore.AlertStore` keeps alerts in memory
 
 from __future__ import annotations
 
+import errno
 import logging
+import os
 import sqlite3
 import threading
 import time
@@ -69,7 +71,10 @@ class AlertQueue:
         self.max_alerts = max_alerts
         self._lock = threading.Lock()
         try:
+            if self.path.parent.exists() and not self.path.parent.is_dir():
+                raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(self.path.parent))
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            _probe_writable(self.path.parent)  # SQLite would only say "unable to open database file"
             try:
                 self._db = self._open()
             except sqlite3.OperationalError:
@@ -206,6 +211,9 @@ class AlertQueue:
         # pipeline thread puts, the MQTT worker acks, our lock serialises them.
         db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False, timeout=5.0)
         try:
+            # Exclusive: one daemon per queue file, and WAL then keeps its index in memory instead
+            # of a -shm file, which a full disk cannot create (the reopen failed with "disk I/O error").
+            db.execute("PRAGMA locking_mode=EXCLUSIVE")
             db.execute("PRAGMA journal_mode=WAL")
             db.execute("PRAGMA synchronous=FULL")
             db.executescript(_SCHEMA)
@@ -263,6 +271,14 @@ class AlertQueue:
         self._count -= removed
         log.warning("alert queue full (%d unacknowledged): dropped the %d oldest alert(s); %d dropped "
                     "so far. Is the broker reachable?", self.max_alerts, removed, total)
+
+
+def _probe_writable(directory: Path) -> None:
+    """OSError (read-only file system, permission denied...) unless a file can be created in
+    ``directory``; an empty file needs no space, so a full disk passes (and degrades later)."""
+    probe = directory / f".edgedsm-probe-{uuid.uuid4().hex[:8]}"
+    os.close(os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+    probe.unlink()
 
 
 def _cause(exc: BaseException) -> str:
