@@ -28,7 +28,7 @@ request (with its Correlation Data) when that is this same reply topic or a topi
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -64,3 +64,16 @@ COMMANDS: dict[str, type[Command]] = {
     "dark": DarkCommand,
     "publish_maps": PublishMapsCommand,
 }
+
+
+class CommandReply(BaseModel):
+    """The reply to a command (see the module docstring); what subscribers parse."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    ok: bool = Field(description="the command was carried out")
+    command: str = Field(max_length=256, description="the command's name, as in the request topic")
+    request_id: str | int | None = Field(None, description="echoed from the request")
+    error: str | None = Field(None, description="why it was refused (ok false)")
+    result: dict[str, Any] | None = Field(None, description="what the handler returned")
+    t: float = Field(description="UTC epoch s of the reply")
