@@ -19,7 +19,8 @@ from helpers_mqtt import WAIT_S, wait_until
 
 from edgedsm.errors import ConfigError
 from edgedsm.messages import Alert, AlertKind, Stats
-from edgedsm.publish import AlertQueue, MqttSettings, MqttSink, StorageError, Topics
+from edgedsm.publish import AlertQueue, AlertStore, MqttSettings, MqttSink, StorageError, Topics
+from edgedsm.publish.counters import Counters
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
 
@@ -97,6 +98,33 @@ def test_full_disk_reports_the_real_cause(tmpfs):
             for i in range(50):  # SQLite's page cache absorbs a few before a write reaches the disk
                 queue.put({"type": "fault", "reason": "x" * 2000, "i": i})
         assert "cannot rollback" not in str(error.value)
+
+
+def test_memory_is_bounded_and_the_numbering_survives_write_back(tmpfs):
+    state = tmpfs()
+    counters = Counters()
+    now = [0.0]
+    store = AlertStore(AlertQueue(state / "q.sqlite3"), counters, memory_max=5, retry_s=1.0, clock=lambda: now[0])
+    assert store.put({"type": "transition", "n": 0}).seq == 1
+    filler = _fill(state)
+    seqs = [store.put({"type": "transition", "n": n, "pad": "x" * 2000}).seq for n in range(1, 40)]
+    assert store.fault is not None and "disk is full" in store.fault
+    assert seqs == sorted(seqs) and len(set(seqs)) == 39
+    on_disk = len(store.queue)  # 1, or a few more if the page cache took some before the disk refused
+    held = store.pending(limit=1000)[on_disk:]
+    assert len(held) == 5 == store.in_memory  # the oldest were dropped, counted
+    assert counters.snapshot()["alerts_memory_dropped"] == seqs[-1] - on_disk - 5
+    assert counters.snapshot()["storage_faults"] == 1
+    assert not store.retry()  # not yet time, and still full
+    filler.unlink()
+    assert not store.retry()  # space is back, but the retry waits for its interval
+    now[0] = 1.0
+    assert store.retry() and store.fault is None and store.in_memory == 0
+    assert [item.seq for item in store.pending(after_seq=0, limit=1000)][-5:] == [item.seq for item in held]
+    assert store.put({"type": "after"}).seq == seqs[-1] + 1  # on disk, numbering moved past memory
+    store.queue.close()
+    with AlertQueue(state / "q.sqlite3") as reopened:
+        assert reopened.last_seq == seqs[-1] + 1 and len(reopened) == on_disk + 5 + 1
 
 
 def test_full_then_freed_state_dir_loses_no_alert(tmpfs, make_broker, subscribers):
