@@ -43,7 +43,7 @@ class MqttSink:
     def publish_state(self, report: StateReport) -> None:
         self.publisher.publish_state(report.to_json())
 
-    def publish_alert(self, alert: Alert) -> int:  # type: ignore[override]
+    def publish_alert(self, alert: Alert) -> int:
         """Store and send the alert; returns the ``seq`` it was given (``stream`` and ``seq`` of
         ``alert`` are replaced)."""
         return self.publisher.publish_alert(alert.to_json())
