@@ -7,10 +7,11 @@ Prints one line per event, with the time it arrived:
   2025-06-01 12:04:09.871  state         panel: wet -> drying (activity 0.287)
   2025-06-01 12:04:09.872  alert #12     panel: wet -> drying (activity 0.287) [transition]
 
-Alerts are delivered at least once; watch prints each one once (it deduplicates on the
-alert's stream and seq). With --client-id it keeps a persistent session on the broker, so
-alerts raised while it was not running are delivered when it comes back (as long as the
-broker keeps sessions). Exit after N alerts with --count, after S seconds with --timeout
+Payloads are parsed as the daemon's typed messages (edgedsm.messages); one that does not parse
+is printed as "unreadable" with the reason. Alerts are delivered at least once; watch prints
+each one once (it deduplicates on the alert's stream and seq). With --client-id it keeps a
+persistent session on the broker, so alerts raised while it was not running are delivered when
+it comes back (as long as the broker keeps sessions). Exit after N alerts with --count, after S seconds with --timeout
 (for scripts and tests): exit status 0, or 1 if --count was not reached in time.
 
 Examples:
@@ -38,22 +39,32 @@ from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as mqtt
-from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
+from pydantic import ValidationError
 
 from edgedsm.errors import ConfigError
 from edgedsm.imageio import save_map_png
+from edgedsm.messages import Alert, AlertKind, StateReport, Stats
+from edgedsm.publish.commands import CommandReply
+from edgedsm.publish.connection import (
+    build_ssl_context,
+    connect_in_background,
+    describe_refusal,
+    diagnose,
+    make_client,
+)
 from edgedsm.publish.errors import MapCodecError, PublishError
 from edgedsm.publish.mapcodec import decode_map
-from edgedsm.publish.mqtt import Topics, build_ssl_context, describe_refusal, diagnose
 from edgedsm.publish.settings import MqttSettings, resolve_password
+from edgedsm.publish.topics import Topics
 from edgedsm.validation import read_toml, validate
 
 NAME = "watch"
 HELP = "print a daemon's availability, state changes and alerts live (MQTT subscriber)"
 
 CONNECT_WAIT_S = 10.0
+EXCERPT_CHARS = 80  # of an unreadable payload, shown beside the reason
 
 
 def _positive(kind: type, low: float) -> Callable[[str], Any]:
@@ -157,31 +168,22 @@ class Watcher:
         self.connected = threading.Event()
         self.refusal: str | None = None
         self._availability: str | None = None
-        self._states: dict[str, Any] = {}
-        self._raw_state: Any = None
+        self._states: dict[str, str] = {}
         self._metas: dict[str, dict[str, Any]] = {}
         self._pngs: dict[str, bytes] = {}
         self._ssl = build_ssl_context(settings.tls) if settings.tls is not None else None
-        self.client = mqtt.Client(CallbackAPIVersion.VERSION2,
-                                  client_id=client_id or f"edgedsm-watch-{os.getpid()}-{time.monotonic_ns() % 10**6}",
-                                  protocol=mqtt.MQTTv311, clean_session=client_id is None)
-        self.client.suppress_exceptions = True
-        self.client.connect_timeout = settings.connect_timeout_s
-        self.client.reconnect_delay_set(settings.reconnect_min_s, settings.reconnect_max_s)
-        if settings.username is not None:
-            self.client.username_pw_set(settings.username, password)
-        if self._ssl is not None:
-            self.client.tls_set_context(self._ssl)
-            if settings.tls is not None and settings.tls.insecure:
-                self.client.tls_insecure_set(True)
+        # MQTT 3.1.1 whatever the daemon speaks: clean_session=False is what a persistent
+        # session needs there, and watch needs nothing of MQTT 5.
+        self.client = make_client(
+            settings, client_id=client_id or f"edgedsm-watch-{os.getpid()}-{time.monotonic_ns() % 10**6}",
+            password=password, ssl_context=self._ssl, protocol="3.1.1", clean_session=client_id is None)
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
 
     def start(self, wait_s: float = CONNECT_WAIT_S) -> None:
         """Connect (in paho's thread) and wait, bounded, for the broker's answer."""
-        self.client.connect_async(self.settings.host, self.settings.port, keepalive=self.settings.keepalive_s)
-        self.client.loop_start()
+        connect_in_background(self.client, self.settings)
         deadline = time.monotonic() + wait_s
         while not self.connected.wait(0.05):
             if self.refusal is not None:
@@ -206,8 +208,7 @@ class Watcher:
         if reason.is_failure:
             self.refusal = describe_refusal(reason, self.settings, self.password is not None)
             return
-        topics = [self.topics.availability, self.topics.state, self.topics.alerts,
-                  f"{self.topics.base}/cmd/+/reply"]
+        topics = [self.topics.availability, self.topics.state, self.topics.alerts, self.topics.replies_filter]
         if self.show_stats:
             topics.append(self.topics.stats)
         if self.save_maps is not None:
@@ -231,17 +232,24 @@ class Watcher:
             if topic == self.topics.availability:
                 self._availability_message(message.payload.decode("utf-8", "replace"), message.retain)
             elif topic == self.topics.state:
-                self._state_message(json.loads(message.payload))
+                self._state_message(StateReport.model_validate_json(message.payload))
             elif topic == self.topics.alerts:
-                self._alert_message(json.loads(message.payload))
+                self._alert_message(Alert.model_validate_json(message.payload))
             elif topic == self.topics.stats:
-                self.emit(f"{_now()}  stats         {message.payload.decode('utf-8', 'replace')}")
+                self._stats_message(Stats.model_validate_json(message.payload))
             elif topic.endswith("/reply"):
-                self._reply_message(json.loads(message.payload))
+                self._reply_message(CommandReply.model_validate_json(message.payload))
             elif topic.startswith(f"{self.topics.base}/map/"):
                 self._map_message(topic[len(self.topics.base) + 5:], message.payload)
-        except (ValueError, UnicodeDecodeError) as exc:
-            self.emit(f"{_now()}  unreadable    {topic}: {exc}")
+        except ValidationError as exc:
+            self._unreadable(topic, message.payload, _validation_reason(exc))
+        except (ValueError, UnicodeDecodeError, OSError) as exc:
+            self._unreadable(topic, message.payload, str(exc))
+
+    def _unreadable(self, topic: str, payload: bytes, reason: str) -> None:
+        excerpt = payload[:EXCERPT_CHARS].decode("utf-8", "replace")
+        more = "..." if len(payload) > EXCERPT_CHARS else ""
+        self.emit(f"{_now()}  unreadable    {topic}: {reason}: {excerpt!r}{more}")
 
     # -- one handler per kind of message --------------------------------------------------------
 
@@ -250,62 +258,58 @@ class Watcher:
             self._availability = value
             self.emit(f"{_now()}  availability  {value}{' (retained)' if retained else ''}")
 
-    def _state_message(self, state: Any) -> None:
-        regions = state.get("regions") if isinstance(state, dict) else None
-        if not isinstance(regions, dict):
-            if state != self._raw_state:
-                self._raw_state = state
-                self.emit(f"{_now()}  state         {json.dumps(state, separators=(',', ':'))}")
-            return
-        for name, region in regions.items():
-            current = region.get("state") if isinstance(region, dict) else region
+    def _state_message(self, report: StateReport) -> None:
+        for name, region in report.regions.items():
             previous = self._states.get(name)
-            if current == previous:
+            if region.state == previous:
                 continue
-            self._states[name] = current
-            detail = ""
-            if isinstance(region, dict) and region.get("activity") is not None:
-                detail = f" (activity {_number(region['activity'])})"
-            change = f"{previous} -> {current}" if previous is not None else f"{current}"
+            self._states[name] = region.state
+            detail = f" (activity {_number(region.activity)})" if region.activity is not None else ""
+            change = f"{previous} -> {region.state}" if previous is not None else region.state
             self.emit(f"{_now()}  state         {name}: {change}{detail}")
 
-    def _alert_message(self, alert: Any) -> None:
-        if not isinstance(alert, dict):
-            self.emit(f"{_now()}  alert         {alert!r}")
-            return
-        key = (alert.get("stream"), alert.get("seq"))
-        if alert.get("seq") is not None and key in self.alerts_seen:
+    def _alert_message(self, alert: Alert) -> None:
+        key = (alert.stream, alert.seq)
+        if alert.seq is not None and key in self.alerts_seen:
             return  # a resend after a reconnection: already shown
         self.alerts_seen.add(key)
-        parts = [f"{alert.get('region', '?')}:"]
-        if "from" in alert or "to" in alert:
-            parts.append(f"{alert.get('from')} -> {alert.get('to')}")
-        if alert.get("activity") is not None:
-            parts.append(f"(activity {_number(alert['activity'])})")
-        if alert.get("type"):
-            parts.append(f"[{alert['type']}]")
-        if alert.get("t") is not None:
-            parts.append(f"at {_clock(alert['t'])}")
-        if alert.get("reason"):
-            parts.append(f"- {alert['reason']}")
-        label = f"alert #{alert.get('seq', '?')}"
+        parts = [f"{alert.region or 'device'}:"]
+        if alert.kind == AlertKind.TRANSITION or alert.from_state or alert.to_state:
+            parts.append(f"{alert.from_state} -> {alert.to_state}")
+        if alert.activity is not None:
+            parts.append(f"(activity {_number(alert.activity)})")
+        parts += [f"[{alert.kind}]", f"at {_clock(alert.t)}"]
+        if alert.reason:
+            parts.append(f"- {alert.reason}")
+        label = f"alert #{alert.seq if alert.seq is not None else '?'}"
         self.emit(f"{_now()}  {label:<13} {' '.join(parts)}")
         if self.count is not None and len(self.alerts_seen) >= self.count:
             self.done.set()
 
-    def _reply_message(self, reply: Any) -> None:
-        if not isinstance(reply, dict):
-            return
-        outcome = "ok" if reply.get("ok") else f"refused: {reply.get('error')}"
-        rid = f" (request {reply['request_id']})" if reply.get("request_id") is not None else ""
-        self.emit(f"{_now()}  command       {reply.get('command')}: {outcome}{rid}")
+    def _stats_message(self, stats: Stats) -> None:
+        parts = [f"frames {stats.frames}", f"{_number(stats.fps)} fps", f"laser {stats.laser}",
+                 "ready" if stats.ready else "filling"]
+        parts += [f"{region} {state}" for region, state in stats.states.items()]
+        if stats.warning:
+            parts.append(f"warning: {stats.warning}")
+        if stats.mqtt and stats.mqtt.get("storage_error"):
+            parts.append(f"storage: {stats.mqtt['storage_error']}")
+        self.emit(f"{_now()}  stats         {', '.join(parts)}")
+
+    def _reply_message(self, reply: CommandReply) -> None:
+        outcome = "ok" if reply.ok else f"refused: {reply.error}"
+        rid = f" (request {reply.request_id})" if reply.request_id is not None else ""
+        self.emit(f"{_now()}  command       {reply.command}: {outcome}{rid}")
 
     def _map_message(self, rest: str, payload: bytes) -> None:
         if self.save_maps is None:
             return
         if rest.endswith("/meta"):
             name = rest[:-5]
-            self._metas[name] = json.loads(payload)
+            meta = json.loads(payload)
+            if not isinstance(meta, dict):
+                raise ValueError(f"map meta must be a JSON object, got {type(meta).__name__}")
+            self._metas[name] = meta
         else:
             name = rest
             self._pngs[name] = payload
@@ -329,6 +333,13 @@ class Watcher:
         save_map_png(path, values, title=title)
         self.emit(f"{_now()}  map {name:<9} #{seq} {values.shape[0]}x{values.shape[1]} "
                   f"[{_number(meta.get('min'))}, {_number(meta.get('max'))}] saved to {path}")
+
+
+def _validation_reason(exc: ValidationError) -> str:
+    """The first problem of a payload that does not parse, in one phrase."""
+    error = exc.errors()[0]
+    where = ".".join(str(part) for part in error["loc"]) or "payload"
+    return f"not a valid {exc.title}: {where}: {error['msg']}"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,13 +13,14 @@ name               payload                     effect
 ``rebaseline``     ``{}``                      restart the estimator window and drying
                                                baseline (daemon handler)
 ``dark``           ``{}``                      take dark frames (laser off) now (daemon handler)
-``publish_maps``   ``{}``                      publish the maps at the next chance (the
-                                               publisher's ``maps_due()`` turns true, and the
-                                               daemon handler is told too)
+``publish_maps``   ``{}``                      publish the maps at the next chance instead of
+                                               waiting for the maps interval (daemon handler)
 =================  ==========================  ===============================================
 
-Reply (JSON, QoS 1, not retained) on ``<prefix>/<device>/cmd/<name>/reply``, or on the MQTT v5
-Response Topic of the request when it has one (with its Correlation Data)::
+Bounds: at most 16 KiB and 8 levels of nesting, checked before parsing. Reply (JSON, QoS 1, not
+retained) on ``<prefix>/<device>/cmd/<name>/reply``, or on the MQTT v5 Response Topic of the
+request (with its Correlation Data) when that is this same reply topic or a topic outside
+``<prefix>/`` without wildcards; any other Response Topic is refused on the default one::
 
     {"ok": true|false, "command": "laser", "request_id": ..., "error": null|"why",
      "result": {...}|null, "t": 1718000000.123}
@@ -27,7 +28,7 @@ Response Topic of the request when it has one (with its Correlation Data)::
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -63,3 +64,16 @@ COMMANDS: dict[str, type[Command]] = {
     "dark": DarkCommand,
     "publish_maps": PublishMapsCommand,
 }
+
+
+class CommandReply(BaseModel):
+    """The reply to a command (see the module docstring); what subscribers parse."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    ok: bool = Field(description="the command was carried out")
+    command: str = Field(max_length=256, description="the command's name, as in the request topic")
+    request_id: str | int | None = Field(None, description="echoed from the request")
+    error: str | None = Field(None, description="why it was refused (ok false)")
+    result: dict[str, Any] | None = Field(None, description="what the handler returned")
+    t: float = Field(description="UTC epoch s of the reply")

@@ -11,3 +11,7 @@ class PublishError(EdgedsmError):
 
 class MapCodecError(PublishError, ValueError):
     """A map could not be encoded (non-finite values, bad shape) or a payload not decoded."""
+
+
+class StorageError(PublishError):
+    """The state directory refused a write or a read (disk full, read-only, I/O error)."""

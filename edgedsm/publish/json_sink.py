@@ -1,36 +1,52 @@
 """The MQTT JSON sink: the daemon's typed messages as JSON on ``<prefix>/<device>/...``.
 
-A thin layer over :class:`edgedsm.publish.mqtt.MqttPublisher` (connection, durable alerts, map
-encoding, commands); topics and payloads are documented in ``docs/mqtt.md``.
+It composes :class:`edgedsm.publish.mqtt.MqttPublisher` (the connection and its collaborators:
+alert store and sender, map sender, command channel); topics and payloads are documented in
+``docs/mqtt.md``.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from edgedsm.messages import Alert, MapFrame, StateReport, Stats
-from edgedsm.publish.mqtt import CommandHandler, MqttPublisher
+from edgedsm.publish.command_channel import CommandHandler
+from edgedsm.publish.mqtt import MqttPublisher
 from edgedsm.publish.settings import MqttSettings
+from edgedsm.publish.topics import Topics
 
 
 class MqttSink:
-    """Implements :class:`edgedsm.publish.sink.Sink` over MQTT (JSON payloads, PNG maps)."""
+    """Implements :class:`edgedsm.publish.sink.Sink` over MQTT (JSON payloads, PNG maps).
+
+    ``state_dir`` holds the alert queue (ConfigError naming ``device.state_dir`` when it cannot);
+    ``on_command`` runs validated commands (see ``CommandHandler``); ``password`` overrides the
+    environment (tests). Nothing connects until :meth:`start`.
+    """
 
     def __init__(self, settings: MqttSettings, state_dir: str | Path, on_command: CommandHandler | None = None,
                  *, password: str | None = None) -> None:
         self.publisher = MqttPublisher(settings, state_dir, on_command, password=password)
+
+    @property
+    def topics(self) -> Topics:
+        return self.publisher.topics
 
     def start(self) -> MqttSink:
         """Start connecting in the background (returns at once)."""
         self.publisher.start()
         return self
 
+    # -- the Sink protocol ------------------------------------------------------------------------
+
     def publish_state(self, report: StateReport) -> None:
         self.publisher.publish_state(report.to_json())
 
-    def publish_alert(self, alert: Alert) -> None:
-        # seq and stream are given by the durable queue
-        self.publisher.publish_alert(alert.model_copy(update={"seq": None, "stream": None}).to_json())
+    def publish_alert(self, alert: Alert) -> int:
+        """Store and send the alert; returns the ``seq`` it was given (``stream`` and ``seq`` of
+        ``alert`` are replaced)."""
+        return self.publisher.publish_alert(alert.to_json())
 
     def publish_stats(self, stats: Stats) -> None:
         self.publisher.publish_stats(stats.to_json())
@@ -43,3 +59,29 @@ class MqttSink:
 
     def close(self, timeout_s: float) -> None:
         self.publisher.close(timeout=timeout_s)
+
+    # -- health, for the daemon's status and for tests --------------------------------------------
+
+    def wait_connected(self, timeout_s: float) -> None:
+        """Wait (bounded) for the broker; PublishError saying why not."""
+        self.publisher.wait_connected(timeout_s)
+
+    @property
+    def connected(self) -> bool:
+        return self.publisher.connected
+
+    def flush_alerts(self, timeout_s: float) -> bool:
+        """Wait (bounded) until every alert is acknowledged by the broker; True if so."""
+        return self.publisher.flush_alerts(timeout_s)
+
+    @property
+    def alert_stream(self) -> str:
+        return self.publisher.alert_stream
+
+    @property
+    def pending_alerts(self) -> int:
+        return self.publisher.pending_alerts
+
+    def counters(self) -> dict[str, Any]:
+        """What goes under ``mqtt`` in the stats (see :meth:`MqttPublisher.counters`)."""
+        return self.publisher.counters()

@@ -1,4 +1,4 @@
-"""MqttPublisher and `edgedsm watch` against a REAL mosquitto on a free loopback port.
+"""MqttSink (the daemon's MQTT link) and `edgedsm watch` against a REAL mosquitto on a free loopback port.
 
 Each test starts its own broker from a config file in tmp_path (persistence off unless the test
 is about surviving a broker restart, TLS and passwords only where a test is about them) and
@@ -7,7 +7,8 @@ killed with SIGKILL.
 
 Alert delivery is checked the way a subscriber must consume it: at least once, deduplicated on
 (stream, seq), so "exactly once" below means exactly once after that deduplication (documented
-in edgedsm.publish.mqtt). Across a broker restart the broker keeps sessions (persistence on) and
+in edgedsm.publish.mqtt). Payloads are read back as the typed messages of edgedsm.messages.
+Across a broker restart the broker keeps sessions (persistence on) and
 the subscriber uses a persistent session, as a real SCADA subscriber must.
 
 mosquitto, mosquitto_passwd and openssl are required: without them these tests FAIL (the
@@ -38,10 +39,11 @@ from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
+from edgedsm.messages import Alert, AlertKind, MapFrame, RegionState, StateReport, Stats
 from edgedsm.publish import (
     LaserCommand,
-    MqttPublisher,
     MqttSettings,
+    MqttSink,
     PublishError,
     Topics,
     decode_map,
@@ -65,25 +67,48 @@ def _settings(port: int, **kwargs: Any) -> MqttSettings:
 
 
 @pytest.fixture
-def publishers(tmp_path: Path) -> Iterator[Callable[..., MqttPublisher]]:
-    made: list[MqttPublisher] = []
+def publishers(tmp_path: Path) -> Iterator[Callable[..., MqttSink]]:
+    made: list[MqttSink] = []
 
-    def make(settings: MqttSettings, state_dir: Path | None = None, **kwargs: Any) -> MqttPublisher:
-        publisher = MqttPublisher(settings, state_dir or tmp_path / "state", **kwargs)
+    def make(settings: MqttSettings, state_dir: Path | None = None, **kwargs: Any) -> MqttSink:
+        publisher = MqttSink(settings, state_dir or tmp_path / "state", **kwargs)
         made.append(publisher)
         return publisher.start()
 
     yield make
     for publisher in made:
-        publisher.close()
+        publisher.close(settings_close_s(publisher))
+
+
+def settings_close_s(sink: MqttSink) -> float:
+    return sink.publisher.settings.shutdown_timeout_s + 0.5
+
+
+def _alert(kind: str = "fault", **fields: Any) -> Alert:
+    return Alert(kind=AlertKind(kind), t=time.time(), **fields)
+
+
+def _state(**regions: str) -> StateReport:
+    now = time.time()
+    return StateReport(t=now, estimator="s2", regions={name: RegionState(region=name, state=state, since=now)
+                                                       for name, state in regions.items()})
+
+
+def _alerts(subscriber: Any) -> list[Alert]:
+    return [Alert.model_validate_json(m.payload) for m in subscriber.on(TOPICS.alerts)]
+
+
+def _region_state(message: Any, region: str) -> str:
+    return StateReport.model_validate_json(message.payload).regions[region].state
 
 
 CHILD = textwrap.dedent("""
     # A publisher in its own process, driven line by line on stdin, so a test can kill -9 it.
     import json, sys
-    from edgedsm.publish import MqttPublisher, MqttSettings
+    from edgedsm.messages import Alert, StateReport
+    from edgedsm.publish import MqttSettings, MqttSink
     config = json.loads(sys.argv[1])
-    publisher = MqttPublisher(MqttSettings.model_validate(config["settings"]), config["state_dir"]).start()
+    publisher = MqttSink(MqttSettings.model_validate(config["settings"]), config["state_dir"]).start()
     print("ready", flush=True)
     for line in sys.stdin:
         verb, _, rest = line.strip().partition(" ")
@@ -91,14 +116,14 @@ CHILD = textwrap.dedent("""
             publisher.wait_connected(10)
             print("connected", flush=True)
         elif verb == "alert":
-            print("seq", publisher.publish_alert(json.loads(rest)), flush=True)
+            print("seq", publisher.publish_alert(Alert.model_validate_json(rest)), flush=True)
         elif verb == "state":
-            publisher.publish_state(json.loads(rest))
+            publisher.publish_state(StateReport.model_validate_json(rest))
             print("ok", flush=True)
         elif verb == "flush":
             print("flushed", publisher.flush_alerts(10), flush=True)
         elif verb == "close":
-            publisher.close()
+            publisher.close(2.0)
             print("closed", flush=True)
             break
 """)
@@ -135,8 +160,8 @@ class Child:
         self.process.stdin.flush()
         return self._expect(expect)
 
-    def alert(self, **alert: Any) -> int:
-        return int(self.send(f"alert {json.dumps(alert)}", "seq").split()[1])
+    def alert(self, alert: Alert) -> int:
+        return int(self.send(f"alert {alert.to_bytes().decode()}", "seq").split()[1])
 
     def kill(self) -> None:
         if self.process.poll() is None:
@@ -168,8 +193,8 @@ def children(tmp_path: Path) -> Iterator[Callable[[MqttSettings, Path], Child]]:
 TOPICS = Topics.of("edgedsm", "cam0")
 
 
-def _distinct(alerts: list[dict[str, Any]]) -> dict[tuple[str, int], dict[str, Any]]:
-    return {(a["stream"], a["seq"]): a for a in alerts}
+def _distinct(alerts: list[Alert]) -> dict[tuple[str, int], Alert]:
+    return {(a.stream or "", a.seq or 0): a for a in alerts}
 
 
 # -- availability ----------------------------------------------------------------------------
@@ -193,7 +218,7 @@ def test_clean_close_publishes_offline_quickly(broker, subscribers, publishers):
     publisher.wait_connected(WAIT_S)
     subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"online", "online")
     started = time.monotonic()
-    publisher.close()
+    publisher.close(1.5)
     assert time.monotonic() - started < 2.0
     subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"offline", "offline after close")
 
@@ -203,12 +228,12 @@ def test_mqtt_3_1_1_works_too(broker, subscribers, publishers):
     publisher = publishers(_settings(broker.port, protocol="3.1.1"), on_command=lambda name, command: None)
     publisher.wait_connected(WAIT_S)
     subscriber.wait_for(TOPICS.availability, lambda m: m.payload == b"online", "online")
-    publisher.publish_alert({"type": "fault", "region": "A"})
+    publisher.publish_alert(_alert("fault", region="A"))
     assert publisher.flush_alerts(WAIT_S)
     subscriber.client.publish(TOPICS.command("dark"), b'{"request_id": 1}', qos=1)
     reply = subscriber.wait_for(TOPICS.reply("dark"), lambda m: True, "reply").json()
     assert reply["ok"] is True and reply["request_id"] == 1 and reply["result"] is None
-    assert [a["seq"] for a in subscriber.alerts(TOPICS)] == [1]
+    assert [a.seq for a in _alerts(subscriber)] == [1]
 
 
 # -- retained state --------------------------------------------------------------------------
@@ -216,20 +241,20 @@ def test_mqtt_3_1_1_works_too(broker, subscribers, publishers):
 def test_retained_state_republished_after_broker_restart(broker, subscribers, publishers):
     publisher = publishers(_settings(broker.port))
     publisher.wait_connected(WAIT_S)
-    publisher.publish_state({"regions": {"A": {"state": "wet", "activity": 0.4}}})
+    publisher.publish_state(_state(A="wet"))
     first = subscribers(broker.port, [TOPICS.state])
-    first.wait_for(TOPICS.state, lambda m: m.json()["regions"]["A"]["state"] == "wet", "state wet")
+    first.wait_for(TOPICS.state, lambda m: _region_state(m, "A") == "wet", "state wet")
     first.stop()
 
     broker.stop()  # persistence off: the broker forgets every retained message
     wait_until(lambda: not publisher.connected, 5, "the publisher to notice the broker is gone")
-    publisher.publish_state({"regions": {"A": {"state": "drying", "activity": 0.2}}})  # while down
+    publisher.publish_state(_state(A="drying"))  # while down
     broker.start()
     publisher.wait_connected(WAIT_S)
 
     late = subscribers(broker.port, [TOPICS.state, TOPICS.availability])
     state = late.wait_for(TOPICS.state, lambda m: m.retain, "retained state after the restart")
-    assert state.json()["regions"]["A"]["state"] == "drying"  # the newest, not the one before the outage
+    assert _region_state(state, "A") == "drying"  # the newest, not the one before the outage
     late.wait_for(TOPICS.availability, lambda m: m.payload == b"online" and m.retain, "retained online")
     assert publisher.counters()["connects"] == 2
 
@@ -247,7 +272,7 @@ def test_every_alert_exactly_once_across_broker_restart(make_broker, subscribers
 
     def produce() -> None:
         for i in range(total):
-            produced.append(publisher.publish_alert({"type": "transition", "region": "A", "i": i}))
+            produced.append(publisher.publish_alert(_alert("transition", region="A", reason=f"i={i}")))
             time.sleep(0.02)
 
     producer = threading.Thread(target=produce)
@@ -257,13 +282,12 @@ def test_every_alert_exactly_once_across_broker_restart(make_broker, subscribers
     producer.join(timeout=20)
     assert len(produced) == total and produced == list(range(1, total + 1))
 
-    wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= total, WAIT_S, f"{total} distinct alerts")
+    wait_until(lambda: len(_distinct(_alerts(subscriber))) >= total, WAIT_S, f"{total} distinct alerts")
     assert publisher.flush_alerts(WAIT_S)
-    received = subscriber.alerts(TOPICS)
-    distinct = _distinct(received)
+    distinct = _distinct(_alerts(subscriber))
     assert sorted(seq for _, seq in distinct) == produced
     assert len({stream for stream, _ in distinct}) == 1
-    assert all(distinct[key]["i"] == key[1] - 1 for key in distinct)
+    assert all(distinct[key].reason == f"i={key[1] - 1}" for key in distinct)
     assert publisher.pending_alerts == 0 and publisher.counters()["connects"] >= 2
 
 
@@ -276,24 +300,24 @@ def test_every_alert_exactly_once_across_publisher_kill_and_restart(make_broker,
 
     first = children(settings, state_dir)
     first.send("connected", "connected")
-    sent = [first.alert(type="transition", n=n) for n in range(3)]
+    sent = [first.alert(_alert("transition", reason=f"n={n}")) for n in range(3)]
     assert first.send("flush", "flushed") == "flushed True"
 
     broker.stop()  # now alerts can only be stored, not sent...
-    sent += [first.alert(type="transition", n=n) for n in range(3, 6)]
+    sent += [first.alert(_alert("transition", reason=f"n={n}")) for n in range(3, 6)]
     first.kill()   # ...and the daemon dies before the broker ever saw them
     broker.start()
 
     second = children(settings, state_dir)  # the restarted daemon, same state directory
     second.send("connected", "connected")
-    sent += [second.alert(type="transition", n=n) for n in range(6, 8)]
+    sent += [second.alert(_alert("transition", reason=f"n={n}")) for n in range(6, 8)]
     assert sent == list(range(1, 9))  # seq continues across the restart
     assert second.send("flush", "flushed") == "flushed True"
 
-    wait_until(lambda: len(_distinct(subscriber.alerts(TOPICS))) >= 8, WAIT_S, "8 distinct alerts")
-    distinct = _distinct(subscriber.alerts(TOPICS))
+    wait_until(lambda: len(_distinct(_alerts(subscriber))) >= 8, WAIT_S, "8 distinct alerts")
+    distinct = _distinct(_alerts(subscriber))
     assert sorted(seq for _, seq in distinct) == sent
-    assert [distinct[k]["n"] for k in sorted(distinct, key=lambda k: k[1])] == list(range(8))
+    assert [distinct[k].reason for k in sorted(distinct, key=lambda k: k[1])] == [f"n={n}" for n in range(8)]
     second.send("close", "closed")
 
 
@@ -301,15 +325,15 @@ def test_alerts_published_before_the_broker_exists_are_delivered(tmp_path, subsc
     late_broker = Broker(tmp_path / "late")  # not started yet
     try:
         publisher = publishers(_settings(late_broker.port))
-        seqs = [publisher.publish_alert({"type": "fault", "region": "A"}) for _ in range(3)]
+        seqs = [publisher.publish_alert(_alert("fault", region="A")) for _ in range(3)]
         time.sleep(0.3)
         with pytest.raises(PublishError, match=f"cannot reach 127.0.0.1:{late_broker.port}"):
             publisher.wait_connected(0.5)
         late_broker.start()
         subscriber = subscribers(late_broker.port, [TOPICS.alerts])
         publisher.wait_connected(WAIT_S)
-        wait_until(lambda: len(subscriber.alerts(TOPICS)) >= 3, WAIT_S, "3 alerts")
-        assert [a["seq"] for a in subscriber.alerts(TOPICS)] == seqs
+        wait_until(lambda: len(_alerts(subscriber)) >= 3, WAIT_S, "3 alerts")
+        assert [a.seq for a in _alerts(subscriber)] == seqs
     finally:
         late_broker.stop()
 
@@ -323,11 +347,10 @@ def test_maps_decode_within_one_quantization_step(broker, subscribers, publisher
     rng = np.random.default_rng(5)
     big = rng.gamma(2.0, 0.1, size=(300, 200))   # downsampled to 128 x 85
     small = rng.random((40, 60)) * 1e-3           # sent as is
-    assert publisher.publish_maps({"s1": big, "s3": small}, seq=1234, t=1.7e9, window=200, lag=10)
-    # the daemon's per-map call, with its own meta keys
+    publisher.publish_map(MapFrame("s1", big, seq=1234, t=1.7e9, window=200, lag=10))
+    publisher.publish_map(MapFrame("s3", small, seq=1234, t=1.7e9, window=200, lag=10))
     flat = np.full((16, 16), 0.25)
-    assert publisher.publish_map("s2", flat, {"estimator": "s2", "window": 200, "lag": 10, "frames": 99,
-                                              "t": 1.7e9})
+    publisher.publish_map(MapFrame("s2", flat, seq=99, t=1.7e9, window=200, lag=10, extra={"region": "all"}))
 
     for name, source in (("s1", big), ("s3", small), ("s2", flat)):
         png = subscriber.wait_for(TOPICS.map(name), lambda m: True, f"map {name}").payload
@@ -339,20 +362,23 @@ def test_maps_decode_within_one_quantization_step(broker, subscribers, publisher
         assert meta["window"] == 200 and meta["lag"] == 10
     assert subscriber.on(TOPICS.map_meta("s1"))[-1].json()["downsampled"] is True
     assert subscriber.on(TOPICS.map_meta("s1"))[-1].json()["seq"] == 1234
-    assert subscriber.on(TOPICS.map_meta("s2"))[-1].json()["seq"] == 99  # from "frames"
+    s2_meta = subscriber.on(TOPICS.map_meta("s2"))[-1].json()
+    assert s2_meta["seq"] == 99 and s2_meta["region"] == "all" and s2_meta["estimator"] == "s2"
     wait_until(lambda: publisher.counters()["maps_sent"] == 3, 5, "3 maps counted as sent")
 
 
 def test_stats_carry_the_publisher_counters_and_no_nan(broker, subscribers, publishers):
     subscriber = subscribers(broker.port, [TOPICS.stats])
-    publisher = publishers(_settings(broker.port, stats_interval_s=0.5))
+    publisher = publishers(_settings(broker.port))
     publisher.wait_connected(WAIT_S)
-    assert publisher.stats_due()
-    assert publisher.publish_stats({"fps": np.float32(29.5), "beta": float("nan"), "drops": np.int64(3)})
-    assert not publisher.stats_due()
-    stats = subscriber.wait_for(TOPICS.stats, lambda m: True, "stats").json()
-    assert stats["fps"] == pytest.approx(29.5) and stats["beta"] is None and stats["drops"] == 3
-    assert stats["mqtt"]["connected"] is True and stats["mqtt"]["alerts_pending"] == 0
+    publisher.publish_stats(Stats(t=time.time(), frames=120, ready=True, fps=float(np.float32(29.5)), laser="on",
+                                  estimator="s2", drops={"queue": int(np.int64(3))}, ambient_level=float("nan")))
+    message = subscriber.wait_for(TOPICS.stats, lambda m: True, "stats")
+    assert message.json()["ambient_level"] is None  # NaN is not JSON: null
+    stats = Stats.model_validate_json(message.payload)
+    assert stats.fps == pytest.approx(29.5) and stats.drops == {"queue": 3} and stats.frames == 120
+    assert stats.mqtt is not None and stats.mqtt["connected"] is True and stats.mqtt["alerts_pending"] == 0
+    assert stats.mqtt["storage_faults"] == 0 and stats.mqtt["storage_error"] is None
 
 
 # -- commands --------------------------------------------------------------------------------
@@ -409,7 +435,7 @@ def test_commands_validated_dispatched_and_answered(broker, subscribers, publish
     crashed = ask("dark", "{}")
     assert crashed["ok"] is False and "relay jammed" in crashed["error"]
     maps = ask("publish_maps", "{}")
-    assert maps["ok"] is True and publisher.maps_due()
+    assert maps["ok"] is True and maps["result"] == {"laser": "on"}
     assert [name for name, _ in calls] == ["laser", "rebaseline", "dark", "publish_maps"]
     assert publisher.connected  # the handler's exception did not hurt the connection
 
@@ -485,11 +511,11 @@ def test_tls_with_client_certificate_and_password(secure_broker, subscribers, pu
     monkeypatch.setenv("EDGEDSM_MQTT_PASSWORD", "s3cret")  # the way the daemon gets it
     publisher = publishers(_tls_settings(broker, tls))
     publisher.wait_connected(WAIT_S)
-    publisher.publish_state({"regions": {"A": {"state": "dry"}}})
-    seq = publisher.publish_alert({"type": "transition", "region": "A", "to": "dry"})
+    publisher.publish_state(_state(A="dry"))
+    seq = publisher.publish_alert(_alert("transition", region="A", from_state="drying", to_state="dry"))
     subscriber = subscribers(broker.port, [TOPICS.state, TOPICS.alerts], tls=tls, username="line3",
                              password="s3cret")
-    subscriber.wait_for(TOPICS.state, lambda m: m.json()["regions"]["A"]["state"] == "dry", "state over TLS")
+    subscriber.wait_for(TOPICS.state, lambda m: _region_state(m, "A") == "dry", "state over TLS")
     assert publisher.flush_alerts(WAIT_S)
     assert publisher.counters()["alerts_acked"] == 1 and seq == 1
 
@@ -513,7 +539,7 @@ def test_untrusted_broker_certificate_is_a_clear_error(secure_broker, publishers
     publisher = publishers(settings, password="s3cret")
     with pytest.raises(PublishError, match=r"certificate .* was not accepted"):
         publisher.wait_connected(1.5)
-    publisher.close()
+    publisher.close(1.5)
     gc.collect()  # let paho's leaked sockets be reported inside this test (see the mark)
 
 
@@ -548,23 +574,27 @@ def _lines_until(process: subprocess.Popen[str], needle: str, lines: list[str], 
 def test_watch_prints_availability_states_and_alerts_once(broker, publishers, tmp_path):
     publisher = publishers(_settings(broker.port))
     publisher.wait_connected(WAIT_S)
-    publisher.publish_state({"t": 1.0, "regions": {"panel": {"state": "wet", "activity": 0.41}}})
+    panel = RegionState(region="panel", state="wet", since=1.0, activity=0.41)
+    publisher.publish_state(StateReport(t=1.0, estimator="s2", regions={"panel": panel}))
     maps_dir = tmp_path / "maps"
     watch = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--device", "cam0", "--count", "2",
                    "--timeout", "30", "--save-maps", str(maps_dir))
     lines: list[str] = []
     try:
         _lines_until(watch, "panel: wet", lines)  # retained state seen: the subscription is active
-        publisher.publish_state({"t": 2.0, "regions": {"panel": {"state": "drying", "activity": 0.22}}})
-        alert = {"type": "transition", "region": "panel", "from": "wet", "to": "drying", "activity": 0.22,
-                 "t": time.time()}
+        drying = panel.model_copy(update={"state": "drying", "since": 2.0, "activity": 0.22})
+        publisher.publish_state(StateReport(t=2.0, estimator="s2", regions={"panel": drying}))
+        alert = _alert("transition", region="panel", from_state="wet", to_state="drying", activity=0.22)
         publisher.publish_alert(alert)
         assert publisher.flush_alerts(WAIT_S)
         # a resend of alert 1, as after a reconnection: must not be printed again
-        _publish_raw(broker.port, TOPICS.alerts, json.dumps({**alert, "seq": 1, "stream": publisher.alert_stream}))
-        assert publisher.publish_maps({"s1": np.outer(np.arange(20.0), np.ones(30))}, seq=77)
+        resend = alert.model_copy(update={"seq": 1, "stream": publisher.alert_stream})
+        _publish_raw(broker.port, TOPICS.alerts, resend.to_bytes().decode())
+        publisher.publish_map(MapFrame("s1", np.outer(np.arange(20.0), np.ones(30)), seq=77, t=time.time(),
+                                       window=200, lag=10))
         _lines_until(watch, "map s1", lines)
-        publisher.publish_alert({**alert, "from": "drying", "to": "dry", "activity": 0.05})
+        publisher.publish_alert(alert.model_copy(update={"from_state": "drying", "to_state": "dry",
+                                                         "activity": 0.05}))
         out, err = watch.communicate(timeout=WAIT_S)
     finally:
         if watch.poll() is None:
@@ -625,3 +655,54 @@ def test_watch_over_tls_with_password_from_environment(secure_broker, publishers
     out, err = bad.communicate(timeout=WAIT_S)
     assert bad.returncode == 1
     assert "refused the connection" in err and "user 'line3'" in err
+
+
+def test_deeply_nested_or_huge_command_is_refused_with_a_reply(broker, subscribers, publishers):
+    calls: list[str] = []
+    publisher = publishers(_settings(broker.port), on_command=lambda name, command: calls.append(name))
+    publisher.wait_connected(WAIT_S)
+    replies = subscribers(broker.port, [f"{TOPICS.base}/cmd/+/reply"])
+    # the issue's payload: 100 000 deep (RecursionError in the parser, no reply)
+    replies.client.publish(TOPICS.command("laser"), b"[" * 100_000 + b"]" * 100_000, qos=1)
+    huge = replies.wait_for(TOPICS.reply("laser"), lambda m: True, "a reply to a huge command").json()
+    assert huge["ok"] is False and "200000 bytes exceeds the 16384-byte limit" in huge["error"]
+    # deep within the size bound; brackets inside strings do not count
+    deep_payload = '{"request_id": "[[[[[[[[[[[[", "x": ' + "[" * 5000 + "]" * 5000 + "}"
+    replies.client.publish(TOPICS.command("dark"), deep_payload, qos=1)
+    deep = replies.wait_for(TOPICS.reply("dark"), lambda m: True, "a reply to a deeply nested command").json()
+    assert deep["ok"] is False and "nested deeper than 8 levels" in deep["error"]
+    # a modest nesting is parsed and refused on its merits
+    replies.client.publish(TOPICS.command("rebaseline"), json.dumps({"a": [[{"b": [1]}]]}), qos=1)
+    merits = replies.wait_for(TOPICS.reply("rebaseline"), lambda m: True, "a reply to rebaseline").json()
+    assert merits["ok"] is False and "a: unknown key" in merits["error"]
+    assert calls == [] and publisher.connected
+
+
+@pytest.mark.parametrize("response_topic", [TOPICS.alerts, TOPICS.state, "edgedsm/other/cmd/laser/reply",
+                                            "edgedsm", "$SYS/x", "ops/#"])
+def test_response_topic_inside_our_topics_is_refused(broker, subscribers, publishers, response_topic):
+    calls: list[str] = []
+    publisher = publishers(_settings(broker.port), on_command=lambda name, command: calls.append(name))
+    publisher.wait_connected(WAIT_S)
+    watcher = subscribers(broker.port, ["edgedsm/#"], protocol=mqtt.MQTTv5)
+    properties = Properties(PacketTypes.PUBLISH)
+    properties.ResponseTopic = response_topic
+    properties.CorrelationData = b"c-1"
+    watcher.client.publish(TOPICS.command("dark"), b'{"request_id": 5}', qos=1, properties=properties)
+    reply = watcher.wait_for(TOPICS.reply("dark"), lambda m: True, "a refusal on the default reply topic")
+    assert reply.json()["ok"] is False and "response topic" in reply.json()["error"]
+    assert reply.json()["request_id"] == 5 and reply.properties.CorrelationData == b"c-1"
+    time.sleep(0.3)  # nothing may have been published on the requested topic
+    assert [m for m in watcher.messages if m.topic == response_topic] == []
+    assert calls == []
+
+
+def test_response_topic_own_reply_topic_is_accepted(broker, subscribers, publishers):
+    publisher = publishers(_settings(broker.port), on_command=lambda name, command: {"done": name})
+    publisher.wait_connected(WAIT_S)
+    requester = subscribers(broker.port, [TOPICS.reply("dark")], protocol=mqtt.MQTTv5)
+    properties = Properties(PacketTypes.PUBLISH)
+    properties.ResponseTopic = TOPICS.reply("dark")
+    requester.client.publish(TOPICS.command("dark"), b"{}", qos=1, properties=properties)
+    reply = requester.wait_for(TOPICS.reply("dark"), lambda m: True, "a reply on the own reply topic")
+    assert reply.json() == {**reply.json(), "ok": True, "result": {"done": "dark"}}

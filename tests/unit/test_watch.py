@@ -12,6 +12,7 @@ import pytest
 
 from edgedsm.commands import watch
 from edgedsm.errors import ConfigError
+from edgedsm.messages import Alert, AlertKind, RegionState, StateReport, Stats
 from edgedsm.publish import MqttSettings, encode_map
 
 
@@ -59,6 +60,8 @@ def _watcher(tmp_path: Path | None = None, count: int | None = None) -> tuple[wa
 
 
 def _feed(watcher: watch.Watcher, topic: str, payload: object, retain: bool = False) -> None:
+    if isinstance(payload, Alert | StateReport | Stats):
+        payload = payload.to_bytes()
     data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
     watcher._on_message(watcher.client, None, _Message(f"edgedsm/line3/{topic}", data, retain))
 
@@ -67,16 +70,17 @@ def test_prints_state_changes_only_and_alerts_once():
     watcher, lines = _watcher(count=2)
     _feed(watcher, "availability", b"online", retain=True)
     _feed(watcher, "availability", b"online")  # same again after a reconnection: not printed
-    _feed(watcher, "state", {"regions": {"A": {"state": "wet", "activity": 0.5}, "B": {"state": "wet"}}})
-    _feed(watcher, "state", {"regions": {"A": {"state": "drying", "activity": 0.25}, "B": {"state": "wet"}}})
-    alert = {"type": "transition", "region": "A", "from": "wet", "to": "drying", "activity": 0.25, "seq": 4,
-             "stream": "s", "reason": "below wet_below for 60 s", "t": 1.7e9}
+    _feed(watcher, "state", _report(A=("wet", 0.5), B=("wet", None)))
+    _feed(watcher, "state", _report(A=("drying", 0.25), B=("wet", None)))
+    alert = Alert(kind=AlertKind.TRANSITION, region="A", from_state="wet", to_state="drying", activity=0.25,
+                  seq=4, stream="s", reason="below wet_below for 60 s", t=1.7e9)
     _feed(watcher, "alerts", alert)
     _feed(watcher, "alerts", alert)  # a resend
     assert not watcher.done.is_set()
-    _feed(watcher, "alerts", {**alert, "seq": 5})
+    _feed(watcher, "alerts", alert.model_copy(update={"seq": 5}))
     assert watcher.done.is_set()
-    _feed(watcher, "cmd/laser/reply", {"ok": False, "command": "laser", "error": "bad", "request_id": 3})
+    _feed(watcher, "cmd/laser/reply", {"ok": False, "command": "laser", "error": "bad", "request_id": 3,
+                                       "result": None, "t": 1.7e9})
     _feed(watcher, "alerts", b"{not json")
     body = [line[25:] for line in lines]
     at = datetime.fromtimestamp(1.7e9).strftime("%H:%M:%S")
@@ -93,11 +97,38 @@ def test_prints_state_changes_only_and_alerts_once():
     assert body[7].startswith("unreadable    edgedsm/line3/alerts")
 
 
-def test_unknown_state_shape_is_printed_raw():
+def _report(**regions: tuple[str, float | None]) -> StateReport:
+    return StateReport(t=1.7e9, estimator="s2", regions={
+        name: RegionState(region=name, state=state, since=1.7e9, activity=activity)
+        for name, (state, activity) in regions.items()})
+
+
+def test_malformed_payloads_are_shown_as_such_never_raised():
     watcher, lines = _watcher()
     _feed(watcher, "state", {"phase": 2})
-    _feed(watcher, "state", {"phase": 2})
-    assert [line[25:] for line in lines] == ['state         {"phase":2}']
+    _feed(watcher, "alerts", {"type": "explosion", "t": 1.0})
+    _feed(watcher, "alerts", b"[" * 100_000 + b"]" * 100_000)
+    _feed(watcher, "cmd/dark/reply", b"[1, 2]")
+    _feed(watcher, "alerts", b"\xff\xfe")
+    body = [line[25:] for line in lines]
+    assert len(body) == 5 and all(line.startswith("unreadable    edgedsm/line3/") for line in body)
+    assert body[0].startswith("unreadable    edgedsm/line3/state: not a valid StateReport: t: Field required: "
+                              "'{\"phase\": 2}'")
+    assert "not a valid Alert: type: Input should be 'transition', 'reset', 'fault' or 'warning'" in body[1]
+    assert "recursion limit" in body[2] and body[2].endswith("...")
+    assert "not a valid CommandReply" in body[3]
+    assert "alerts: not a valid Alert" in body[4]
+    assert not watcher.alerts_seen
+
+
+def test_stats_line_says_health_and_storage_fault():
+    watcher = watch.Watcher(MqttSettings(device="line3"), password=None, show_stats=True,
+                            emit=(lines := []).append)
+    stats = Stats(t=1.7e9, frames=640, ready=True, fps=29.97, laser="on", estimator="s2", states={"A": "wet"},
+                  mqtt={"connected": True, "storage_error": "database or disk is full"})
+    _feed(watcher, "stats", stats)
+    assert lines[0][25:] == ("stats         frames 640, 29.97 fps, laser on, ready, A wet, "
+                             "storage: database or disk is full")
 
 
 def test_maps_are_paired_by_crc_and_saved(tmp_path):
