@@ -30,8 +30,9 @@ class DeviceSection(StrictModel):
 
 
 class CameraSection(StrictModel):
-    uri: str = Field("sim:default", min_length=1, max_length=1024,
-                     description="camera URI: aravis:ID, v4l2:/dev/videoN, replay:PATH, sim:SCENE.toml")
+    uri: str = Field(min_length=1, max_length=1024,
+                     description="camera URI: aravis:ID, v4l2:/dev/videoN, replay:PATH, sim:SCENE.toml "
+                                 "(required: a production config names its camera; sim:default is for demos)")
     exposure_us: float | None = Field(None, gt=0, le=60e6, description="exposure time in µs (camera default if unset)")
     frame_interval_s: float | None = Field(None, gt=0, le=3600,
                                            description="frame interval Δt in s (camera default if unset)")
@@ -169,7 +170,7 @@ def _default_regions() -> list[RegionSection]:
 
 class DaemonConfig(StrictModel):
     device: DeviceSection = Field(default_factory=DeviceSection)
-    camera: CameraSection = Field(default_factory=CameraSection)
+    camera: CameraSection = Field(description="the camera; required, never a silent default")
     laser: LaserSection | None = Field(None, description="laser relay; absent = laser not switched by edgedsm")
     acquisition: AcquisitionSection = Field(default_factory=AcquisitionSection)
     estimator: EstimatorSection = Field(default_factory=EstimatorSection)

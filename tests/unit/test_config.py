@@ -23,8 +23,8 @@ def test_example_config_only_lacks_the_plant_files(repo, capsys):
     assert len([line for line in err.splitlines() if ": " in line and "toml" in line]) == 1
 
 
-def test_defaults_are_a_complete_config():
-    config = validate(DaemonConfig, {}, "<empty>")
+def test_a_camera_is_all_a_config_needs():
+    config = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<minimal>")
     assert config.camera.uri == "sim:default" and config.estimator.window == 200
     assert config.regions[0].name == "full"
 
@@ -66,6 +66,8 @@ def test_schema_for_editors(capsys):
 
 def test_region_masks(tmp_path):
     text = """
+[camera]
+uri = "sim:default"
 [[regions]]
 name = "box"
 shape = "rect"
@@ -102,6 +104,7 @@ dry_below = 1
 
 def test_missing_mask_image_is_refused_at_load(tmp_path):
     path = tmp_path / "c.toml"
-    path.write_text("[[regions]]\nname = 'm'\nshape = 'mask'\npath = 'nope.png'\nwet_above = 2\ndry_below = 1\n")
+    path.write_text("[camera]\nuri = 'sim:'\n"
+                    "[[regions]]\nname = 'm'\nshape = 'mask'\npath = 'nope.png'\nwet_above = 2\ndry_below = 1\n")
     with pytest.raises(ConfigError, match=r"regions\.0\.path: .*nope\.png cannot be read as an image"):
         load_config(path)
