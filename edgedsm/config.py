@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Discriminator, Field, Tag, field_validator, model_validator
 
 from edgedsm import geometry
 from edgedsm.drying import Thresholds
@@ -102,19 +102,11 @@ class EstimatorSection(StrictModel):
         return self
 
 
-class RegionSection(StrictModel):
+class RegionSettings(StrictModel):
+    """What a daemon region adds to its shape (``edgedsm.geometry``): a name and drying thresholds.
+    Shapes are in camera pixels; a mask's path is relative to the config file."""
+
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$", description="region name in MQTT")
-    shape: Literal["full", "rect", "circle", "polygon", "mask"] = Field("full", description="region geometry")
-    x: float = Field(0, ge=0, le=1e5, description="rect: column of the top-left corner, px")
-    y: float = Field(0, ge=0, le=1e5, description="rect: row of the top-left corner, px")
-    width: float = Field(0, ge=0, le=1e5, description="rect: width, px")
-    height: float = Field(0, ge=0, le=1e5, description="rect: height, px")
-    cx: float = Field(0, ge=0, le=1e5, description="circle: centre column, px")
-    cy: float = Field(0, ge=0, le=1e5, description="circle: centre row, px")
-    radius: float = Field(0, ge=0, le=1e5, description="circle: radius, px")
-    points: list[tuple[float, float]] = Field(default_factory=list, max_length=1000,
-                                              description="polygon: [[x, y], ...] vertices, px")
-    path: Path | None = Field(None, description="mask: grey image; pixels >= 128 are inside")
     wet_above: float = Field(gt=0, le=1e9, description="activity at or above which the surface is wet")
     dry_below: float = Field(gt=0, le=1e9, description="activity at or below which the surface is dry")
     hysteresis: float = Field(0.05, ge=0, lt=0.5, description="relative margin to leave a state")
@@ -122,19 +114,8 @@ class RegionSection(StrictModel):
     trend_window_s: float = Field(120.0, gt=0, le=86400, description="time-to-dry trend window")
 
     @model_validator(mode="after")
-    def _geometry(self) -> RegionSection:
-        if self.shape == "rect" and (self.width <= 0 or self.height <= 0):
-            raise ValueError("a rect needs width > 0 and height > 0")
-        if self.shape == "circle" and self.radius <= 0:
-            raise ValueError("a circle needs radius > 0")
-        if self.shape == "polygon" and len(self.points) < 3:
-            raise ValueError("a polygon needs at least 3 points")
-        if self.shape == "mask" and self.path is None:
-            raise ValueError("a mask needs path")
-        try:
-            self.thresholds()
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
+    def _thresholds_fit(self) -> RegionSettings:
+        self.thresholds()  # its ValueError names the problem
         return self
 
     def thresholds(self) -> Thresholds:
@@ -142,21 +123,61 @@ class RegionSection(StrictModel):
 
     def mask(self, shape: tuple[int, int], base_dir: Path) -> np.ndarray:
         """Boolean mask of the region on a frame of ``shape``; an empty region is a ConfigError."""
-        if self.shape == "full":
-            mask = np.ones(shape, bool)
-        elif self.shape == "rect":
-            mask = geometry.rect_mask(shape, self.x, self.y, self.width, self.height)
-        elif self.shape == "circle":
-            mask = geometry.circle_mask(shape, self.cx, self.cy, self.radius)
-        elif self.shape == "polygon":
-            mask = geometry.polygon_mask(shape, self.points)
-        else:
-            assert self.path is not None
-            path = self.path if self.path.is_absolute() else base_dir / self.path
-            mask = geometry.load_mask_image(path, shape)
+        mask = self.draw(shape, 1.0, base_dir)  # type: ignore[attr-defined]  # from the shape base
         if not mask.any():
             raise ConfigError(f"regions.{self.name}: the region has no pixel inside the {shape[1]}x{shape[0]} frame")
         return mask
+
+
+class FullArea(geometry.Full, RegionSettings):
+    pass
+
+
+class RectArea(geometry.Rect, RegionSettings):
+    pass
+
+
+class CircleArea(geometry.Circle, RegionSettings):
+    pass
+
+
+class RingArea(geometry.Ring, RegionSettings):
+    pass
+
+
+class PolygonArea(geometry.Polygon, RegionSettings):
+    pass
+
+
+class TextArea(geometry.Text, RegionSettings):
+    pass
+
+
+class MaskArea(geometry.Mask, RegionSettings):
+    pass
+
+
+def _default_shape(value: object) -> object:
+    # `shape` may be left out of a daemon region: the whole frame
+    if isinstance(value, dict) and "shape" not in value:
+        return {"shape": "full", **value}
+    return value
+
+
+def _shape_of(value: object) -> object:
+    if isinstance(value, dict):
+        return value.get("shape", "full")
+    return getattr(value, "shape", None)
+
+
+#: A daemon ``[[regions]]`` entry: one of the shapes of ``edgedsm.geometry`` plus RegionSettings.
+RegionSection = Annotated[
+    Annotated[FullArea, Tag("full")] | Annotated[RectArea, Tag("rect")] | Annotated[CircleArea, Tag("circle")]
+    | Annotated[RingArea, Tag("ring")] | Annotated[PolygonArea, Tag("polygon")]
+    | Annotated[TextArea, Tag("text")] | Annotated[MaskArea, Tag("mask")],
+    Discriminator(_shape_of, custom_error_type="shape", custom_error_message=(
+        f"shape must be one of {', '.join(geometry.SHAPE_NAMES)}")),
+]
 
 
 class LoggingSection(StrictModel):
@@ -165,7 +186,7 @@ class LoggingSection(StrictModel):
 
 
 def _default_regions() -> list[RegionSection]:
-    return [RegionSection(name="full", wet_above=0.9, dry_below=0.5)]
+    return [FullArea(name="full", wet_above=0.9, dry_below=0.5)]
 
 
 class DaemonConfig(StrictModel):
@@ -196,12 +217,15 @@ class DaemonConfig(StrictModel):
 def load_config(path: str | Path) -> DaemonConfig:
     """Read and validate a daemon config; ConfigError lists every problem with its key path."""
     path = Path(path)
-    config = validate(DaemonConfig, read_toml(path), str(path))
+    data = read_toml(path)
+    if isinstance(data.get("regions"), list):  # the default shape as a key, so error paths read as written
+        data["regions"] = [_default_shape(region) for region in data["regions"]]
+    config = validate(DaemonConfig, data, str(path))
     config.base_dir = path.resolve().parent
     for index, region in enumerate(config.regions):
         # a mask image is read at the first frame: check it now, so that a reload refuses it
-        if region.shape == "mask" and region.path is not None:
-            mask_path = region.path if region.path.is_absolute() else config.base_dir / region.path
+        if isinstance(region, geometry.Mask):
+            mask_path = region.resolved(config.base_dir)
             if geometry.load_mask_image_or_none(mask_path) is None:
                 raise ConfigError(f"{path}: regions.{index}.path: {mask_path} cannot be read as an image")
     return config

@@ -34,7 +34,7 @@ def test_a_camera_is_all_a_config_needs():
     ("[estimator]\nwindow = 10\nlag = 10", "estimator: Value error, lag (10) must be smaller than window (10)"),
     ("[estimator]\nwindow = 1", "estimator.window: Input should be greater than or equal to 2"),
     ("[[regions]]\nname = 'a'\nwet_above = 1\ndry_below = 2", "regions.0: Value error, need 0 < dry_below"),
-    ("[[regions]]\nname = 'a'\nshape = 'rect'\nwet_above = 2\ndry_below = 1", "regions.0: Value error, a rect needs"),
+    ("[[regions]]\nname = 'a'\nshape = 'rect'\nwet_above = 2\ndry_below = 1", "regions.0.width: Field required"),
     ("[[regions]]\nname = 'a b'\nwet_above = 2\ndry_below = 1", "regions.0.name: String should match pattern"),
     ("[mqtt]\npassword = 'secret'", "EDGEDSM_MQTT_PASSWORD"),
     ("[acquisition]\nmode = 'sometimes'", "acquisition.mode: Input should be 'continuous' or 'bursts'"),
