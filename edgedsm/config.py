@@ -13,9 +13,11 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Discriminator, Field, Tag, field_validator, model_validator
+from pydantic import Discriminator, Field, PrivateAttr, Tag, field_validator, model_validator
 
 from edgedsm import geometry
+from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_camera_spec
+from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.drying import Thresholds
 from edgedsm.errors import ConfigError
 from edgedsm.publish.settings import MqttSettings
@@ -41,33 +43,54 @@ class CameraSection(StrictModel):
     reconnect_initial_s: float = Field(0.5, gt=0, le=600, description="first reconnection delay after a loss")
     reconnect_max_s: float = Field(30.0, gt=0, le=3600, description="longest reconnection delay (backoff cap)")
 
+    _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
+    _spec: CameraSpec | None = PrivateAttr(None)
+
     @field_validator("uri")
     @classmethod
     def _camera_uri_parses(cls, value: str) -> str:
         # a typo in the URI must be refused here (check-config, run, SIGHUP), not when opening
-        from edgedsm.devices.camera.uri import parse_camera_uri
-
         try:
             parse_camera_uri(value)
         except ConfigError as exc:
             raise ValueError(str(exc)) from None
         return value
 
+    @property
+    def spec(self) -> CameraSpec:
+        """The parsed camera URI, relative paths resolved against the config file's directory and
+        a sim: scene read (once: ``load_config`` does it, so that a missing file is a config error)."""
+        if self._spec is None or self._spec.uri != self.uri.strip():
+            self._spec = resolve_camera_spec(parse_camera_uri(self.uri), self._base_dir)
+        return self._spec
+
+    def resolve(self, base_dir: Path) -> CameraSpec:
+        """Resolve the spec against ``base_dir`` now; ConfigError says what is wrong."""
+        self._base_dir, self._spec = base_dir, None
+        return self.spec
+
 
 class LaserSection(StrictModel):
     uri: str = Field(min_length=1, max_length=1024,
                      description="relay URI, e.g. serial:/dev/ttyUSB0?protocol=lcus&channel=1 or sim:")
 
+    _spec: RelaySpec | None = PrivateAttr(None)
+
     @field_validator("uri")
     @classmethod
     def _relay_uri_parses(cls, value: str) -> str:
-        from edgedsm.devices.uri import parse_relay_uri
-
         try:
             parse_relay_uri(value)
         except ConfigError as exc:
             raise ValueError(str(exc)) from None
         return value
+
+    @property
+    def spec(self) -> RelaySpec:
+        """The parsed relay URI (parsed once)."""
+        if self._spec is None or self._spec.uri != self.uri.strip():
+            self._spec = parse_relay_uri(self.uri)
+        return self._spec
 
 
 class AcquisitionSection(StrictModel):
@@ -199,7 +222,18 @@ class DaemonConfig(StrictModel):
         default_factory=_default_regions, description="regions of interest, each with drying thresholds")
     mqtt: MqttSettings | None = Field(None, description="broker; absent = no publishing")
     logging: LoggingSection = Field(default_factory=LoggingSection)
-    base_dir: Path = Field(Path("."), exclude=True, description="directory relative paths resolve in")
+    _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
+    _source: str = PrivateAttr("")
+
+    @property
+    def base_dir(self) -> Path:
+        """The directory relative paths (scene, recording, mask) resolve in: the config file's."""
+        return self._base_dir
+
+    @property
+    def source(self) -> str:
+        """The config file's path as given ("" when built in code)."""
+        return self._source
 
     @model_validator(mode="after")
     def _unique_regions(self) -> DaemonConfig:
@@ -215,13 +249,21 @@ class DaemonConfig(StrictModel):
 
 
 def load_config(path: str | Path) -> DaemonConfig:
-    """Read and validate a daemon config; ConfigError lists every problem with its key path."""
+    """Read and validate a daemon config; ConfigError lists every problem with its key path.
+
+    The camera and relay URIs are parsed here, once, with relative paths resolved against the
+    config file's directory; a scene, recording or mask image that cannot be used is refused now.
+    """
     path = Path(path)
     data = read_toml(path)
     if isinstance(data.get("regions"), list):  # the default shape as a key, so error paths read as written
         data["regions"] = [_default_shape(region) for region in data["regions"]]
     config = validate(DaemonConfig, data, str(path))
-    config.base_dir = path.resolve().parent
+    config._base_dir, config._source = path.resolve().parent, str(path)
+    try:
+        config.camera.resolve(config.base_dir)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: camera.uri: {exc}") from None
     for index, region in enumerate(config.regions):
         # a mask image is read at the first frame: check it now, so that a reload refuses it
         if isinstance(region, geometry.Mask):
@@ -229,6 +271,24 @@ def load_config(path: str | Path) -> DaemonConfig:
             if geometry.load_mask_image_or_none(mask_path) is None:
                 raise ConfigError(f"{path}: regions.{index}.path: {mask_path} cannot be read as an image")
     return config
+
+
+def check_regions(config: DaemonConfig, frame_shape: tuple[int, int]) -> None:
+    """Refuse regions that do not fit a frame of ``frame_shape`` (rows, columns): one with no pixel
+    inside, or one reaching outside (its activity would silently cover less than was drawn).
+    Pure apart from reading mask images; call it once the camera's frame size is known and
+    before the laser goes on. ConfigError has one line per region, with its key path."""
+    rows, cols = frame_shape
+    prefix = f"{config.source}: " if config.source else ""
+    problems = []
+    for index, region in enumerate(config.regions):
+        where = f"{prefix}regions.{index}: region {region.name!r}"
+        if not region.draw(frame_shape, 1.0, config.base_dir).any():
+            problems.append(f"{where} has no pixel inside the {cols}x{rows} frame")
+        elif sides := geometry.outside_part(region.bounds(), frame_shape):
+            problems.append(f"{where} reaches outside the {cols}x{rows} frame ({sides})")
+    if problems:
+        raise ConfigError("\n".join(problems))
 
 
 def config_schema() -> dict:

@@ -166,3 +166,25 @@ def _read_recording(path: Path) -> np.ndarray:
 
 def _size(shape: tuple[int, ...]) -> str:
     return "x".join(str(n) for n in shape[:2])
+
+
+def first_frame_shape(path: Path) -> tuple[int, int] | None:
+    """(rows, columns) of a recording's first frame, reading only that frame; None when it
+    cannot be read (opening the recording will then say why)."""
+    try:
+        if path.is_dir():
+            files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            image = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED) if files else None
+        elif path.suffix.lower() == ".npy":
+            stack = np.load(path, mmap_mode="r", allow_pickle=False)
+            return (int(stack.shape[1]), int(stack.shape[2])) if stack.ndim == 3 else None
+        elif path.suffix.lower() in VIDEO_SUFFIXES:
+            video = cv2.VideoCapture(str(path))
+            ok, image = video.read()
+            video.release()
+            image = image if ok else None
+        else:
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # a TIFF's first page
+    except (OSError, ValueError):
+        return None
+    return (int(image.shape[0]), int(image.shape[1])) if image is not None else None
