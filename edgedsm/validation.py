@@ -6,6 +6,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import re
 import stat
 import tomllib
 from pathlib import Path
@@ -21,6 +22,7 @@ MAX_FILE_BYTES = 1 << 20
 MAX_NESTING = 32
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
 class StrictModel(BaseModel):
@@ -34,12 +36,18 @@ def format_validation_error(error: ValidationError, source: str, data: Any = Non
     """One line per problem: ``source: key.path: reason``."""
     lines = []
     for item in error.errors():
-        path = ".".join(str(part) for part in _key_path(item["loc"], data))
+        path = ".".join(_key_name(part) for part in _key_path(item["loc"], data))
         reason = item["msg"]
         if item["type"] == "extra_forbidden":
             reason = "unknown key (not allowed here; check the spelling)"
         lines.append(f"{source}: {path or '<top level>'}: {reason}")
     return "\n".join(lines)
+
+
+def _key_name(part: Any) -> str:
+    # a key TOML would need quotes for (empty, spaces, dots, control characters) is shown quoted
+    text = str(part)
+    return text if isinstance(part, int) or _BARE_KEY.match(text) else json.dumps(text)
 
 
 def _key_path(loc: tuple, data: Any) -> list:
@@ -112,6 +120,7 @@ def validate(model: type[ModelT], data: dict[str, Any], source: str, context: di
     The data goes through pydantic's JSON mode, whose strict rules are the ones a text file
     needs (a path or a tuple may come as a string or an array; an int is a valid float).
     """
+    _refuse_nul(data, source)
     try:
         document = json.dumps(data, default=_json_default, allow_nan=True)
     except (TypeError, ValueError, RecursionError) as exc:
@@ -120,6 +129,21 @@ def validate(model: type[ModelT], data: dict[str, Any], source: str, context: di
         return model.model_validate_json(document, strict=True, context=context)
     except ValidationError as exc:
         raise ConfigError(format_validation_error(exc, source, data)) from None
+
+
+def _refuse_nul(data: Any, source: str) -> None:
+    """A NUL character cannot be in a path, a URI or a name handed to the system: refuse it with
+    its key path here (pydantic would accept it and the OS call fail later)."""
+    pending: list[tuple[Any, tuple]] = [(data, ())]
+    while pending:
+        node, path = pending.pop()
+        items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
+        for key, value in items:
+            where = (*path, key)
+            if (isinstance(key, str) and "\x00" in key) or (isinstance(value, str) and "\x00" in value):
+                name = ".".join(_key_name(part) for part in where)
+                raise ConfigError(f"{source}: {name}: contains a NUL character")
+            pending.append((value, where))
 
 
 def _json_default(value: Any) -> Any:

@@ -188,6 +188,8 @@ def resolve_camera_spec(spec: CameraSpec, base_dir: Path) -> CameraSpec:
     if spec.scheme == "replay":
         if not target.exists():
             raise _fail(spec.uri, f"{target}: no such file or directory")
+        if not (target.is_file() or target.is_dir()):
+            raise _fail(spec.uri, f"{target}: not a recording (neither a regular file nor a folder)")
         return dataclasses.replace(spec, target=str(target))
     from edgedsm.sim import load_scene
 
