@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Discriminator, Field, PrivateAttr, Tag, field_validator, model_validator
+from pydantic import ConfigDict, Discriminator, Field, PrivateAttr, Tag, field_validator, model_validator
 
 from edgedsm import geometry
 from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_camera_spec
@@ -271,6 +271,20 @@ def load_config(path: str | Path) -> DaemonConfig:
             if geometry.load_mask_image_or_none(mask_path) is None:
                 raise ConfigError(f"{path}: regions.{index}.path: {mask_path} cannot be read as an image")
     return config
+
+
+class _LaserOnly(StrictModel):
+    model_config = ConfigDict(extra="ignore")
+    laser: LaserSection | None = None
+
+
+def load_relay_spec(path: str | Path) -> RelaySpec | None:
+    """Only the ``[laser]`` relay of a config file (None when it has none), whatever else in the
+    file is wrong: switching the laser off (``edgedsm laser off --config``) must not depend on
+    the camera's scene still being there."""
+    path = Path(path)
+    laser = validate(_LaserOnly, read_toml(path), str(path)).laser
+    return laser.spec if laser is not None else None
 
 
 def check_regions(config: DaemonConfig, frame_shape: tuple[int, int]) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edgedsm.cli import main
-from edgedsm.config import check_regions, load_config
+from edgedsm.config import check_regions, load_config, load_relay_spec
 from edgedsm.daemon.service import open_camera_for
 from edgedsm.devices.camera.replay import ReplayCamera
 from edgedsm.devices.camera.sim import SimulatedCamera
@@ -127,3 +127,16 @@ def test_check_config_checks_regions_when_the_frame_size_is_known(tmp_path, caps
     _write(path, path.read_text().replace("width = 20", "width = 10"))
     assert main(["check-config", str(path)]) == 0
     assert "1 region(s) inside the 32x32 frame" in capsys.readouterr().out
+
+
+def test_the_relay_is_found_even_in_an_otherwise_broken_config(tmp_path):
+    # `edgedsm laser off --config FILE` (ExecStopPost) must switch off even when the scene is gone
+    path = _write(tmp_path / "c.toml", "[camera]\nuri = 'sim:gone.toml'\n[estimator]\nwindow = 'x'\n"
+                                       "[laser]\nuri = 'serial:/dev/ttyUSB0?protocol=lcus&channel=2'\n")
+    with pytest.raises(ConfigError):
+        load_config(path)
+    spec = load_relay_spec(path)
+    assert spec is not None and (spec.protocol, spec.port, spec.channel) == ("lcus", "/dev/ttyUSB0", 2)
+    assert load_relay_spec(_write(tmp_path / "none.toml", "[camera]\nuri = 'sim:'\n")) is None
+    with pytest.raises(ConfigError, match=r"bad\.toml: laser\.uri: .*unknown option 'chanel'"):
+        load_relay_spec(_write(tmp_path / "bad.toml", "[laser]\nuri = 'sim:?chanel=1'\n"))
