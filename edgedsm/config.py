@@ -1,6 +1,8 @@
 """Daemon configuration (TOML), validated with pydantic: unknown keys refused, every field
-bounded and described. ``edgedsm check-config FILE`` prints every problem with its key path
-and exits 78; ``edgedsm config-schema`` prints the JSON Schema for editors.
+bounded and described, types strict. ``edgedsm check-config FILE`` prints every problem with its
+key path and exits 78; ``edgedsm check-config --schema`` prints the JSON Schema for editors.
+The camera and relay URIs are parsed here, once (``config.camera.spec``, ``config.laser.spec``).
+See docs/configuration.md.
 
 Secrets never live in this file: the MQTT password comes from the environment or from
 ``$CREDENTIALS_DIRECTORY`` (see ``[mqtt]``).
