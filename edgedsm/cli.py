@@ -1,7 +1,8 @@
 """The ``edgedsm`` command line: one sub-command per module in ``edgedsm.commands``.
 
 Each command module exposes ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
-Errors edgedsm raises on purpose are printed as one clear message; a ConfigError exits 78.
+Errors edgedsm raises on purpose are printed as one clear message and end the process with the
+error's ``exit_code``: 78 configuration, 65 bad data, 69 device unavailable, 1 otherwise.
 """
 
 from __future__ import annotations
@@ -12,13 +13,14 @@ import logging
 import sys
 
 from edgedsm import __version__
-from edgedsm.errors import ConfigError, EdgedsmError
+from edgedsm.errors import ConfigError, DataError, DeviceError, EdgedsmError
 
 COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "probe",
             "init")
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2
+_KIND = {DataError.exit_code: "bad data", DeviceError.exit_code: "device unavailable"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,11 +56,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except ConfigError as exc:
+        # one line per problem (each with its key path), so a file with three mistakes is fixed at once
         print(f"edgedsm: configuration error:\n{exc}", file=sys.stderr)
-        return ConfigError.exit_code
+        return exc.exit_code
     except EdgedsmError as exc:
-        print(f"edgedsm: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+        print(f"edgedsm: {_KIND.get(exc.exit_code, 'error')}: {exc}", file=sys.stderr)
+        return exc.exit_code
     except KeyboardInterrupt:
         print("edgedsm: interrupted", file=sys.stderr)
         return 130

@@ -1,6 +1,8 @@
 """Daemon configuration (TOML), validated with pydantic: unknown keys refused, every field
-bounded and described. ``edgedsm check-config FILE`` prints every problem with its key path
-and exits 78; ``edgedsm config-schema`` prints the JSON Schema for editors.
+bounded and described, types strict. ``edgedsm check-config FILE`` prints every problem with its
+key path and exits 78; ``edgedsm check-config --schema`` prints the JSON Schema for editors.
+The camera and relay URIs are parsed here, once (``config.camera.spec``, ``config.laser.spec``).
+See docs/configuration.md.
 
 Secrets never live in this file: the MQTT password comes from the environment or from
 ``$CREDENTIALS_DIRECTORY`` (see ``[mqtt]``).
@@ -13,9 +15,11 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import ConfigDict, Discriminator, Field, PrivateAttr, Tag, field_validator, model_validator
 
 from edgedsm import geometry
+from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_camera_spec
+from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.drying import Thresholds
 from edgedsm.errors import ConfigError
 from edgedsm.publish.settings import MqttSettings
@@ -30,8 +34,9 @@ class DeviceSection(StrictModel):
 
 
 class CameraSection(StrictModel):
-    uri: str = Field("sim:default", min_length=1, max_length=1024,
-                     description="camera URI: aravis:ID, v4l2:/dev/videoN, replay:PATH, sim:SCENE.toml")
+    uri: str = Field(min_length=1, max_length=1024,
+                     description="camera URI: aravis:ID, v4l2:/dev/videoN, replay:PATH, sim:SCENE.toml "
+                                 "(required: a production config names its camera; sim:default is for demos)")
     exposure_us: float | None = Field(None, gt=0, le=60e6, description="exposure time in µs (camera default if unset)")
     frame_interval_s: float | None = Field(None, gt=0, le=3600,
                                            description="frame interval Δt in s (camera default if unset)")
@@ -40,33 +45,54 @@ class CameraSection(StrictModel):
     reconnect_initial_s: float = Field(0.5, gt=0, le=600, description="first reconnection delay after a loss")
     reconnect_max_s: float = Field(30.0, gt=0, le=3600, description="longest reconnection delay (backoff cap)")
 
+    _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
+    _spec: CameraSpec | None = PrivateAttr(None)
+
     @field_validator("uri")
     @classmethod
     def _camera_uri_parses(cls, value: str) -> str:
         # a typo in the URI must be refused here (check-config, run, SIGHUP), not when opening
-        from edgedsm.devices.camera.uri import parse_camera_uri
-
         try:
             parse_camera_uri(value)
         except ConfigError as exc:
             raise ValueError(str(exc)) from None
         return value
 
+    @property
+    def spec(self) -> CameraSpec:
+        """The parsed camera URI, relative paths resolved against the config file's directory and
+        a sim: scene read (once: ``load_config`` does it, so that a missing file is a config error)."""
+        if self._spec is None or self._spec.uri != self.uri.strip():
+            self._spec = resolve_camera_spec(parse_camera_uri(self.uri), self._base_dir)
+        return self._spec
+
+    def resolve(self, base_dir: Path) -> CameraSpec:
+        """Resolve the spec against ``base_dir`` now; ConfigError says what is wrong."""
+        self._base_dir, self._spec = base_dir, None
+        return self.spec
+
 
 class LaserSection(StrictModel):
     uri: str = Field(min_length=1, max_length=1024,
                      description="relay URI, e.g. serial:/dev/ttyUSB0?protocol=lcus&channel=1 or sim:")
 
+    _spec: RelaySpec | None = PrivateAttr(None)
+
     @field_validator("uri")
     @classmethod
     def _relay_uri_parses(cls, value: str) -> str:
-        from edgedsm.devices.uri import parse_relay_uri
-
         try:
             parse_relay_uri(value)
         except ConfigError as exc:
             raise ValueError(str(exc)) from None
         return value
+
+    @property
+    def spec(self) -> RelaySpec:
+        """The parsed relay URI (parsed once)."""
+        if self._spec is None or self._spec.uri != self.uri.strip():
+            self._spec = parse_relay_uri(self.uri)
+        return self._spec
 
 
 class AcquisitionSection(StrictModel):
@@ -101,19 +127,11 @@ class EstimatorSection(StrictModel):
         return self
 
 
-class RegionSection(StrictModel):
+class RegionSettings(StrictModel):
+    """What a daemon region adds to its shape (``edgedsm.geometry``): a name and drying thresholds.
+    Shapes are in camera pixels; a mask's path is relative to the config file."""
+
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$", description="region name in MQTT")
-    shape: Literal["full", "rect", "circle", "polygon", "mask"] = Field("full", description="region geometry")
-    x: float = Field(0, ge=0, le=1e5, description="rect: column of the top-left corner, px")
-    y: float = Field(0, ge=0, le=1e5, description="rect: row of the top-left corner, px")
-    width: float = Field(0, ge=0, le=1e5, description="rect: width, px")
-    height: float = Field(0, ge=0, le=1e5, description="rect: height, px")
-    cx: float = Field(0, ge=0, le=1e5, description="circle: centre column, px")
-    cy: float = Field(0, ge=0, le=1e5, description="circle: centre row, px")
-    radius: float = Field(0, ge=0, le=1e5, description="circle: radius, px")
-    points: list[tuple[float, float]] = Field(default_factory=list, max_length=1000,
-                                              description="polygon: [[x, y], ...] vertices, px")
-    path: Path | None = Field(None, description="mask: grey image; pixels >= 128 are inside")
     wet_above: float = Field(gt=0, le=1e9, description="activity at or above which the surface is wet")
     dry_below: float = Field(gt=0, le=1e9, description="activity at or below which the surface is dry")
     hysteresis: float = Field(0.05, ge=0, lt=0.5, description="relative margin to leave a state")
@@ -121,19 +139,8 @@ class RegionSection(StrictModel):
     trend_window_s: float = Field(120.0, gt=0, le=86400, description="time-to-dry trend window")
 
     @model_validator(mode="after")
-    def _geometry(self) -> RegionSection:
-        if self.shape == "rect" and (self.width <= 0 or self.height <= 0):
-            raise ValueError("a rect needs width > 0 and height > 0")
-        if self.shape == "circle" and self.radius <= 0:
-            raise ValueError("a circle needs radius > 0")
-        if self.shape == "polygon" and len(self.points) < 3:
-            raise ValueError("a polygon needs at least 3 points")
-        if self.shape == "mask" and self.path is None:
-            raise ValueError("a mask needs path")
-        try:
-            self.thresholds()
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
+    def _thresholds_fit(self) -> RegionSettings:
+        self.thresholds()  # its ValueError names the problem
         return self
 
     def thresholds(self) -> Thresholds:
@@ -141,21 +148,61 @@ class RegionSection(StrictModel):
 
     def mask(self, shape: tuple[int, int], base_dir: Path) -> np.ndarray:
         """Boolean mask of the region on a frame of ``shape``; an empty region is a ConfigError."""
-        if self.shape == "full":
-            mask = np.ones(shape, bool)
-        elif self.shape == "rect":
-            mask = geometry.rect_mask(shape, self.x, self.y, self.width, self.height)
-        elif self.shape == "circle":
-            mask = geometry.circle_mask(shape, self.cx, self.cy, self.radius)
-        elif self.shape == "polygon":
-            mask = geometry.polygon_mask(shape, self.points)
-        else:
-            assert self.path is not None
-            path = self.path if self.path.is_absolute() else base_dir / self.path
-            mask = geometry.load_mask_image(path, shape)
+        mask = self.draw(shape, 1.0, base_dir)  # type: ignore[attr-defined]  # from the shape base
         if not mask.any():
             raise ConfigError(f"regions.{self.name}: the region has no pixel inside the {shape[1]}x{shape[0]} frame")
         return mask
+
+
+class FullArea(geometry.Full, RegionSettings):
+    pass
+
+
+class RectArea(geometry.Rect, RegionSettings):
+    pass
+
+
+class CircleArea(geometry.Circle, RegionSettings):
+    pass
+
+
+class RingArea(geometry.Ring, RegionSettings):
+    pass
+
+
+class PolygonArea(geometry.Polygon, RegionSettings):
+    pass
+
+
+class TextArea(geometry.Text, RegionSettings):
+    pass
+
+
+class MaskArea(geometry.Mask, RegionSettings):
+    pass
+
+
+def _default_shape(value: object) -> object:
+    # `shape` may be left out of a daemon region: the whole frame
+    if isinstance(value, dict) and "shape" not in value:
+        return {"shape": "full", **value}
+    return value
+
+
+def _shape_of(value: object) -> object:
+    if isinstance(value, dict):
+        return value.get("shape", "full")
+    return getattr(value, "shape", None)
+
+
+#: A daemon ``[[regions]]`` entry: one of the shapes of ``edgedsm.geometry`` plus RegionSettings.
+RegionSection = Annotated[
+    Annotated[FullArea, Tag("full")] | Annotated[RectArea, Tag("rect")] | Annotated[CircleArea, Tag("circle")]
+    | Annotated[RingArea, Tag("ring")] | Annotated[PolygonArea, Tag("polygon")]
+    | Annotated[TextArea, Tag("text")] | Annotated[MaskArea, Tag("mask")],
+    Discriminator(_shape_of, custom_error_type="shape", custom_error_message=(
+        f"shape must be one of {', '.join(geometry.SHAPE_NAMES)}")),
+]
 
 
 class LoggingSection(StrictModel):
@@ -164,12 +211,12 @@ class LoggingSection(StrictModel):
 
 
 def _default_regions() -> list[RegionSection]:
-    return [RegionSection(name="full", wet_above=0.9, dry_below=0.5)]
+    return [FullArea(name="full", wet_above=0.9, dry_below=0.5)]
 
 
 class DaemonConfig(StrictModel):
     device: DeviceSection = Field(default_factory=DeviceSection)
-    camera: CameraSection = Field(default_factory=CameraSection)
+    camera: CameraSection = Field(description="the camera; required, never a silent default")
     laser: LaserSection | None = Field(None, description="laser relay; absent = laser not switched by edgedsm")
     acquisition: AcquisitionSection = Field(default_factory=AcquisitionSection)
     estimator: EstimatorSection = Field(default_factory=EstimatorSection)
@@ -177,7 +224,18 @@ class DaemonConfig(StrictModel):
         default_factory=_default_regions, description="regions of interest, each with drying thresholds")
     mqtt: MqttSettings | None = Field(None, description="broker; absent = no publishing")
     logging: LoggingSection = Field(default_factory=LoggingSection)
-    base_dir: Path = Field(Path("."), exclude=True, description="directory relative paths resolve in")
+    _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
+    _source: str = PrivateAttr("")
+
+    @property
+    def base_dir(self) -> Path:
+        """The directory relative paths (scene, recording, mask) resolve in: the config file's."""
+        return self._base_dir
+
+    @property
+    def source(self) -> str:
+        """The config file's path as given ("" when built in code)."""
+        return self._source
 
     @model_validator(mode="after")
     def _unique_regions(self) -> DaemonConfig:
@@ -193,17 +251,60 @@ class DaemonConfig(StrictModel):
 
 
 def load_config(path: str | Path) -> DaemonConfig:
-    """Read and validate a daemon config; ConfigError lists every problem with its key path."""
+    """Read and validate a daemon config; ConfigError lists every problem with its key path.
+
+    The camera and relay URIs are parsed here, once, with relative paths resolved against the
+    config file's directory; a scene, recording or mask image that cannot be used is refused now.
+    """
     path = Path(path)
-    config = validate(DaemonConfig, read_toml(path), str(path))
-    config.base_dir = path.resolve().parent
+    data = read_toml(path)
+    if isinstance(data.get("regions"), list):  # the default shape as a key, so error paths read as written
+        data["regions"] = [_default_shape(region) for region in data["regions"]]
+    config = validate(DaemonConfig, data, str(path))
+    config._base_dir, config._source = path.resolve().parent, str(path)
+    try:
+        config.camera.resolve(config.base_dir)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: camera.uri: {exc}") from None
     for index, region in enumerate(config.regions):
         # a mask image is read at the first frame: check it now, so that a reload refuses it
-        if region.shape == "mask" and region.path is not None:
-            mask_path = region.path if region.path.is_absolute() else config.base_dir / region.path
+        if isinstance(region, geometry.Mask):
+            mask_path = region.resolved(config.base_dir)
             if geometry.load_mask_image_or_none(mask_path) is None:
                 raise ConfigError(f"{path}: regions.{index}.path: {mask_path} cannot be read as an image")
     return config
+
+
+class _LaserOnly(StrictModel):
+    model_config = ConfigDict(extra="ignore")
+    laser: LaserSection | None = None
+
+
+def load_relay_spec(path: str | Path) -> RelaySpec | None:
+    """Only the ``[laser]`` relay of a config file (None when it has none), whatever else in the
+    file is wrong: switching the laser off (``edgedsm laser off --config``) must not depend on
+    the camera's scene still being there."""
+    path = Path(path)
+    laser = validate(_LaserOnly, read_toml(path), str(path)).laser
+    return laser.spec if laser is not None else None
+
+
+def check_regions(config: DaemonConfig, frame_shape: tuple[int, int]) -> None:
+    """Refuse regions that do not fit a frame of ``frame_shape`` (rows, columns): one with no pixel
+    inside, or one reaching outside (its activity would silently cover less than was drawn).
+    Pure apart from reading mask images; call it once the camera's frame size is known and
+    before the laser goes on. ConfigError has one line per region, with its key path."""
+    rows, cols = frame_shape
+    prefix = f"{config.source}: " if config.source else ""
+    problems = []
+    for index, region in enumerate(config.regions):
+        where = f"{prefix}regions.{index}: region {region.name!r}"
+        if not region.draw(frame_shape, 1.0, config.base_dir).any():
+            problems.append(f"{where} has no pixel inside the {cols}x{rows} frame")
+        elif sides := geometry.outside_part(region.bounds(), frame_shape):
+            problems.append(f"{where} reaches outside the {cols}x{rows} frame ({sides})")
+    if problems:
+        raise ConfigError("\n".join(problems))
 
 
 def config_schema() -> dict:

@@ -1,8 +1,14 @@
-"""Exception hierarchy shared by every part of edgedsm."""
+"""Exception hierarchy shared by every part of edgedsm.
+
+Each error the CLI may end on carries its process exit code (sysexits.h), so that systemd can
+act on it (``RestartPreventExitStatus=78``): 78 configuration, 65 bad data, 69 device unavailable.
+"""
 
 
 class EdgedsmError(Exception):
     """Base class of every error edgedsm raises on purpose."""
+
+    exit_code = 1
 
 
 class ConfigError(EdgedsmError):
@@ -14,6 +20,13 @@ class ConfigError(EdgedsmError):
     exit_code = 78
 
 
+class DataError(EdgedsmError):
+    """Input data is unusable (a corrupt recording, frames that change size); the message names
+    the file. Exit code 65 (EX_DATAERR): restarting would not help."""
+
+    exit_code = 65
+
+
 class EstimatorError(EdgedsmError, ValueError):
     """Bad arguments to an estimator (lag that does not fit the window, bad stack shape...)."""
 
@@ -23,7 +36,13 @@ class FrameError(EdgedsmError, ValueError):
 
 
 class DeviceError(EdgedsmError):
-    """A camera or relay misbehaved."""
+    """A camera or relay misbehaved. Exit code 69 (EX_UNAVAILABLE): it may work after a restart."""
+
+    exit_code = 69
+
+
+class DeviceUnavailable(DeviceError):
+    """A device could not be opened at all (missing, busy, no permission)."""
 
 
 class DeviceTimeout(DeviceError):

@@ -1,7 +1,10 @@
 """Validate a daemon configuration file without starting anything.
 
 Prints every problem with its key path (e.g. ``regions.0.dry_below: ...``) and exits 78
-(EX_CONFIG) when the file is bad, 0 with a short summary when it is good. ``--schema`` prints
+(EX_CONFIG) when the file is bad, 0 with a short summary when it is good. Where the camera's
+frame size is known without opening a device (a simulated scene's size, a recording's first
+frame, a V4L2 width and height), the regions are checked against it too; the daemon checks
+them against the real camera's frames before the laser goes on. ``--schema`` prints
 the JSON Schema of the configuration instead (for editors).
 
 Examples:
@@ -24,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from edgedsm.config import config_schema, load_config
+    from edgedsm.config import check_regions, config_schema, load_config
+    from edgedsm.devices.camera.uri import known_frame_shape
 
     if args.schema:
         print(json.dumps(config_schema(), indent=2))
@@ -32,8 +36,13 @@ def run(args: argparse.Namespace) -> int:
     if args.config is None:
         raise SystemExit("edgedsm check-config: give a CONFIG file (or --schema)")
     config = load_config(args.config)
+    frame_shape = known_frame_shape(config.camera.spec)
+    if frame_shape is not None:
+        check_regions(config, frame_shape)
     mqtt = f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else "none (log only)"
+    regions = (f"{len(config.regions)} region(s) inside the {frame_shape[1]}x{frame_shape[0]} frame"
+               if frame_shape is not None else f"{len(config.regions)} region(s) (frame size known at start)")
     print(f"{args.config}: OK — camera {config.camera.uri}, laser {config.laser.uri if config.laser else 'none'}, "
           f"{config.estimator.activity.upper()} N={config.estimator.window} m={config.estimator.lag} "
-          f"({config.estimator.mode}), {len(config.regions)} region(s), MQTT {mqtt}")
+          f"({config.estimator.mode}), {regions}, MQTT {mqtt}")
     return 0

@@ -11,7 +11,6 @@ systemd notification and watchdog, configuration reload.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
 import signal
 import threading
@@ -27,7 +26,7 @@ from edgedsm.daemon.pipeline import Cadence, Pipeline, Publisher
 from edgedsm.daemon.publishers import LogPublisher
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
-from edgedsm.devices.camera.uri import open_camera, parse_camera_uri
+from edgedsm.devices.camera.uri import open_camera
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
 from edgedsm.errors import ConfigError
 
@@ -41,11 +40,8 @@ FINAL_MAPS_TIMEOUT_S = 5.0
 
 
 def open_camera_for(config: DaemonConfig) -> Camera:
-    """The configured camera; relative replay and scene paths are relative to the config file."""
-    spec = parse_camera_uri(config.camera.uri)
-    if spec.scheme in ("sim", "replay") and spec.target not in ("", "default") and not Path(spec.target).is_absolute():
-        spec = dataclasses.replace(spec, target=str(config.base_dir / spec.target))
-    return open_camera(spec)
+    """The configured camera, built from the spec the config parsed (paths already resolved)."""
+    return open_camera(config.camera.spec)
 
 
 def make_publisher(config: DaemonConfig, on_command: Callable[[str, dict], dict]) -> Any:
@@ -166,7 +162,7 @@ class Service:
         publisher: Publisher = make_publisher(config, on_command)
         try:
             # opened last and closed by LaserSafety (switched off) whatever happens after
-            relay = open_relay(config.laser.uri) if config.laser is not None else None
+            relay = open_relay(config.laser.spec) if config.laser is not None else None
             couple_simulated_laser(camera, relay)
             pipeline = Pipeline(config, camera, publisher, relay=relay,
                                 cadence=self.cadence or self._cadence(config), on_alive=alive)

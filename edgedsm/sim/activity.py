@@ -4,34 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from edgedsm import geometry
-from edgedsm.sim.scene import (
-    CircleRegion,
-    MaskRegion,
-    RectRegion,
-    Region,
-    RingRegion,
-    Scene,
-    TextRegion,
-)
+from edgedsm.sim.scene import Region, Scene
 
 
 def region_mask(region: Region, shape: tuple[int, int], scale: float, base_dir) -> np.ndarray:
     """Boolean mask of one scene region on a grid of ``shape`` (``scale`` grid px per camera px)."""
-    if isinstance(region, RectRegion):
-        return geometry.rect_mask(shape, region.x, region.y, region.width, region.height, scale)
-    if isinstance(region, CircleRegion):
-        return geometry.circle_mask(shape, region.cx, region.cy, region.radius, scale)
-    if isinstance(region, RingRegion):
-        return geometry.ring_mask(shape, region.cx, region.cy, region.inner_radius,
-                                  region.outer_radius, scale)
-    if isinstance(region, TextRegion):
-        return geometry.text_mask(shape, region.text, region.x, region.y, region.height, scale,
-                                  region.stroke)
-    if isinstance(region, MaskRegion):
-        path = region.path if region.path.is_absolute() else base_dir / region.path
-        return geometry.load_mask_image(path, shape, region.threshold)
-    raise TypeError(f"unknown region type {type(region).__name__}")
+    return region.draw(shape, scale, base_dir)
 
 
 def tau_c_map(scene: Scene, scale: int = 2) -> np.ndarray:

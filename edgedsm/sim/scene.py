@@ -2,7 +2,8 @@
 
 Every effect is an optional table; an absent table means the effect is not simulated at all
 (no cost, no random numbers). Units: lengths in camera pixels (Δ) unless stated, times in
-frame intervals (Δt), intensities in photons. See DESIGN.md §5 and the paper's §2A.
+frame intervals (Δt), intensities in photons. See the paper's §2A; region shapes are
+those of ``edgedsm.geometry`` (the daemon's regions use the same ones).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
+from edgedsm import geometry
 from edgedsm.errors import ConfigError
 from edgedsm.validation import StrictModel, read_toml, validate
 
@@ -58,62 +60,45 @@ class SceneSection(StrictModel):
         return 2.0 if self.speckle_size is None else self.speckle_size
 
 
-class RectRegion(StrictModel):
-    shape: Literal["rect"]
-    x: float = Field(ge=-1e5, le=1e5, description="column of the top-left corner, camera px")
-    y: float = Field(ge=-1e5, le=1e5, description="row of the top-left corner, camera px")
-    width: float = Field(gt=0, le=1e5, description="width, camera px")
-    height: float = Field(gt=0, le=1e5, description="height, camera px")
+class SceneRegion(StrictModel):
+    """What a scene region adds to its shape (``edgedsm.geometry``): its own τc and a label.
+    Shapes are in camera pixels; a mask's path is relative to the scene file."""
+
     tau_c: TauC
     name: str = Field("", max_length=64, description="label used in reports")
 
 
-class CircleRegion(StrictModel):
-    shape: Literal["circle"]
-    cx: float = Field(ge=-1e5, le=1e5, description="centre column, camera px")
-    cy: float = Field(ge=-1e5, le=1e5, description="centre row, camera px")
-    radius: float = Field(gt=0, le=1e5, description="radius, camera px")
-    tau_c: TauC
-    name: str = Field("", max_length=64, description="label used in reports")
+class FullRegion(geometry.Full, SceneRegion):
+    pass
 
 
-class RingRegion(StrictModel):
-    shape: Literal["ring"]
-    cx: float = Field(ge=-1e5, le=1e5, description="centre column, camera px")
-    cy: float = Field(ge=-1e5, le=1e5, description="centre row, camera px")
-    inner_radius: float = Field(ge=0, le=1e5, description="inner radius, camera px")
-    outer_radius: float = Field(gt=0, le=1e5, description="outer radius, camera px")
-    tau_c: TauC
-    name: str = Field("", max_length=64, description="label used in reports")
-
-    @model_validator(mode="after")
-    def _radii(self) -> RingRegion:
-        if self.outer_radius <= self.inner_radius:
-            raise ValueError("outer_radius must be larger than inner_radius")
-        return self
+class RectRegion(geometry.Rect, SceneRegion):
+    pass
 
 
-class TextRegion(StrictModel):
-    shape: Literal["text"]
-    text: str = Field(min_length=1, max_length=64, description="letters drawn as the region, e.g. 'IOMT'")
-    x: float = Field(ge=-1e5, le=1e5, description="column of the top-left corner, camera px")
-    y: float = Field(ge=-1e5, le=1e5, description="row of the top-left corner, camera px")
-    height: float = Field(gt=1, le=1e5, description="cap height of the letters, camera px")
-    stroke: float = Field(0.18, gt=0.01, le=1.0, description="stroke width as a fraction of the height")
-    tau_c: TauC
-    name: str = Field("", max_length=64, description="label used in reports")
+class CircleRegion(geometry.Circle, SceneRegion):
+    pass
 
 
-class MaskRegion(StrictModel):
-    shape: Literal["mask"]
-    path: Path = Field(description="grey image, relative to the scene file; resized to the camera size")
-    threshold: int = Field(128, ge=1, le=255, description="grey level from which a pixel is inside")
-    tau_c: TauC
-    name: str = Field("", max_length=64, description="label used in reports")
+class RingRegion(geometry.Ring, SceneRegion):
+    pass
+
+
+class PolygonRegion(geometry.Polygon, SceneRegion):
+    pass
+
+
+class TextRegion(geometry.Text, SceneRegion):
+    pass
+
+
+class MaskRegion(geometry.Mask, SceneRegion):
+    pass
 
 
 Region = Annotated[
-    RectRegion | CircleRegion | RingRegion | TextRegion | MaskRegion, Field(discriminator="shape")
+    FullRegion | RectRegion | CircleRegion | RingRegion | PolygonRegion | TextRegion | MaskRegion,
+    Field(discriminator="shape"),
 ]
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edgedsm.devices.camera import Backoff, ReplayCamera, SimulatedCamera
-from edgedsm.errors import DeviceError, DeviceLost
+from edgedsm.errors import DataError, DeviceError, DeviceLost
 from edgedsm.imageio import write_stack
 from edgedsm.sim import scene_from_dict
 from edgedsm.testing import check_camera_contract
@@ -130,7 +130,7 @@ def test_replay_errors_are_clear(tmp_path):
     with pytest.raises(DeviceError, match="rate must be"):
         ReplayCamera(tmp_path, rate="fast")
     np.save(tmp_path / "f.npy", np.zeros((3, 4, 4), np.float32))
-    with pytest.raises(DeviceError, match="uint8 or uint16"):
+    with pytest.raises(DataError, match="uint8 or uint16"):
         ReplayCamera(tmp_path / "f.npy").open()
     np.save(tmp_path / "g.npy", np.zeros((3, 4, 4), np.uint8))
     with pytest.raises(DeviceError, match="no frame interval"):

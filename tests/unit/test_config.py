@@ -28,8 +28,8 @@ def test_example_config_only_lacks_the_plant_files(repo, tmp_path, capsys):
     assert len([line for line in err.splitlines() if ": " in line and "toml" in line]) == 1
 
 
-def test_defaults_are_a_complete_config():
-    config = validate(DaemonConfig, {}, "<empty>")
+def test_a_camera_is_all_a_config_needs():
+    config = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<minimal>")
     assert config.camera.uri == "sim:default" and config.estimator.window == 200
     assert config.regions[0].name == "full"
 
@@ -39,7 +39,7 @@ def test_defaults_are_a_complete_config():
     ("[estimator]\nwindow = 10\nlag = 10", "estimator: Value error, lag (10) must be smaller than window (10)"),
     ("[estimator]\nwindow = 1", "estimator.window: Input should be greater than or equal to 2"),
     ("[[regions]]\nname = 'a'\nwet_above = 1\ndry_below = 2", "regions.0: Value error, need 0 < dry_below"),
-    ("[[regions]]\nname = 'a'\nshape = 'rect'\nwet_above = 2\ndry_below = 1", "regions.0: Value error, a rect needs"),
+    ("[[regions]]\nname = 'a'\nshape = 'rect'\nwet_above = 2\ndry_below = 1", "regions.0.width: Field required"),
     ("[[regions]]\nname = 'a b'\nwet_above = 2\ndry_below = 1", "regions.0.name: String should match pattern"),
     ("[mqtt]\npassword = 'secret'", "EDGEDSM_MQTT_PASSWORD"),
     ("[acquisition]\nmode = 'sometimes'", "acquisition.mode: Input should be 'continuous' or 'bursts'"),
@@ -71,6 +71,8 @@ def test_schema_for_editors(capsys):
 
 def test_region_masks(tmp_path):
     text = """
+[camera]
+uri = "sim:default"
 [[regions]]
 name = "box"
 shape = "rect"
@@ -107,6 +109,7 @@ dry_below = 1
 
 def test_missing_mask_image_is_refused_at_load(tmp_path):
     path = tmp_path / "c.toml"
-    path.write_text("[[regions]]\nname = 'm'\nshape = 'mask'\npath = 'nope.png'\nwet_above = 2\ndry_below = 1\n")
+    path.write_text("[camera]\nuri = 'sim:'\n"
+                    "[[regions]]\nname = 'm'\nshape = 'mask'\npath = 'nope.png'\nwet_above = 2\ndry_below = 1\n")
     with pytest.raises(ConfigError, match=r"regions\.0\.path: .*nope\.png cannot be read as an image"):
         load_config(path)

@@ -42,7 +42,7 @@ def test_probe_reports_grey_levels_and_saturation(tmp_path, capsys):
 
 
 def test_probe_errors_exit_codes(capsys):
-    assert main(["probe", "camera", "v4l2:/dev/video-missing"]) == 1
+    assert main(["probe", "camera", "v4l2:/dev/video-missing"]) == 69  # EX_UNAVAILABLE
     assert "no such device /dev/video-missing" in capsys.readouterr().err
     assert main(["probe", "camera", "sim:default?speed=3"]) == 78
     assert "unknown option 'speed' for sim" in capsys.readouterr().err

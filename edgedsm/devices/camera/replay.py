@@ -3,6 +3,9 @@
 Pacing: ``rate`` frames per second, the recording's own interval where it has one
 (``rate="recorded"``: a video's frame rate, or the ``dt`` given), or ``rate=0`` for as fast
 as possible. ``loop`` starts again at the end; otherwise ``frames()`` simply ends with the recording.
+
+A recording that cannot be used (not readable as frames, frames that change size, a pixel type
+other than uint8/uint16) raises ``DataError`` naming the file (exit code 65).
 """
 
 from __future__ import annotations
@@ -14,9 +17,9 @@ import cv2
 import numpy as np
 
 from edgedsm.devices.camera.base import Camera, EndOfStream, pace
-from edgedsm.errors import DeviceError
+from edgedsm.errors import DataError, DeviceError
 from edgedsm.frames import Frame
-from edgedsm.imageio import ImageIOError, read_stack
+from edgedsm.imageio import IMAGE_SUFFIXES, ImageIOError, read_stack
 
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov")
 
@@ -44,6 +47,7 @@ class ReplayCamera(Camera):
         self._seq = 0
         self._interval = 0.0
         self._due = 0.0
+        self._frame_shape: tuple[int, ...] | None = None
 
     def _do_open(self) -> None:
         if not self.path.exists():
@@ -58,12 +62,9 @@ class ReplayCamera(Camera):
             if recorded_dt is None and fps > 0:
                 recorded_dt = 1.0 / fps
         else:
-            try:
-                self._stack = read_stack(self.path)
-            except ImageIOError as exc:
-                raise DeviceError(str(exc)) from None
+            self._stack = _read_recording(self.path)
             if self._stack.dtype not in (np.uint8, np.uint16):
-                raise DeviceError(f"{self.path}: frames must be uint8 or uint16, not {self._stack.dtype}")
+                raise DataError(f"{self.path}: frames must be uint8 or uint16, not {self._stack.dtype}")
         if self.rate == "recorded":
             if recorded_dt is None:
                 raise DeviceError(f"{self.path}: the recording has no frame interval; give dt or a rate")
@@ -122,6 +123,11 @@ class ReplayCamera(Camera):
         if pixels.ndim != 2:
             self._dropped("invalid")
             return None
+        if self._frame_shape is None:
+            self._frame_shape = pixels.shape
+        elif pixels.shape != self._frame_shape:
+            raise DataError(f"{self.path}: frame {self._index - 1} is a {_size(pixels.shape)} frame after "
+                            f"{_size(self._frame_shape)} ones; a recording keeps one frame size")
         if self._interval > 0:
             self._due = pace(self._due, self._interval)
         seq = self._seq
@@ -135,3 +141,50 @@ class ReplayCamera(Camera):
         return seconds
 
 
+def _read_recording(path: Path) -> np.ndarray:
+    """The (N, H, W) stack of a recording; DataError names the file that spoils it."""
+    try:
+        return read_stack(path)
+    except ImageIOError as exc:
+        raise DataError(str(exc)) from None
+    except ValueError:
+        # np.stack of a folder whose images differ in size: find the first odd one out
+        if not path.is_dir():
+            raise DataError(f"{path}: frames of different sizes; a recording keeps one frame size") from None
+        first: tuple[int, ...] | None = None
+        for file in sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
+            image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                continue
+            if first is None:
+                first = image.shape
+            elif image.shape != first:
+                raise DataError(f"{file}: {_size(image.shape)} frame among {_size(first)} ones; "
+                                f"a recording keeps one frame size") from None
+        raise DataError(f"{path}: frames of different sizes; a recording keeps one frame size") from None
+
+
+def _size(shape: tuple[int, ...]) -> str:
+    return "x".join(str(n) for n in shape[:2])
+
+
+def first_frame_shape(path: Path) -> tuple[int, int] | None:
+    """(rows, columns) of a recording's first frame, reading only that frame; None when it
+    cannot be read (opening the recording will then say why)."""
+    try:
+        if path.is_dir():
+            files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            image = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED) if files else None
+        elif path.suffix.lower() == ".npy":
+            stack = np.load(path, mmap_mode="r", allow_pickle=False)
+            return (int(stack.shape[1]), int(stack.shape[2])) if stack.ndim == 3 else None
+        elif path.suffix.lower() in VIDEO_SUFFIXES:
+            video = cv2.VideoCapture(str(path))
+            ok, image = video.read()
+            video.release()
+            image = image if ok else None
+        else:
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # a TIFF's first page
+    except (OSError, ValueError):
+        return None
+    return (int(image.shape[0]), int(image.shape[1])) if image is not None else None

@@ -45,14 +45,19 @@ never goes unnoticed. Options per scheme:
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.uriopts import UriOptions
 from edgedsm.errors import ConfigError
+
+if TYPE_CHECKING:
+    from edgedsm.sim import Scene
 
 SCHEMES = ("aravis", "v4l2", "replay", "sim")
 #: Uncompressed V4L2 formats the V4L2 driver accepts (FOURCC → significant bits).
@@ -75,6 +80,8 @@ class CameraSpec:
     scheme: str
     target: str  # device id / device path or index / file path / scene path ("" = default)
     options: dict[str, object] = field(default_factory=dict)
+    #: a sim: camera's scene, read by ``resolve_camera_spec`` (None: read when the camera is built)
+    scene: Scene | None = field(default=None, compare=False, repr=False)
 
 
 def _opts(uri: str) -> UriOptions:
@@ -166,6 +173,51 @@ def _parse_sim(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict[st
     return target, options
 
 
+def resolve_camera_spec(spec: CameraSpec, base_dir: Path) -> CameraSpec:
+    """The spec with a relative replay or scene path made absolute against ``base_dir`` (the
+    config file's directory), and what building the camera would find checked now: a replay
+    path must exist, a scene file must be valid and have a [detector]. ConfigError says why."""
+    if spec.scheme not in ("sim", "replay"):
+        return spec
+    if spec.scheme == "sim" and not spec.target:
+        from edgedsm.sim.defaults import default_scene
+
+        return dataclasses.replace(spec, scene=default_scene())
+    target = Path(spec.target)
+    target = (target if target.is_absolute() else base_dir / target).resolve()
+    if spec.scheme == "replay":
+        if not target.exists():
+            raise _fail(spec.uri, f"{target}: no such file or directory")
+        if not (target.is_file() or target.is_dir()):
+            raise _fail(spec.uri, f"{target}: not a recording (neither a regular file nor a folder)")
+        return dataclasses.replace(spec, target=str(target))
+    from edgedsm.sim import load_scene
+
+    scene = load_scene(target)
+    if scene.detector is None:
+        raise _fail(spec.uri, f"{target}: a simulated camera needs a scene with a [detector] table")
+    return dataclasses.replace(spec, target=str(target), scene=scene)
+
+
+def known_frame_shape(spec: CameraSpec) -> tuple[int, int] | None:
+    """(rows, columns) of the frames the camera will deliver where that is known without opening
+    a device: a scene's size, a recording's first frame, a v4l2 width and height asked for."""
+    if spec.scheme == "sim":
+        if spec.scene is not None:
+            return spec.scene.shape
+        from edgedsm.sim import load_scene
+        from edgedsm.sim.defaults import default_scene
+
+        return (load_scene(spec.target) if spec.target else default_scene()).shape
+    if spec.scheme == "replay":
+        from edgedsm.devices.camera.replay import first_frame_shape
+
+        return first_frame_shape(Path(spec.target))
+    if spec.scheme == "v4l2" and "width" in spec.options and "height" in spec.options:
+        return (int(spec.options["height"]), int(spec.options["width"]))  # type: ignore[call-overload]
+    return None
+
+
 def open_camera(uri: str | CameraSpec, *, illuminated: Callable[[], bool] | None = None) -> Camera:
     """The driver a camera URI names, constructed but not opened (use it as a context manager).
 
@@ -192,7 +244,10 @@ def open_camera(uri: str | CameraSpec, *, illuminated: Callable[[], bool] | None
     from edgedsm.sim import load_scene
     from edgedsm.sim.defaults import default_scene
 
-    scene = load_scene(spec.target) if spec.target else default_scene()
+    if spec.scene is not None:
+        scene = spec.scene.model_copy(deep=True)  # a camera may change its scene; the config keeps its own
+    else:
+        scene = load_scene(spec.target) if spec.target else default_scene()
     return SimulatedCamera(scene, illuminated=illuminated, **options)  # type: ignore[arg-type]
 
 
