@@ -7,6 +7,7 @@ import stat
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from edgedsm.cli import main
@@ -39,9 +40,13 @@ def test_writes_a_valid_config_from_the_template(tmp_path: Path, capsys: pytest.
 
 
 def test_camera_uri_is_filled_in(tmp_path: Path) -> None:
-    assert main(["init", "cam2", "--dir", str(tmp_path), "--camera", 'replay:/srv/rec "a".mkv']) == 0
+    recording = tmp_path / "rec" / 'line "a".npy'  # a quote must survive into the TOML string
+    recording.parent.mkdir()
+    np.save(recording, np.zeros((4, 8, 8), np.uint8))
+    uri = f"replay:{recording}"
+    assert main(["init", "cam2", "--dir", str(tmp_path), "--camera", uri]) == 0
     data = tomllib.loads((tmp_path / "cam2.toml").read_text())
-    assert data["camera"]["uri"] == 'replay:/srv/rec "a".mkv'
+    assert data["camera"]["uri"] == uri
     assert data["camera"]["exposure_us"] == 20000  # the rest of the table is the template's
 
 
