@@ -16,20 +16,21 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.notify import Notifier
-from edgedsm.daemon.pipeline import Cadence, Pipeline, Publisher
-from edgedsm.daemon.publishers import LogPublisher
+from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera, parse_camera_uri
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
 from edgedsm.errors import ConfigError
+from edgedsm.publish.commands import Command
+from edgedsm.publish.sink import FanOut, LogSink, Sink
 
 log = logging.getLogger(__name__)
 
@@ -48,15 +49,18 @@ def open_camera_for(config: DaemonConfig) -> Camera:
     return open_camera(spec)
 
 
-def make_publisher(config: DaemonConfig, on_command: Callable[[str, dict], dict]) -> Any:
-    """The MQTT publisher of the config, or a logging one when no broker is configured."""
-    if config.mqtt is None:
-        return LogPublisher()
-    from edgedsm.publish import MqttPublisher
+CommandHandler = Callable[[str, Command], Mapping[str, Any] | None]
 
-    publisher = MqttPublisher(config.mqtt, state_dir=config.device.state_dir, on_command=on_command)
-    publisher.start()
-    return publisher
+
+def make_sink(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+    """Where the pipeline's messages go: every configured sink (MQTT JSON when ``[mqtt]`` is set),
+    or the log when none is. A new sink is added here; the pipeline does not change."""
+    sinks: list[Sink] = []
+    if config.mqtt is not None:
+        from edgedsm.publish.json_sink import MqttSink
+
+        sinks.append(MqttSink(config.mqtt, config.device.state_dir, on_command).start())
+    return FanOut(sinks) if sinks else LogSink()
 
 
 def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
@@ -143,11 +147,10 @@ class Service:
         camera = open_camera_for(config)  # touches no device until the pipeline opens it
         holder: dict[str, Pipeline] = {}
 
-        def on_command(name: str, command: Any) -> dict:
-            # called on the publisher's command thread with a validated pydantic model
+        def on_command(name: str, command: Command) -> dict[str, Any]:
+            # called on the MQTT sink's command thread with a validated command
             pipeline = holder.get("pipeline")
-            args = command.model_dump() if hasattr(command, "model_dump") else dict(command or {})
-            return pipeline.submit(name, args) if pipeline else {"ok": False, "error": "not running"}
+            return pipeline.submit(name, command.model_dump()) if pipeline else {"ok": False, "error": "not running"}
 
         last_ping = [0.0, 0.0]  # watchdog, status
 
@@ -163,26 +166,22 @@ class Service:
                 last_ping[1] = now
                 self.notifier.status(pipeline.summary())
 
-        publisher: Publisher = make_publisher(config, on_command)
+        sink = make_sink(config, on_command)
         try:
             # opened last and closed by LaserSafety (switched off) whatever happens after
             relay = open_relay(config.laser.uri) if config.laser is not None else None
             couple_simulated_laser(camera, relay)
-            pipeline = Pipeline(config, camera, publisher, relay=relay,
+            pipeline = Pipeline(config, camera, sink, relay=relay,
                                 cadence=self.cadence or self._cadence(config), on_alive=alive)
             holder["pipeline"] = self.pipeline = pipeline
             with LaserSafety(relay) if relay is not None else contextlib.nullcontext():
                 self._measure(pipeline)
-            if not self._stop.is_set() and not self._reloaded:
-                # a finite stream (replay) ended: its final maps must leave before the publisher
-                # closes, which abandons maps still waiting for its map thread
-                flush = getattr(publisher, "flush_maps", None)
-                if flush is not None and not flush(FINAL_MAPS_TIMEOUT_S):
-                    log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
+            # a finite stream (replay) ended: its final maps must leave before the sink closes,
+            # which abandons maps still waiting to be sent
+            if not self._stop.is_set() and not self._reloaded and not sink.flush(FINAL_MAPS_TIMEOUT_S):
+                log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
         finally:
-            close = getattr(publisher, "close", None)
-            if close is not None:
-                close(timeout=1.0)  # 'offline' out within the 2 s a SIGTERM allows
+            sink.close(1.0)  # 'offline' out within the 2 s a SIGTERM allows
 
     def _measure(self, pipeline: Pipeline) -> None:
         self.notifier.ready(status=f"measuring with {self.config.camera.uri}")
