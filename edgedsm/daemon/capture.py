@@ -38,6 +38,7 @@ class Capture:
         self.frames: queue.Queue[Frame] = queue.Queue(maxsize=queue_frames)
         self.lost = threading.Event()  # set while the camera is away
         self.error: BaseException | None = None  # what ended the thread, for the pipeline thread to raise
+        self.loss_reason = ""  # the latest loss, in words
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -98,6 +99,9 @@ class Capture:
         watch = ReconnectWatch(on_lost=self._on_lost, on_reconnected=self._on_reconnected, stop=self._stop)
         try:
             for frame in self.camera.frames(timeout_s=cam.grab_timeout_s, reconnect=backoff, watch=watch):
+                if self.lost.is_set():
+                    self.lost.clear()  # back only once frames come: a camera that reopens but
+                    log.warning("camera delivers frames again")  # stays silent is still down
                 self.enqueue(frame)
                 if self._stop.is_set():
                     return
@@ -108,13 +112,13 @@ class Capture:
 
     def _on_lost(self, cause: DeviceError) -> None:
         log.warning("camera lost: %s", cause)
+        self.loss_reason = str(cause)
         self.counters["camera_lost"] += 1
         self.lost.set()
 
     def _on_reconnected(self) -> None:
         self.counters["camera_reconnects"] += 1
         log.warning("camera reconnected")
-        self.lost.clear()
 
     def enqueue(self, frame: Frame) -> None:
         """Queue one frame: held back for a source that can wait, else dropping the oldest."""

@@ -102,7 +102,8 @@ class Evaluation:
         self.monitor_lock = threading.Lock()
         self._state_published = False
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate")
-        self._pending: Future[None] | None = None
+        self._pending: Future[None] | None = None  # the latest analysis
+        self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
 
     # -- pipeline thread --------------------------------------------------------------------------
     def push(self, frame: Frame, dark: np.ndarray | None) -> bool:
@@ -146,9 +147,21 @@ class Evaluation:
             self.engine.reset()
         if states:
             with self.monitor_lock:
-                for transition in self.monitor.reset(self.clock.monotonic(), why):
-                    self._alert(transition)
+                transitions = self.monitor.reset(self.clock.monotonic(), why)
+            for transition in transitions:
+                self.publish_alert(self._alert(transition))
         log.info("measurement restarted (%s)", why)
+
+    def publish_alert(self, alert: Alert) -> None:
+        """Hand an alert to the sink on the evaluator thread (sinks are called from one thread,
+        in order: after the evaluation already handed over, before the next)."""
+        self._last = self._executor.submit(self._publish_alert, alert)
+
+    def _publish_alert(self, alert: Alert) -> None:
+        try:
+            self.sink.publish_alert(alert)
+        except Exception as exc:  # logged here: nobody waits for this one's result
+            log.error("alert %r could not be handed over: %s", alert.describe(), exc)
 
     def evaluate(self, status: Status, maps_due: bool, wait: bool = False) -> Snapshot | None:
         """Snapshot now, analyse and publish on the evaluator thread; None if skipped.
@@ -168,15 +181,15 @@ class Evaluation:
         snapshot = Snapshot(status, ready, maps, publish_maps=bool(maps) and maps_due)
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
-        self._pending = self._executor.submit(self._analyse, snapshot)
+        self._pending = self._last = self._executor.submit(self._analyse, snapshot)
         if wait:
             pending, self._pending = self._pending, None
             pending.result()
         return snapshot
 
     def finish(self) -> None:
-        """Let a running evaluation end (bounded), so its alerts and maps are not lost."""
-        pending, self._pending = self._pending, None
+        """Let the work handed over end (bounded), so alerts and maps are not lost."""
+        pending, self._pending, self._last = self._last, None, None
         if pending is not None:
             try:
                 pending.result(timeout=EVALUATION_TIMEOUT_S)
@@ -185,6 +198,9 @@ class Evaluation:
             except Exception:
                 log.exception("the last evaluation failed")
         self._executor.shutdown(wait=False)
+        # the window's ring is the bulk of the daemon's memory (N frames): released now, not
+        # when the garbage collector gets to the pipeline (a reload builds a new one at once)
+        self.engine = None
 
     def states_line(self) -> str:
         with self.monitor_lock:
@@ -207,9 +223,9 @@ class Evaluation:
         with self.monitor_lock:
             transitions = self.monitor.step(status.now, activities, ready=snapshot.ready and status.fault is None,
                                              fault=status.fault)
-            for transition in transitions:
-                self._alert(transition)
             report = self._report(status, estimator)
+        for transition in transitions:
+            self.sink.publish_alert(self._alert(transition))
         t = self.clock.to_wall(status.now)
         stats = Stats(t=t, frames=status.frames, ready=snapshot.ready, fps=status.fps, laser=status.laser,
                       estimator=estimator, drops=status.drops, camera=status.camera,
@@ -236,10 +252,10 @@ class Evaluation:
                    for name, machine in self.monitor.regions.items()}
         return StateReport(t=self.clock.to_wall(status.now), estimator=estimator, laser=status.laser, regions=regions)
 
-    def _alert(self, transition: Transition) -> None:
+    def _alert(self, transition: Transition) -> Alert:
         log.warning("region %s: %s -> %s (%s)", transition.region, transition.from_state, transition.to_state,
                     transition.reason)
-        self.sink.publish_alert(alert_of(transition, self.clock))
+        return alert_of(transition, self.clock)
 
 
 def alert_of(transition: Transition, clock: Clock) -> Alert:

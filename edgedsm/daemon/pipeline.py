@@ -15,9 +15,12 @@ the evaluator steps, is guarded by a lock; everything else has a single owning t
 Every time published is wall-clock UTC, converted once from the monotonic clock
 (:meth:`edgedsm.messages.Clock.to_wall`).
 
-Laser safety: the laser is switched on only while frames are wanted, and off on camera loss,
-during dark frames, between bursts, at stop and on any error (``run`` switches it off in a
-``finally``; the service wraps the whole in ``LaserSafety``).
+Laser safety: the laser is switched on only while frames are wanted, and off when the camera
+is down (no frame within ``camera.grab_timeout_s``, whatever the driver says), during dark
+frames, between bursts, at stop and on any error (``run`` switches it off in a ``finally``; the
+service wraps the whole in ``LaserSafety``). A camera outage is over only once frames have
+flowed for ``CAMERA_STABLE_S``: a flapping camera is one outage, one fault, the laser off
+throughout.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.laser.base import LaserRelay
 from edgedsm.errors import EdgedsmError
 from edgedsm.frames import Frame
-from edgedsm.messages import Clock
+from edgedsm.messages import Alert, AlertKind, Clock
 from edgedsm.publish.sink import Sink
 
 log = logging.getLogger(__name__)
@@ -50,6 +53,8 @@ log = logging.getLogger(__name__)
 AMBIENT_S2_WARNING = 0.1
 #: Frames the rate (``fps``) is measured over.
 FPS_FRAMES = 64
+#: How long frames must flow again after a camera outage before the laser goes back on (s).
+CAMERA_STABLE_S = 1.0
 
 
 @dataclass
@@ -77,17 +82,20 @@ class Pipeline:
         self.capture = Capture(camera, config.camera, config.acquisition.queue_frames, self.counters, self.probes)
         self.evaluation = Evaluation(config, sink, self.clock, self.counters, self.probes)
         self.acquisition = Acquisition(config.acquisition, relay, self.counters, self.clock.monotonic,
-                                       burst_started=lambda: self.evaluation.reset("burst start", states=False),
+                                       on_fault=self._device_fault,
+                                       relit=lambda: self.evaluation.reset("laser on", states=False),
                                        burst_ended=lambda now: self._evaluate(now))
         self.lit_level: float | None = None
         self._commands: queue.Queue[tuple[str, dict[str, Any], Future[dict[str, Any]]]] = queue.Queue()
-        self._last_frame_t = self.clock.monotonic()
+        self._last_frame_t: float | None = None  # None until the first frame
         self._last_stats_t = float("-inf")
         self._last_maps_t = float("-inf")
         self._frames_t: list[float] = []
-        self._relight = False  # the camera came back: restart measuring once
         self._losses_seen = 0
+        self._outage: str | None = None  # why the camera is down (None: it is up)
+        self._back_since: float | None = None  # frames flowing again since (during an outage)
         self._fault: str | None = None  # reported at the next evaluation, then cleared
+        self._urgent = False  # evaluate at once (the laser or the camera changed), whatever the cadence
 
     # -- commands (called from other threads) -------------------------------------------------
     def submit(self, name: str, args: dict[str, Any] | None = None, timeout_s: float = 5.0) -> dict[str, Any]:
@@ -119,14 +127,18 @@ class Pipeline:
             state = args.get("state")
             if state not in ("on", "off", "auto"):
                 return {"ok": False, "error": "state must be 'on', 'off' or 'auto'"}
-            acq.manual_laser = None if state == "auto" else state == "on"
-            acq.set_laser(state != "off", f"command laser {state}")
-            return {"ok": True, "laser": acq.laser}
+            before = acq.laser
+            reply = acq.command(state, self.clock.monotonic(), self._outage is None)
+            self._urgent = self._urgent or acq.laser != before
+            return reply
         if name == "rebaseline":
             self.evaluation.reset("command rebaseline")
             return {"ok": True}
         if name == "dark":
-            acq.last_dark_t = float("-inf")
+            refusal = acq.dark_refusal()
+            if refusal is not None:
+                return {"ok": False, "error": refusal}
+            acq.dark_requested = True
             return {"ok": True}
         if name == "publish_maps":
             self.request_maps()
@@ -151,6 +163,11 @@ class Pipeline:
             self.probes.frame_taken(frame, self.counters["frames"])
         return frame
 
+    def _device_fault(self, reason: str) -> None:
+        """A fault of the whole device (laser relay, camera): one alert, the stats at once."""
+        self._urgent = True
+        self.evaluation.publish_alert(Alert(kind=AlertKind.FAULT, t=self.clock.wall(), reason=reason))
+
     def _push(self, frame: Frame) -> None:
         started = time.perf_counter()
         if not self.evaluation.push(frame, self.acquisition.dark):
@@ -167,9 +184,9 @@ class Pipeline:
         return (len(times) - 1) / (times[-1] - times[0])
 
     # -- evaluation ---------------------------------------------------------------------------------
-    def _evaluate(self, now: float, wait: bool = False) -> None:
-        """Hand a snapshot to the evaluator (skipped while the previous one still runs)."""
-        fault = "camera lost" if self.capture.lost.is_set() else self._fault
+    def _evaluate(self, now: float, wait: bool = False) -> bool:
+        """Hand a snapshot to the evaluator; False if skipped (the previous one still runs)."""
+        fault = self._outage or self._fault
         self._fault = None
         status = Status(now=now, frames=self.counters["frames"], fps=self._fps(), laser=self.acquisition.laser,
                         drops={k: v for k, v in self.counters.items() if k.startswith("dropped")},
@@ -179,6 +196,7 @@ class Pipeline:
         snapshot = self.evaluation.evaluate(status, maps_due, wait=wait)
         if snapshot is not None and snapshot.publish_maps:
             self._last_maps_t = now
+        return snapshot is not None
 
     def _ambient_warning(self) -> str | None:
         ambient = self.acquisition.ambient_level
@@ -200,30 +218,34 @@ class Pipeline:
     def run(self, should_stop: Callable[[], bool], max_frames: int | None = None) -> None:
         """Measure until ``should_stop()`` is true (checked several times a second)."""
         acq, capture = self.acquisition, self.capture
-        acq.laser_off_quietly("start")
+        grab_timeout_s = self.config.camera.grab_timeout_s
+        acq.switch_off("start")
         capture.open()
         capture.start()
         try:
-            acq.take_dark_frames(capture, self._take, self.config.camera.grab_timeout_s)
-            acq.set_laser(acq.measuring(self.clock.monotonic(), capture), "measuring")
+            acq.take_dark_frames(capture, self._take, grab_timeout_s)
             while not should_stop():
                 self._handle_commands()
                 now = self.clock.monotonic()
                 if capture.error is not None:
                     raise capture.error
-                self._watch_camera(now)
-                if acq.dark_due(now):
-                    acq.take_dark_frames(capture, self._take, self.config.camera.grab_timeout_s)
-                    acq.set_laser(acq.measuring(now, capture), "after dark frames")
+                camera_ok = self._watch_camera(now)
+                if camera_ok and acq.dark_due(now):
+                    acq.take_dark_frames(capture, self._take, grab_timeout_s)
+                laser = acq.laser
+                acq.tick(now, capture, camera_ok)
+                self._urgent = self._urgent or acq.laser != laser
                 frame = self._take(0.1)
-                if frame is not None and acq.measuring(self.clock.monotonic(), capture):
+                if frame is not None and acq.admit():
                     self._push(frame)
-                    acq.burst_frames += 1
-                if self.clock.monotonic() - self._last_frame_t < self.config.camera.grab_timeout_s:
+                if self._last_frame_t is not None and self.clock.monotonic() - self._last_frame_t < grab_timeout_s:
                     self.on_alive()
-                if now - self._last_stats_t >= self.cadence.stats_every_s:
-                    self._last_stats_t = now
-                    self._evaluate(now)
+                due = now - self._last_stats_t >= self.cadence.stats_every_s
+                if due or self._urgent:
+                    if due:
+                        self._last_stats_t = now
+                    if self._evaluate(now):
+                        self._urgent = False
                 if max_frames is not None and self.counters["frames"] >= max_frames:
                     break
                 if capture.ended:
@@ -235,21 +257,35 @@ class Pipeline:
                     break
         finally:
             capture.request_stop()  # joined below, once the laser is off
-            acq.laser_off_quietly("stop")
+            acq.switch_off("stop")
             self.evaluation.finish()
             capture.stop(timeout_s=1.0)
 
-    def _watch_camera(self, now: float) -> None:
-        """Camera lost: laser off and a fault; back: measuring restarts once."""
-        capture, acq = self.capture, self.acquisition
-        if capture.lost.is_set() or self.counters["camera_lost"] != self._losses_seen:
-            # latched: a loss shorter than the stats interval is still reported as a fault
-            self._losses_seen = self.counters["camera_lost"]
-            self._fault = "camera lost"
-            if acq.laser_on:
-                acq.laser_off_quietly("camera lost")
-            self._relight = True
-        if self._relight and not capture.lost.is_set():
-            self._relight = False
-            self.evaluation.reset("camera reconnected", states=False)  # the fault covers it
-            acq.set_laser(acq.measuring(now, capture), "camera back")
+    def _watch_camera(self, now: float) -> bool:
+        """Whether the camera is up. Down (lost, or silent for ``grab_timeout_s``): the laser goes
+        off and one fault is reported per outage; up again once frames flowed ``CAMERA_STABLE_S``.
+        Before its first frame it is not up either (the laser waits), but not yet a fault: the
+        driver's own grab timeout tells a camera that never delivers."""
+        capture, last = self.capture, self._last_frame_t
+        silent = last is not None and now - last >= self.config.camera.grab_timeout_s
+        lost_again = self.counters["camera_lost"] != self._losses_seen
+        self._losses_seen = self.counters["camera_lost"]
+        if capture.lost.is_set() or silent or lost_again:
+            if self._outage is None:
+                why = f"no frame for {now - last:.1f} s" if silent and last is not None else capture.loss_reason
+                self._outage = "camera lost"
+                self._device_fault(f"camera lost: {why}")
+            self._back_since = None
+            return False
+        if last is None:
+            return False
+        if self._outage is None:
+            return True
+        if self._back_since is None:
+            self._back_since = now
+        if now - self._back_since < CAMERA_STABLE_S:
+            return False
+        log.warning("camera back: frames flowed for %.1f s", now - self._back_since)
+        self._outage, self._back_since = None, None
+        self.evaluation.reset("camera back", states=False)  # the fault covered it
+        return True

@@ -2,6 +2,8 @@
 systemd notification and watchdog, configuration reload.
 
 - SIGTERM / SIGINT: stop; the laser is switched off, ``offline`` published, exit 0 (within 2 s).
+  If the laser could not be confirmed off: logged CRITICAL, a ``fault`` alert published before
+  ``offline``, exit 69 (``EX_UNAVAILABLE``: the relay is not answering).
 - SIGHUP: reload the config file. A bad file is refused (logged with every key path) and the
   daemon keeps running with the old one; a good one restarts the pipeline with it.
 - ``Type=notify``: READY once measuring, STATUS lines, WATCHDOG pings only while frames keep
@@ -28,7 +30,8 @@ from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera, parse_camera_uri
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
-from edgedsm.errors import ConfigError
+from edgedsm.errors import ConfigError, DeviceError
+from edgedsm.messages import Alert, AlertKind
 from edgedsm.publish.commands import Command
 from edgedsm.publish.sink import FanOut, LogSink, Sink
 
@@ -39,6 +42,9 @@ STATUS_EVERY_S = 10.0
 
 #: How long the end of a finite stream waits for its final maps to be published.
 FINAL_MAPS_TIMEOUT_S = 5.0
+
+#: Exit status when the laser could not be confirmed off at stop (sysexits EX_UNAVAILABLE).
+EXIT_LASER_NOT_OFF = 69
 
 
 def open_camera_for(config: DaemonConfig) -> Camera:
@@ -84,6 +90,7 @@ class Service:
         self.pipeline: Pipeline | None = None
         self.exit_reason = ""
         self._reloaded = False
+        self.laser_not_off: str | None = None  # why the laser could not be confirmed off at stop
 
     # -- signals ----------------------------------------------------------------------------
     def install_signal_handlers(self) -> None:
@@ -134,7 +141,14 @@ class Service:
         """Measure until stopped; returns the process exit code."""
         while True:
             self._reloaded = False
-            self._run_once()
+            try:
+                self._run_once()
+            except Exception:
+                if self.laser_not_off is None:
+                    raise
+                log.exception("stopped on an error")
+            if self.laser_not_off is not None:
+                return EXIT_LASER_NOT_OFF
             if self._stop.is_set():
                 log.info("stopped (%s)", self.exit_reason or "requested")
                 return 0
@@ -174,14 +188,33 @@ class Service:
             pipeline = Pipeline(config, camera, sink, relay=relay,
                                 cadence=self.cadence or self._cadence(config), on_alive=alive)
             holder["pipeline"] = self.pipeline = pipeline
-            with LaserSafety(relay) if relay is not None else contextlib.nullcontext():
-                self._measure(pipeline)
+            safety = LaserSafety(relay) if relay is not None else None
+            try:
+                with safety or contextlib.nullcontext():
+                    self._measure(pipeline)
+            except DeviceError as exc:
+                if safety is None or exc is not safety.off_error:
+                    raise
+            finally:
+                if safety is not None and safety.off_error is not None:
+                    self._laser_left_on(sink, safety.off_error)
             # a finite stream (replay) ended: its final maps must leave before the sink closes,
             # which abandons maps still waiting to be sent
             if not self._stop.is_set() and not self._reloaded and not sink.flush(FINAL_MAPS_TIMEOUT_S):
                 log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
         finally:
             sink.close(1.0)  # 'offline' out within the 2 s a SIGTERM allows
+
+    def _laser_left_on(self, sink: Sink, error: DeviceError) -> None:
+        """The laser may still be on: say so everywhere before 'offline' goes out."""
+        self.laser_not_off = str(error)
+        log.critical("THE LASER COULD NOT BE SWITCHED OFF and may still be on: %s", error)
+        self.notifier.status(f"laser NOT confirmed off: {error}")
+        try:
+            reason = f"the laser could not be switched off at stop and may still be on: {error}"
+            sink.publish_alert(Alert(kind=AlertKind.FAULT, t=time.time(), reason=reason))
+        except Exception as exc:  # the log line above stands
+            log.error("the fault alert could not be handed over: %s", exc)
 
     def _measure(self, pipeline: Pipeline) -> None:
         self.notifier.ready(status=f"measuring with {self.config.camera.uri}")

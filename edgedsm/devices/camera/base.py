@@ -211,10 +211,13 @@ class Camera(abc.ABC):
         ``DeviceTimeout``. With it, both count as lost: the driver closes, waits per the backoff
         and reopens (counting ``reconnects``), then streams on; ``watch`` is told when the device
         is lost and when it is back, and its ``stop`` event ends the stream (even mid-backoff).
-        This is the one reconnection path: the daemon's capture thread uses it too.
+        The backoff starts over only once a frame has come: a device that reopens but stays
+        silent (flapping) is retried ever more slowly. This is the one reconnection path: the
+        daemon's capture thread uses it too.
         """
         self._check_open()
         delivered = 0
+        delays: Iterator[float] | None = None  # the backoff of the current outage
         self._start()
         try:
             while count is None or delivered < count:
@@ -226,13 +229,16 @@ class Camera(abc.ABC):
                     self.stats["lost" if isinstance(exc, DeviceLost) else "timeouts"] += 1
                     if reconnect is None:
                         raise
-                    if not self._reconnect(reconnect, exc, watch or ReconnectWatch()):
+                    if delays is None:
+                        delays = reconnect.delays()
+                    if not self._reconnect(delays, exc, watch or ReconnectWatch()):
                         return  # stopped while waiting to reconnect
                     continue
                 if frame is None:
                     continue
                 self.stats["delivered"] += 1
                 delivered += 1
+                delays = None
                 yield frame
         finally:
             if self._opened and self._streaming:
@@ -250,16 +256,16 @@ class Camera(abc.ABC):
         except DeviceError as exc:  # a lost device cannot be stopped; that is fine
             log.debug("%s: stop failed: %s", self.description, exc)
 
-    def _reconnect(self, backoff: Backoff, cause: DeviceError, watch: ReconnectWatch) -> bool:
-        """Close, then reopen per ``backoff``; False if ``watch.stop`` was set meanwhile."""
+    def _reconnect(self, delays: Iterator[float], cause: DeviceError, watch: ReconnectWatch) -> bool:
+        """Close, then reopen after each of ``delays``; False if ``watch.stop`` was set meanwhile."""
         log.warning("%s: device lost (%s), reconnecting", self.description, cause)
+        watch.on_lost(cause)  # first: closing a dead device can take seconds
         self._streaming = False
         with contextlib.suppress(DeviceError):
             self._do_close()
         self._opened = False
-        watch.on_lost(cause)
         last: DeviceError = cause
-        for delay in backoff.delays():
+        for delay in delays:
             if watch.stop is not None:
                 if watch.stop.wait(delay):
                     return False
@@ -269,8 +275,7 @@ class Camera(abc.ABC):
                 self._do_open()
             except DeviceError as exc:
                 last = exc
-                log.info("%s: reconnect failed (%s); next try in up to %.1f s", self.description, exc,
-                         backoff.maximum)
+                log.info("%s: reconnect failed (%s)", self.description, exc)
                 continue
             self._opened = True
             self._reapply_settings()
