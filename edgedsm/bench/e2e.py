@@ -2,23 +2,25 @@
 
 What runs is the daemon's own code in this process: the replay camera driver on a recorded
 ``.npy`` stack, ``Pipeline`` (capture thread, bounded drop-oldest queue, streaming engine with
-N = 200, m = 10 and all three maps, region statistics, drying states) and ``MqttPublisher``
-talking to a private mosquitto (``LocalBroker``) on loopback, with a subscriber on the stats
+N = 200, m = 10 and all three maps, region statistics, drying states) and the MQTT sink
+(``MqttSink``) talking to a private mosquitto (``LocalBroker``) on loopback, with a subscriber on the stats
 topic. The recording is 240 frames of simulated speckle (the constant-activity scene at 256²,
 τc = 20 frames) tiled 8 × 8 to 2048², each tile shifted in time, played in a loop.
 
 Measured, in one run:
 
-1. **Capacity**: the source waits for room in the queue instead of dropping (bench-only
-   back-pressure), so frames/s is what the pipeline can process at most.
+1. **Capacity**: the replay at rate 0 is a source that can wait, which the pipeline holds
+   back when its queue is full instead of dropping, so frames/s is what it can process at most.
+   Every figure is taken through the pipeline's public probes (``PipelineProbes``): the
+   pipeline measured is the daemon's own, unmodified.
 2. **Sustained rate with zero drops**: the replay paced at a requested rate into the daemon's
    real drop-oldest queue, for the default ``acquisition.queue_frames`` = 16 and for 64; the
    highest rate at which no frame was dropped during the whole trial and the source kept its
    pace, found by bisection between 0 and the capacity starting at the 60 frames/s target.
    Statistics every 5 s (the default ``mqtt.stats_interval_s``) and maps every 10 s (six
-   times the default map load). Each evaluation (maps, region statistics) stalls the
-   pipeline thread for a few hundred ms, and the queue must hold the frames arriving
-   meanwhile: that, not the per-frame cost, sets the zero-drop rate.
+   times the default map load). Each evaluation's snapshot of the maps stalls the pipeline
+   thread (region statistics and publishing run beside it) for up to a few hundred ms, and
+   the queue must hold the frames arriving meanwhile: that, not the per-frame cost, sets the zero-drop rate.
 3. **CPU time per frame**: this process's CPU time (every thread: capture, pipeline, numba
    workers, MQTT, the subscriber; mosquitto excluded) divided by the frames processed. The
    60 frames/s trial is repeated in a child process with ``OMP_WAIT_POLICY=passive``, which
@@ -52,7 +54,6 @@ import json
 import logging
 import os
 import platform
-import queue
 import statistics
 import subprocess
 import sys
@@ -68,9 +69,13 @@ import numpy as np
 
 from edgedsm.bench.report import write_markdown
 from edgedsm.config import DaemonConfig
+from edgedsm.daemon.evaluation import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
+from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.service import open_camera_for
 from edgedsm.frames import Frame
+from edgedsm.messages import Alert, Clock, MapFrame, StateReport, Stats
+from edgedsm.publish.sink import FanOut
 from edgedsm.resources import data_file
 
 HELP = "the daemon end to end at 2048² (replay → pipeline → MQTT): sustained frames/s, CPU, latency, memory"
@@ -123,88 +128,84 @@ def memory_mib() -> dict[str, float]:
     return values
 
 
-class TimedPublisher:
-    """Forwards to the real publisher and notes when each stats message was handed over."""
+class StatsTimer:
+    """A sink beside the MQTT one (``FanOut``): notes when each stats message was handed over."""
 
-    def __init__(self, inner: Any) -> None:
-        self.inner = inner
+    def __init__(self) -> None:
         self.stats_sent: list[tuple[float, int]] = []  # (monotonic, frames counted in it)
 
-    def publish_stats(self, stats: dict[str, Any]) -> None:
-        self.stats_sent.append((time.monotonic(), int(stats["frames"])))
-        self.inner.publish_stats(stats)
+    def publish_stats(self, stats: Stats) -> None:
+        self.stats_sent.append((time.monotonic(), stats.frames))
 
-    def publish_state(self, state: dict[str, Any]) -> None:
-        self.inner.publish_state(state)
+    def publish_state(self, report: StateReport) -> None:
+        return None
 
-    def publish_alert(self, alert: dict[str, Any]) -> None:
-        self.inner.publish_alert(alert)
+    def publish_alert(self, alert: Alert) -> None:
+        return None
 
-    def publish_map(self, name: str, values: np.ndarray, meta: dict[str, Any]) -> None:
-        self.inner.publish_map(name, values, meta)
+    def publish_map(self, frame: MapFrame) -> None:
+        return None
+
+    def flush(self, timeout_s: float) -> bool:
+        return True
+
+    def close(self, timeout_s: float) -> None:
+        return None
 
 
-class InstrumentedPipeline(Pipeline):
-    """The daemon's pipeline with timestamps at the queue, the push and each evaluation.
+class Instruments:
+    """Timestamps from the real pipeline's probes (``PipelineProbes``): each frame's entry into the
+    queue, its dequeuing and push, the cost of each push, of each snapshot of the maps on the
+    pipeline thread and of each evaluation on the evaluator thread, and memory every
+    ``rss_every`` frames. ``record`` False keeps only the memory samples (long runs)."""
 
-    ``backpressure``: the capture thread waits for room in the queue instead of dropping the
-    oldest frame (capacity measurements only; the daemon itself always drops).
-    """
-
-    def __init__(self, *args: Any, backpressure: bool = False, record: bool = True,
-                 rss_every: int = 0, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.backpressure = backpressure
+    def __init__(self, record: bool = True, rss_every: int = 0) -> None:
         self.record = record
         self.rss_every = rss_every
         self.enqueued: dict[int, float] = {}
         self.pushed: dict[int, float] = {}
         self.dequeued: list[int] = []  # seq in dequeue order: index i-1 is the i-th frame counted
         self.push_s: list[float] = []
-        self.evaluate_s: list[float] = []
+        self.snapshot_s: list[float] = []  # pipeline thread: engine.maps() for an evaluation
+        self.evaluate_s: list[float] = []  # evaluator thread: statistics, states, messages
         self.rss: list[tuple[int, float]] = []  # (frames, MiB)
-        self.ready_at: int | None = None
+        self.ready_at: int | None = None  # frames counted when the window filled
         self.first_evaluation_at: int | None = None  # frames when maps were first evaluated
+        self._frames = 0
+        self._pushes = 0
 
-    def _enqueue(self, frame: Frame) -> None:
+    def probes(self) -> PipelineProbes:
+        return PipelineProbes(frame_queued=self._queued, frame_taken=self._taken, frame_pushed=self._pushed,
+                              snapshot_taken=self._snapshot, evaluated=self._evaluated)
+
+    def _queued(self, frame: Frame, t: float) -> None:
         if self.record:
-            self.enqueued[frame.seq] = time.monotonic()
-        if not self.backpressure:
-            super()._enqueue(frame)
-            return
-        while not self._capture.stop.is_set():
-            try:
-                self._capture.frames.put(frame, timeout=0.1)
-                return
-            except queue.Full:
-                continue
+            self.enqueued[frame.seq] = t
 
-    def _next_frame(self, timeout_s: float) -> Frame | None:
-        frame = super()._next_frame(timeout_s)
-        if frame is not None:
-            if self.record:
-                self.dequeued.append(frame.seq)
-            count = self.counters["frames"]
-            if self.rss_every and count % self.rss_every == 0:
-                self.rss.append((count, memory_mib()["anon"]))
-        return frame
-
-    def _push(self, frame: Frame) -> None:
-        started = time.perf_counter()
-        super()._push(frame)
+    def _taken(self, frame: Frame, count: int) -> None:
+        self._frames = count
         if self.record:
-            self.push_s.append(time.perf_counter() - started)
-            self.pushed[frame.seq] = time.monotonic()
-        if self.ready_at is None and self.engine is not None and self.engine.ready:
-            self.ready_at = self.counters["frames"]
+            self.dequeued.append(frame.seq)
+        if self.rss_every and count % self.rss_every == 0:
+            self.rss.append((count, memory_mib()["anon"]))
 
-    def _evaluate(self, now: float) -> None:
-        started = time.perf_counter()
-        super()._evaluate(now)
-        if self.engine is not None and self.engine.ready:
-            self.evaluate_s.append(time.perf_counter() - started)
+    def _pushed(self, frame: Frame, t: float, cost: float) -> None:
+        self._pushes += 1
+        if self._pushes == WINDOW:
+            self.ready_at = self._frames
+        if self.record:
+            self.push_s.append(cost)
+            self.pushed[frame.seq] = t
+
+    def _snapshot(self, snapshot: Snapshot, cost: float) -> None:
+        if snapshot.ready:
+            self.snapshot_s.append(cost)
             if self.first_evaluation_at is None:
-                self.first_evaluation_at = self.counters["frames"]
+                self.first_evaluation_at = snapshot.status.frames
+
+    def _evaluated(self, stats: Stats, seconds: float) -> None:
+        if stats.ready:
+            self.evaluate_s.append(seconds)
 
 
 class StatsListener:
@@ -251,7 +252,8 @@ class Trial:
     rss_growth: float = float("nan")  # anonymous MiB, last sample minus the first after maps were evaluated
     latency: dict[str, tuple[float, float]] = field(default_factory=dict)  # part -> (p50, p99) s
     push_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, p99
-    evaluate_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max
+    snapshot_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: maps on the pipeline thread
+    evaluate_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the evaluator thread
     evaluations: int = 0
 
     @property
@@ -289,7 +291,7 @@ def _percentiles(values: list[float]) -> tuple[float, float]:
     return float(p50), float(p99)
 
 
-def latency_parts(pipeline: InstrumentedPipeline, sent: list[tuple[float, int]],
+def latency_parts(pipeline: Instruments, sent: list[tuple[float, int]],
                   arrivals: list[tuple[float, int]]) -> dict[str, tuple[float, float]]:
     """Per frame counted after the first stats message that followed the window's filling:
     queue wait + push, wait for the stats message that includes it, its way through the broker,
@@ -334,18 +336,21 @@ def daemon_config(recording: Path, port: int, state_dir: Path, rate: float, queu
 def run_trial(label: str, recording: Path, port: int, state_dir: Path, *, rate: float | None, queue_frames: int,
               seconds: float, stats_s: float = 5.0, maps_s: float = 10.0) -> Trial:
     """Run the pipeline for ``seconds`` and measure (see the module docstring)."""
-    from edgedsm.publish import MqttPublisher, Topics
+    from edgedsm.publish import Topics
+    from edgedsm.publish.json_sink import MqttSink
 
     config = daemon_config(recording, port, state_dir, rate or 0, queue_frames, stats_s, maps_s)
     assert config.mqtt is not None
-    publisher = MqttPublisher(config.mqtt, state_dir=state_dir).start()
+    mqtt = MqttSink(config.mqtt, state_dir).start()
     listener = StatsListener(port, Topics.from_settings(config.mqtt).stats)
-    timed = TimedPublisher(publisher)
+    timer = StatsTimer()
+    # a replay at rate 0 is held back by the pipeline when its queue is full (no drops): capacity
+    instruments = Instruments(rss_every=100)
     try:
-        publisher.wait_connected(10)
+        mqtt.publisher.wait_connected(10)
         camera = open_camera_for(config)
-        pipeline = InstrumentedPipeline(config, camera, timed, cadence=Cadence(stats_s, maps_s),
-                                        backpressure=rate is None, rss_every=100)
+        pipeline = Pipeline(config, camera, FanOut([mqtt, timer]), cadence=Cadence(stats_s, maps_s),
+                            probes=instruments.probes())
         started = time.monotonic()
         cpu0 = time.process_time()
         pipeline.run(lambda: time.monotonic() - started >= seconds)
@@ -355,21 +360,24 @@ def run_trial(label: str, recording: Path, port: int, state_dir: Path, *, rate: 
         time.sleep(0.3)  # the last stats message on its way
     finally:
         listener.close()
-        publisher.close()
+        mqtt.close(1.0)
     trial = Trial(label, rate, queue_frames, stats_s, wall, int(camera.stats.get("delivered", 0))
-                  or len(pipeline.enqueued), pipeline.counters["frames"], pipeline.counters["dropped_queue"],
+                  or len(instruments.enqueued), pipeline.counters["frames"], pipeline.counters["dropped_queue"],
                   cpu, memory["anon"], memory["file"])
-    trial.latency = latency_parts(pipeline, timed.stats_sent, listener.arrivals)
+    trial.latency = latency_parts(instruments, timer.stats_sent, listener.arrivals)
     # from the first evaluation of maps on (it allocates the evaluation's working set once)
-    settled = [mib for frames, mib in pipeline.rss if frames > (pipeline.first_evaluation_at or len(pipeline.dequeued))]
+    settled = [mib for frames, mib in instruments.rss
+               if frames > (instruments.first_evaluation_at or len(instruments.dequeued))]
     if len(settled) >= 2:
         trial.rss_growth = settled[-1] - settled[0]
-    if pipeline.push_s:
-        push = np.asarray(pipeline.push_s[WINDOW:] or pipeline.push_s)
+    if instruments.push_s:
+        push = np.asarray(instruments.push_s[WINDOW:] or instruments.push_s)
         trial.push_ms = (1e3 * float(push.mean()), 1e3 * float(np.percentile(push, 99)))
-    if pipeline.evaluate_s:
-        trial.evaluate_ms = (1e3 * statistics.fmean(pipeline.evaluate_s), 1e3 * max(pipeline.evaluate_s))
-        trial.evaluations = len(pipeline.evaluate_s)
+    if instruments.snapshot_s:
+        trial.snapshot_ms = (1e3 * statistics.fmean(instruments.snapshot_s), 1e3 * max(instruments.snapshot_s))
+    if instruments.evaluate_s:
+        trial.evaluate_ms = (1e3 * statistics.fmean(instruments.evaluate_s), 1e3 * max(instruments.evaluate_s))
+        trial.evaluations = len(instruments.evaluate_s)
     return trial
 
 
@@ -414,7 +422,7 @@ def passive_probe(recording: Path, port: int, state_dir: Path, rate: float, queu
         raise RuntimeError(f"the OMP_WAIT_POLICY=passive probe failed:\n{done.stderr[-2000:]}")
     data = json.loads(done.stdout.strip().splitlines()[-1])
     data["latency"] = {key: tuple(value) for key, value in data["latency"].items()}
-    for key in ("push_ms", "evaluate_ms"):
+    for key in ("push_ms", "snapshot_ms", "evaluate_ms"):
         data[key] = tuple(data[key])
     return Trial(**data)
 
@@ -454,31 +462,32 @@ class MemoryRun:
 
 def memory_run(port: int, workdir: Path, frames: int) -> MemoryRun:
     """``frames`` frames at 128² with the pipeline clock at 60 frames/s (see the module docstring)."""
-    from edgedsm.publish import MqttPublisher
+    from edgedsm.publish.json_sink import MqttSink
 
     recording = make_recording(workdir / "small.npy", frames=RECORDED_FRAMES, size=MEMORY_SIZE, tile=MEMORY_SIZE)
     state_dir = workdir / "state-memory"
     config = daemon_config(recording, port, state_dir, 0, 16, 5.0, 60.0)
     config.regions[1].x, config.regions[1].y, config.regions[1].width, config.regions[1].height = 32, 32, 64, 64
     assert config.mqtt is not None
-    publisher = MqttPublisher(config.mqtt, state_dir=state_dir).start()
-    timed = TimedPublisher(publisher)
-    box: dict[str, InstrumentedPipeline] = {}
+    mqtt = MqttSink(config.mqtt, state_dir).start()
+    timer = StatsTimer()
+    instruments = Instruments(record=False, rss_every=max(1, frames // 50))
+    box: dict[str, Pipeline] = {}
     try:
-        publisher.wait_connected(10)
+        mqtt.publisher.wait_connected(10)
         camera = open_camera_for(config)
-        pipeline = InstrumentedPipeline(config, camera, timed, cadence=Cadence(5.0, 60.0), backpressure=True,
-                                        record=False, rss_every=max(1, frames // 50),
-                                        clock=lambda: box["p"].counters["frames"] / TARGET_FPS if box else 0.0)
+        clock = Clock(monotonic=lambda: box["p"].counters["frames"] / TARGET_FPS if box else 0.0)
+        pipeline = Pipeline(config, camera, FanOut([mqtt, timer]), cadence=Cadence(5.0, 60.0), clock=clock,
+                            probes=instruments.probes())
         box["p"] = pipeline
         started = time.monotonic()
         pipeline.run(lambda: False, max_frames=frames)
         seconds = time.monotonic() - started
-        maps_sent = publisher.counters().get("maps_sent", 0)
+        maps_sent = mqtt.publisher.counters().get("maps_sent", 0)
     finally:
-        publisher.close()
-    return MemoryRun(pipeline.counters["frames"], MEMORY_SIZE, seconds, len(timed.stats_sent),
-                     int(maps_sent), pipeline.rss, memory_mib()["peak"])
+        mqtt.close(1.0)
+    return MemoryRun(pipeline.counters["frames"], MEMORY_SIZE, seconds, len(timer.stats_sent),
+                     int(maps_sent), instruments.rss, memory_mib()["peak"])
 
 
 # -- the report ----------------------------------------------------------------------------
@@ -573,7 +582,7 @@ def run(args: argparse.Namespace) -> int:
          f"numpy {np.__version__}, numba {numba.__version__} ({numba.config.NUMBA_NUM_THREADS} threads); "
          f"load average before the run {load:.1f}. Replay of {RECORDED_FRAMES} recorded {SIZE}² Mono8 frames "
          f"(looped) → the daemon's `Pipeline` (N = {WINDOW}, m = {LAG}, S1 + S2 + S3, two regions) → "
-         f"`MqttPublisher` → mosquitto on loopback → a subscriber; {seconds:g} s per trial, stats every 5 s "
+         f"`MqttSink` → mosquitto on loopback → a subscriber; {seconds:g} s per trial, stats every 5 s "
          "unless stated, maps every 10 s. How each figure is measured: `edgedsm bench e2e --help`.")
     emit()
     emit("| trial | requested frames/s | queue_frames | delivered frames/s | processed frames/s | queue drops "
@@ -616,10 +625,12 @@ def run(args: argparse.Namespace) -> int:
              "once the queue has overflowed, a pipeline working near its limit need not catch up again "
              "(the frames it then works on are a full queue old).")
     emit(f"- Where the pipeline thread's time goes (capacity trial): push {capacity.push_ms[0]:.1f} ms/frame "
-         f"(p99 {capacity.push_ms[1]:.1f}); one evaluation (maps + region statistics + drying states + "
-         f"publishing) {capacity.evaluate_ms[0]:.0f} ms on average, {capacity.evaluate_ms[1]:.0f} ms at most, "
-         f"{capacity.evaluations} evaluations. During an evaluation frames wait in the queue: "
-         "about evaluation time × rate of them, which is what overflows a small queue.")
+         f"(p99 {capacity.push_ms[1]:.1f}); the snapshot of the maps for an evaluation "
+         f"{capacity.snapshot_ms[0]:.0f} ms on average, {capacity.snapshot_ms[1]:.0f} ms at most. On the "
+         f"evaluator thread, beside the pushes, one evaluation (region statistics + drying states + handing "
+         f"the messages to the sinks) takes {capacity.evaluate_ms[0]:.0f} ms on average, "
+         f"{capacity.evaluate_ms[1]:.0f} ms at most, {capacity.evaluations} evaluations. During a snapshot "
+         "frames wait in the queue: about snapshot time × rate of them, which is what overflows a small queue.")
     emit()
     emit("## Latency, frame → published stats")
     emit()

@@ -2,6 +2,8 @@
 systemd notification and watchdog, configuration reload.
 
 - SIGTERM / SIGINT: stop; the laser is switched off, ``offline`` published, exit 0 (within 2 s).
+  If the laser could not be confirmed off: logged CRITICAL, a ``fault`` alert published before
+  ``offline``, exit 69 (``EX_UNAVAILABLE``: the relay is not answering).
 - SIGHUP: reload the config file. A bad file is refused (logged with every key path) and the
   daemon keeps running with the old one; a good one restarts the pipeline with it.
 - ``Type=notify``: READY once measuring, STATUS lines, WATCHDOG pings only while frames keep
@@ -15,20 +17,22 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.notify import Notifier
-from edgedsm.daemon.pipeline import Cadence, Pipeline, Publisher
-from edgedsm.daemon.publishers import LogPublisher
+from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
-from edgedsm.errors import ConfigError
+from edgedsm.errors import ConfigError, DeviceError
+from edgedsm.messages import Alert, AlertKind
+from edgedsm.publish.commands import Command
+from edgedsm.publish.sink import FanOut, LogSink, Sink
 
 log = logging.getLogger(__name__)
 
@@ -38,21 +42,27 @@ STATUS_EVERY_S = 10.0
 #: How long the end of a finite stream waits for its final maps to be published.
 FINAL_MAPS_TIMEOUT_S = 5.0
 
+#: Exit status when the laser could not be confirmed off at stop (sysexits EX_UNAVAILABLE).
+EXIT_LASER_NOT_OFF = 69
+
 
 def open_camera_for(config: DaemonConfig) -> Camera:
     """The configured camera, built from the spec the config parsed (paths already resolved)."""
     return open_camera(config.camera.spec)
 
 
-def make_publisher(config: DaemonConfig, on_command: Callable[[str, dict], dict]) -> Any:
-    """The MQTT publisher of the config, or a logging one when no broker is configured."""
-    if config.mqtt is None:
-        return LogPublisher()
-    from edgedsm.publish import MqttPublisher
+CommandHandler = Callable[[str, Command], Mapping[str, Any] | None]
 
-    publisher = MqttPublisher(config.mqtt, state_dir=config.device.state_dir, on_command=on_command)
-    publisher.start()
-    return publisher
+
+def make_sink(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+    """Where the pipeline's messages go: every configured sink (MQTT JSON when ``[mqtt]`` is set),
+    or the log when none is. A new sink is added here; the pipeline does not change."""
+    sinks: list[Sink] = []
+    if config.mqtt is not None:
+        from edgedsm.publish.json_sink import MqttSink
+
+        sinks.append(MqttSink(config.mqtt, config.device.state_dir, on_command).start())
+    return FanOut(sinks) if sinks else LogSink()
 
 
 def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
@@ -76,6 +86,7 @@ class Service:
         self.pipeline: Pipeline | None = None
         self.exit_reason = ""
         self._reloaded = False
+        self.laser_not_off: str | None = None  # why the laser could not be confirmed off at stop
 
     # -- signals ----------------------------------------------------------------------------
     def install_signal_handlers(self) -> None:
@@ -126,7 +137,14 @@ class Service:
         """Measure until stopped; returns the process exit code."""
         while True:
             self._reloaded = False
-            self._run_once()
+            try:
+                self._run_once()
+            except Exception:
+                if self.laser_not_off is None:
+                    raise
+                log.exception("stopped on an error")
+            if self.laser_not_off is not None:
+                return EXIT_LASER_NOT_OFF
             if self._stop.is_set():
                 log.info("stopped (%s)", self.exit_reason or "requested")
                 return 0
@@ -139,11 +157,10 @@ class Service:
         camera = open_camera_for(config)  # touches no device until the pipeline opens it
         holder: dict[str, Pipeline] = {}
 
-        def on_command(name: str, command: Any) -> dict:
-            # called on the publisher's command thread with a validated pydantic model
+        def on_command(name: str, command: Command) -> dict[str, Any]:
+            # called on the MQTT sink's command thread with a validated command
             pipeline = holder.get("pipeline")
-            args = command.model_dump() if hasattr(command, "model_dump") else dict(command or {})
-            return pipeline.submit(name, args) if pipeline else {"ok": False, "error": "not running"}
+            return pipeline.submit(name, command.model_dump()) if pipeline else {"ok": False, "error": "not running"}
 
         last_ping = [0.0, 0.0]  # watchdog, status
 
@@ -159,26 +176,41 @@ class Service:
                 last_ping[1] = now
                 self.notifier.status(pipeline.summary())
 
-        publisher: Publisher = make_publisher(config, on_command)
+        sink = make_sink(config, on_command)
         try:
             # opened last and closed by LaserSafety (switched off) whatever happens after
             relay = open_relay(config.laser.spec) if config.laser is not None else None
             couple_simulated_laser(camera, relay)
-            pipeline = Pipeline(config, camera, publisher, relay=relay,
+            pipeline = Pipeline(config, camera, sink, relay=relay,
                                 cadence=self.cadence or self._cadence(config), on_alive=alive)
             holder["pipeline"] = self.pipeline = pipeline
-            with LaserSafety(relay) if relay is not None else contextlib.nullcontext():
-                self._measure(pipeline)
-            if not self._stop.is_set() and not self._reloaded:
-                # a finite stream (replay) ended: its final maps must leave before the publisher
-                # closes, which abandons maps still waiting for its map thread
-                flush = getattr(publisher, "flush_maps", None)
-                if flush is not None and not flush(FINAL_MAPS_TIMEOUT_S):
-                    log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
+            safety = LaserSafety(relay) if relay is not None else None
+            try:
+                with safety or contextlib.nullcontext():
+                    self._measure(pipeline)
+            except DeviceError as exc:
+                if safety is None or exc is not safety.off_error:
+                    raise
+            finally:
+                if safety is not None and safety.off_error is not None:
+                    self._laser_left_on(sink, safety.off_error)
+            # a finite stream (replay) ended: its final maps must leave before the sink closes,
+            # which abandons maps still waiting to be sent
+            if not self._stop.is_set() and not self._reloaded and not sink.flush(FINAL_MAPS_TIMEOUT_S):
+                log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
         finally:
-            close = getattr(publisher, "close", None)
-            if close is not None:
-                close(timeout=1.0)  # 'offline' out within the 2 s a SIGTERM allows
+            sink.close(1.0)  # 'offline' out within the 2 s a SIGTERM allows
+
+    def _laser_left_on(self, sink: Sink, error: DeviceError) -> None:
+        """The laser may still be on: say so everywhere before 'offline' goes out."""
+        self.laser_not_off = str(error)
+        log.critical("THE LASER COULD NOT BE SWITCHED OFF and may still be on: %s", error)
+        self.notifier.status(f"laser NOT confirmed off: {error}")
+        try:
+            reason = f"the laser could not be switched off at stop and may still be on: {error}"
+            sink.publish_alert(Alert(kind=AlertKind.FAULT, t=time.time(), reason=reason))
+        except Exception as exc:  # the log line above stands
+            log.error("the fault alert could not be handed over: %s", exc)
 
     def _measure(self, pipeline: Pipeline) -> None:
         self.notifier.ready(status=f"measuring with {self.config.camera.uri}")

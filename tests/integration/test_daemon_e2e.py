@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import pytest
 from helpers_mqtt import REPO, WAIT_S, Broker, Received, Subscriber, child_env, wait_until
-from helpers_relay import OFF, ON, READ, ModbusBoard, open_pty_pair
+from helpers_relay import OFF, ON, READ, ModbusBoard, NumatoBoard, open_pty_pair
 
 from edgedsm.daemon.service import Service
 from edgedsm.devices.laser import forget_simulated_boards, simulated_board
@@ -439,11 +439,62 @@ def test_sigterm_leaves_a_modbus_board_off_with_the_exact_bytes(
         assert board.errors == []
     # Off (with readback) at start by the safety guard and by the pipeline, off for the dark
     # frames, on to measure; at SIGTERM off by the pipeline, then by the safety guard as it
-    # closes the relay: every switching is read back, and nothing else is sent.
+    # closes the relay: every switching is read back, and nothing else is sent but the
+    # periodic readback checks while the laser is on.
     off, on = [OFF["modbus"], READ["modbus"]], [ON["modbus"], READ["modbus"]]
-    assert before_stop == off * 3 + on
-    assert frames == off * 3 + on + off * 2
+    start = off * 3 + on
+    assert before_stop[:len(start)] == start and set(before_stop[len(start):]) <= {READ["modbus"]}
+    assert frames[:len(before_stop)] == before_stop and frames[len(before_stop):] == off * 2
     subscriber.wait_for(topics.availability, lambda m: m.payload == b"offline", "offline", timeout=5)
+
+
+@pytest.mark.timeout(90)
+def test_a_numato_board_gone_silent_while_on_is_unknown_faulted_and_exit_69(
+        tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon]) -> None:
+    """Issue 11: the board dies with the relay ON. Stats must say 'unknown' (never 'off'), a
+    fault alert must say why, and at SIGTERM the daemon must say the laser may still be on:
+    CRITICAL in the log, a fault alert before 'offline', exit 69."""
+    broker = make_broker()
+    topics = Topics.of("edgedsm", "e2e")
+    subscriber = subscribers(broker.port, [topics.availability, topics.stats, topics.alerts])
+    with open_pty_pair(tmp_path) as pair:
+        board = NumatoBoard(pair.board, channel=11)
+        board.start()
+        try:
+            config = base_config(tmp_path, port=broker.port, laser=f"serial:{pair.app}?protocol=numato&channel=11")
+            daemon = daemons(write_config(tmp_path / "daemon.toml", config))
+            wait_until(lambda: board.is_on, 30, "the emulated Numato relay on (measuring)")
+            wait_frames_beyond(subscriber, topics, 50)
+            assert last_stats(subscriber, topics)["laser"] == "on"  # type: ignore[index]
+            board.mode = "silent"  # dead with the contact closed
+            silenced = time.monotonic()
+            wait_until(lambda: last_stats(subscriber, topics)["laser"] == "unknown", 15,  # type: ignore[index]
+                       "stats saying the laser is unknown")
+            noticed = time.monotonic() - silenced
+            frames_when_unknown = frames_published(subscriber, topics)
+            time.sleep(1.0)
+            # measuring stopped: frames are still counted, but the states are not judged on them
+            lasers = [m.json()["laser"] for m in subscriber.on(topics.stats)]
+            assert "off" not in lasers[lasers.index("unknown"):]  # never "off" while the contact is closed
+            assert board.is_on
+            code, _ = daemon.terminate(timeout=20)
+        finally:
+            board.stop()
+    assert noticed < 5.0 + 3.0  # the readback check every 5 s, plus the driver's timeout
+    assert frames_published(subscriber, topics) >= frames_when_unknown
+    assert code == 69, daemon.log
+    assert re.search(r"CRITICAL .*COULD NOT BE SWITCHED OFF", daemon.log), daemon.log
+    faults = [a for a in distinct_alerts(subscriber, topics) if a["type"] == "fault"]
+    assert len(faults) >= 2 and "relay" in faults[0]["reason"]
+    assert "may still be on" in faults[-1]["reason"]
+    # the last fault alert went out before 'offline'
+    subscriber.wait_for(topics.availability, lambda m: m.payload == b"offline", "offline", timeout=5)
+    order = [m for m in subscriber.messages if m.topic in (topics.alerts, topics.availability)]
+    offline_at = max(i for i, m in enumerate(order) if m.payload == b"offline")
+    last_fault_at = max(i for i, m in enumerate(order) if m.topic == topics.alerts
+                        and "may still be on" in m.json()["reason"])
+    assert last_fault_at < offline_at
 
 
 # -- 4. commands: malformed ones refused and harmless, a good one obeyed --------------------

@@ -9,11 +9,12 @@ import pytest
 
 from edgedsm.config import load_config
 from edgedsm.daemon.pipeline import Cadence, Pipeline
-from edgedsm.daemon.publishers import RecordingPublisher
 from edgedsm.daemon.service import couple_simulated_laser
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.devices.laser import SimulatedRelay
 from edgedsm.estimators import all_maps
+from edgedsm.messages import AlertKind, Clock
+from edgedsm.publish.sink import RecordingSink
 from edgedsm.sim import load_scene
 
 
@@ -26,7 +27,7 @@ def setup(repo):
     camera = SimulatedCamera(scene, time_scale=0)
     relay = SimulatedRelay()
     couple_simulated_laser(camera, relay)
-    publisher = RecordingPublisher()
+    publisher = RecordingSink()
     return config, camera, relay, publisher, scene
 
 
@@ -39,7 +40,7 @@ def hold_back(camera, pipeline, depth=8):
     grab = camera._do_grab
 
     def waiting_grab(timeout_s):
-        while pipeline._capture.frames.qsize() >= depth and not pipeline._capture.stop.is_set():
+        while pipeline.capture.frames.qsize() >= depth and not pipeline.capture.stopping:
             time.sleep(0.001)
         return grab(timeout_s)
 
@@ -49,7 +50,7 @@ def hold_back(camera, pipeline, depth=8):
 def make_pipeline(config, camera, relay, publisher, dt=0.05):
     box = {}
     pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0),
-                        clock=lambda: box["p"].counters["frames"] * dt if "p" in box else 0.0)
+                        clock=Clock(monotonic=lambda: box["p"].counters["frames"] * dt if "p" in box else 0.0))
     box["p"] = pipeline
     return pipeline
 
@@ -60,19 +61,19 @@ def test_drying_plate_goes_wet_drying_dry_and_laser_ends_off(setup):
     hold_back(camera, pipeline)  # no drops: the run does not depend on the machine's load
     pipeline.run(lambda: False, max_frames=1300)
     assert pipeline.counters["dropped_queue"] == 0
-    moves = [(a["from"], a["to"]) for a in publisher.alerts]
+    moves = [(a.from_state, a.to_state) for a in publisher.alerts]
     assert moves == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")]
-    times = [a["t"] for a in publisher.alerts]
+    times = [a.t for a in publisher.alerts]
     assert times == sorted(times)
     history = relay.board.history
     assert history[0].on is False and history[-1].on is False and not relay.board.is_on
     assert any(s.on for s in history)
     # the ambient level was measured from laser-off frames: eta = 0.05 of n_max photons
-    assert pipeline.ambient_level == pytest.approx(50 * 255 / (1000 + np.sqrt(1000)), rel=0.1)
+    assert pipeline.acquisition.ambient_level == pytest.approx(50 * 255 / (1000 + np.sqrt(1000)), rel=0.1)
     last = publisher.stats[-1]
-    assert last["state"] == {"plate": "dry"} and last["ready"]
-    assert set(last["regions"]["plate"]) == {"s1", "s2", "s3"}
-    assert publisher.states[-1]["regions"]["plate"]["state"] == "dry"
+    assert last.states == {"plate": "dry"} and last.ready
+    assert set(last.regions["plate"]) == {"s1", "s2", "s3"}
+    assert publisher.states[-1].regions["plate"].state == "dry"
     assert pipeline.summary().endswith("1300 frames, 0 dropped, laser off; plate dry")
 
 
@@ -92,10 +93,11 @@ def test_published_maps_equal_batch_maps_of_the_window(setup):
     pipeline = make_pipeline(config, camera, None, publisher)
     hold_back(camera, pipeline)  # no drops: every recorded frame is pushed
     pipeline.run(lambda: False, max_frames=150)
-    name, values, meta = publisher.maps[-1]
+    last = publisher.maps[-1]
+    name, values = last.name, last.values
     pushed = pipeline.counters["frames"]
     # the map published at frame k is the batch map of frames k-N+1..k
-    k = meta["frames"]
+    k = last.meta()["frames"]
     window = np.stack(recorded[k - config.estimator.window:k])
     expected = all_maps(window, config.estimator.lag, q=config.estimator.q)[name]
     assert pipeline.counters["dropped_queue"] == 0
@@ -112,7 +114,7 @@ def test_camera_loss_switches_laser_off_and_faults(setup):
     relay.board.add_listener(lambda on: switch_offs.append((on, pipeline.counters["frames"])))
     pipeline.run(lambda: False, max_frames=600)
     assert pipeline.counters["camera_lost"] == 1 and pipeline.counters["camera_reconnects"] == 1
-    moves = [(a["from"], a["to"]) for a in publisher.alerts]
+    moves = [(a.from_state, a.to_state) for a in publisher.alerts if a.kind == AlertKind.TRANSITION]
     assert moves[:4] == [("warming_up", "wet"), ("wet", "fault"), ("fault", "warming_up"), ("warming_up", "wet")]
     # the laser went off when the camera was lost, and on again after it came back
     offs_after_start = [f for on, f in switch_offs if not on and f > 10]
@@ -126,9 +128,9 @@ def test_queue_drops_oldest_and_counts(setup):
     camera.time_scale = 1.0  # a camera at its own pace: the queue must drop, not wait
     pipeline = make_pipeline(config, camera, relay, publisher)
     for seq in range(5):
-        pipeline._enqueue(seq)
+        pipeline.capture.enqueue(seq)
     assert pipeline.counters["dropped_queue"] == 3
-    assert [pipeline._capture.frames.get_nowait() for _ in range(2)] == [3, 4]
+    assert [pipeline.capture.frames.get_nowait() for _ in range(2)] == [3, 4]
 
 
 def test_bad_frames_are_dropped_and_counted(setup):
@@ -142,11 +144,12 @@ def test_bad_frames_are_dropped_and_counted(setup):
     pipeline._push(Frame(np.zeros((8, 8), np.float32), 2, 0, 8))
     pipeline._push(good)
     assert pipeline.counters["dropped_invalid"] == 2
-    assert pipeline.engine is not None and pipeline.engine.frames_seen == 2
+    engine = pipeline.evaluation.engine
+    assert engine is not None and engine.frames_seen == 2
 
 
 def test_a_window_that_cannot_fit_in_memory_is_a_config_error(monkeypatch):
-    from edgedsm.daemon import pipeline as pipeline_module
+    from edgedsm.daemon import evaluation as pipeline_module
     from edgedsm.errors import ConfigError
     from edgedsm.frames import Frame
 
@@ -167,7 +170,7 @@ def test_a_source_that_can_wait_is_held_back_not_dropped(repo, tmp_path):
     np.save(tmp_path / "rec.npy", frames)
     camera = ReplayCamera(tmp_path / "rec.npy", rate=0)
     assert not camera.paced
-    pipeline = Pipeline(config, camera, RecordingPublisher())
+    pipeline = Pipeline(config, camera, RecordingSink())
     pipeline.run(lambda: False)
     assert pipeline.counters["frames"] == 300 and pipeline.counters["dropped_queue"] == 0
 
@@ -190,4 +193,64 @@ def test_bursts_spare_the_laser(setup):
     assert all(90 <= off - on <= 130 for on, off in zip(ons, offs, strict=False))
     assert not relay.board.is_on
     # each burst's window filled: states were judged (warming_up only before the first)
-    assert publisher.alerts and publisher.alerts[0]["from"] == "warming_up"
+    assert publisher.alerts and publisher.alerts[0].from_state == "warming_up"
+
+
+def test_published_times_are_wall_clock(setup):
+    """`since` was the monotonic clock on the wire (seen as 3173.74): now UTC epoch seconds."""
+    config, camera, relay, publisher, _ = setup
+    config.acquisition.dark_frames = 0
+    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(0.05, 10.0))
+    hold_back(camera, pipeline)
+    pipeline.run(lambda: False, max_frames=300)
+    now = time.time()
+    assert publisher.states and publisher.stats and publisher.alerts
+    for report in publisher.states:
+        assert abs(report.t - now) < 60
+        assert all(abs(region.since - now) < 60 for region in report.regions.values())
+    assert all(abs(stats.t - now) < 60 for stats in publisher.stats)
+    assert all(abs(alert.t - now) < 60 for alert in publisher.alerts)
+    # `since` of the last report is when the region entered its state: at or before the report
+    last = publisher.states[-1]
+    assert last.regions["plate"].since <= last.t + 1e-6
+
+
+def test_a_sink_is_added_without_touching_the_pipeline(setup):
+    """Two recording sinks behind a FanOut see the same messages from one real run."""
+    from edgedsm.publish.sink import FanOut
+
+    config, camera, relay, _, _ = setup
+    first, second = RecordingSink(), RecordingSink()
+    pipeline = make_pipeline(config, camera, relay, FanOut([first, second]))
+    hold_back(camera, pipeline)
+    pipeline.run(lambda: False, max_frames=700)
+    assert len(first.stats) >= 30 and [s.frames for s in first.stats] == [s.frames for s in second.stats]
+    assert [(a.from_state, a.to_state) for a in first.alerts] == [("warming_up", "wet"), ("wet", "drying")]
+    assert first.alerts == second.alerts and first.states == second.states
+    assert [m.name for m in first.maps] == [m.name for m in second.maps] and len(first.maps) >= 3
+    assert all(a.values is b.values for a, b in zip(first.maps, second.maps, strict=True))
+
+
+def test_probes_see_every_frame_and_every_evaluation(setup):
+    from edgedsm.daemon.probes import PipelineProbes
+
+    config, camera, relay, publisher, _ = setup
+    seen: dict[str, list] = {"queued": [], "taken": [], "pushed": [], "snapshots": [], "evaluated": []}
+    probes = PipelineProbes(frame_queued=lambda frame, t: seen["queued"].append(frame.seq),
+                            frame_taken=lambda frame, count: seen["taken"].append(count),
+                            frame_pushed=lambda frame, t, cost: seen["pushed"].append(cost),
+                            snapshot_taken=lambda snapshot, cost: seen["snapshots"].append(snapshot.ready),
+                            evaluated=lambda stats, seconds: seen["evaluated"].append(stats.frames))
+    box = {}
+    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), probes=probes,
+                        clock=Clock(monotonic=lambda: box["p"].counters["frames"] * 0.05 if "p" in box else 0.0))
+    box["p"] = pipeline
+    hold_back(camera, pipeline)
+    pipeline.run(lambda: False, max_frames=400)
+    dark = config.acquisition.dark_frames + 1
+    assert seen["taken"] == list(range(1, 401))
+    # the first frame after switching on is left out (exposed while the relay switched)
+    assert len(seen["pushed"]) == 400 - dark - 1 and all(cost >= 0 for cost in seen["pushed"])
+    assert len(seen["queued"]) >= 400
+    assert seen["evaluated"] == [s.frames for s in publisher.stats]
+    assert len(seen["snapshots"]) == len(publisher.stats) >= 15 and seen["snapshots"][-1] is True

@@ -23,6 +23,7 @@ from __future__ import annotations
 import abc
 import contextlib
 import logging
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -74,6 +75,16 @@ class Backoff:
             yield delay
             tried += 1
             delay = min(delay * self.factor, self.maximum)
+
+
+@dataclass(frozen=True)
+class ReconnectWatch:
+    """Who is told about a reconnection (``Camera.frames``): both callbacks run on the grabbing
+    thread; ``stop`` set ends the stream, also while waiting between attempts."""
+
+    on_lost: Callable[[DeviceError], None] = lambda cause: None
+    on_reconnected: Callable[[], None] = lambda: None
+    stop: threading.Event | None = None
 
 
 def pace(due: float, interval: float) -> float:
@@ -192,15 +203,21 @@ class Camera(abc.ABC):
                 hook(self._settings[name])
 
     # -- acquisition ----------------------------------------------------------------------
-    def frames(self, count: int | None = None, timeout_s: float = 5.0,
-               reconnect: Backoff | None = None) -> Iterator[Frame]:
+    def frames(self, count: int | None = None, timeout_s: float = 5.0, reconnect: Backoff | None = None,
+               *, watch: ReconnectWatch | None = None) -> Iterator[Frame]:
         """Yield ``count`` good frames (for ever if None); bad buffers are dropped and counted.
 
-        Without ``reconnect`` a lost device raises ``DeviceLost``. With it, the driver closes,
-        waits per the backoff and reopens (counting ``reconnects``), then streams on.
+        Without ``reconnect`` a lost device raises ``DeviceLost`` and a silent one
+        ``DeviceTimeout``. With it, both count as lost: the driver closes, waits per the backoff
+        and reopens (counting ``reconnects``), then streams on; ``watch`` is told when the device
+        is lost and when it is back, and its ``stop`` event ends the stream (even mid-backoff).
+        The backoff starts over only once a frame has come: a device that reopens but stays
+        silent (flapping) is retried ever more slowly. This is the one reconnection path: the
+        daemon's capture thread uses it too.
         """
         self._check_open()
         delivered = 0
+        delays: Iterator[float] | None = None  # the backoff of the current outage
         self._start()
         try:
             while count is None or delivered < count:
@@ -208,19 +225,20 @@ class Camera(abc.ABC):
                     frame = self._do_grab(timeout_s)
                 except EndOfStream:
                     return
-                except DeviceLost:
-                    self.stats["lost"] += 1
+                except (DeviceLost, DeviceTimeout) as exc:
+                    self.stats["lost" if isinstance(exc, DeviceLost) else "timeouts"] += 1
                     if reconnect is None:
                         raise
-                    self._reconnect(reconnect)
+                    if delays is None:
+                        delays = reconnect.delays()
+                    if not self._reconnect(delays, exc, watch or ReconnectWatch()):
+                        return  # stopped while waiting to reconnect
                     continue
-                except DeviceTimeout:
-                    self.stats["timeouts"] += 1
-                    raise
                 if frame is None:
                     continue
                 self.stats["delivered"] += 1
                 delivered += 1
+                delays = None
                 yield frame
         finally:
             if self._opened and self._streaming:
@@ -238,28 +256,34 @@ class Camera(abc.ABC):
         except DeviceError as exc:  # a lost device cannot be stopped; that is fine
             log.debug("%s: stop failed: %s", self.description, exc)
 
-    def _reconnect(self, backoff: Backoff) -> None:
-        log.warning("%s: device lost, reconnecting", self.description)
+    def _reconnect(self, delays: Iterator[float], cause: DeviceError, watch: ReconnectWatch) -> bool:
+        """Close, then reopen after each of ``delays``; False if ``watch.stop`` was set meanwhile."""
+        log.warning("%s: device lost (%s), reconnecting", self.description, cause)
+        watch.on_lost(cause)  # first: closing a dead device can take seconds
         self._streaming = False
         with contextlib.suppress(DeviceError):
             self._do_close()
         self._opened = False
-        last: DeviceError | None = None
-        for delay in backoff.delays():
-            self._sleep(delay)
+        last: DeviceError = cause
+        for delay in delays:
+            if watch.stop is not None:
+                if watch.stop.wait(delay):
+                    return False
+            else:
+                self._sleep(delay)
             try:
                 self._do_open()
             except DeviceError as exc:
                 last = exc
-                log.info("%s: reconnect failed (%s); next try in up to %.1f s", self.description, exc,
-                         backoff.maximum)
+                log.info("%s: reconnect failed (%s)", self.description, exc)
                 continue
             self._opened = True
             self._reapply_settings()
             self.stats["reconnects"] += 1
             self._start()
             log.warning("%s: reconnected", self.description)
-            return
+            watch.on_reconnected()
+            return True
         raise DeviceLost(f"{self.description}: gave up reconnecting: {last}")
 
     def _dropped(self, reason: str) -> None:

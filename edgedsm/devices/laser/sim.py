@@ -21,6 +21,10 @@ Faults (``fault=`` in the URI or ``SimulatedBoard.fault``), each like its real c
 ``stuck``       the contact is welded/stuck: commands are acknowledged but the state does not
                 change; the readback check raises ``DeviceError``.
 ``lost``        the port is gone (cable pulled): everything raises ``DeviceLost``.
+
+A fault can also be transient: ``SimulatedBoard.fail_next(n, fault)`` makes only the next ``n``
+exchanges (switchings and readbacks) fail that way (``no-answer``, ``garbage`` or ``lost``);
+the board then works again.
 """
 
 from __future__ import annotations
@@ -55,6 +59,7 @@ class SimulatedBoard:
         self.fault = fault
         self._history: list[Switching] = []
         self._listeners: list[Callable[[bool], None]] = []
+        self._transient: list[str] = []  # faults of the next exchanges, first one first
 
     @property
     def is_on(self) -> bool:
@@ -78,6 +83,18 @@ class SimulatedBoard:
         if value not in SIM_FAULTS:
             raise ValueError(f"unknown fault {value!r}; one of {', '.join(SIM_FAULTS)}")
         self._fault = value
+
+    def fail_next(self, exchanges: int, fault: str = "no-answer") -> None:
+        """Make the next ``exchanges`` driver exchanges fail as ``fault`` would, then work again."""
+        if fault not in ("no-answer", "garbage", "lost"):
+            raise ValueError(f"a transient fault is 'no-answer', 'garbage' or 'lost', not {fault!r}")
+        with self._lock:
+            self._transient = [fault] * exchanges
+
+    def next_fault(self) -> str:
+        """The fault of the exchange about to happen (a transient one is used up)."""
+        with self._lock:
+            return self._transient.pop(0) if self._transient else self._fault
 
     def add_listener(self, callback: Callable[[bool], None]) -> None:
         """Call ``callback(on)`` whenever the contact changes state."""
@@ -141,7 +158,7 @@ class SimulatedRelay(LaserRelay):
 
     def _fail_if_faulty(self) -> bool:
         """Raise as the faulty board would; return False when the command is lost."""
-        fault = self.board.fault
+        fault = self.board.next_fault()
         if fault == "lost":
             raise DeviceLost(f"{self.description}: port failed (simulated cable pulled)")
         if fault == "no-answer":

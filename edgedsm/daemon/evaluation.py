@@ -1,0 +1,265 @@
+"""Evaluation: the streaming engine and, beside it, region statistics, drying states and messages.
+
+The pipeline thread pushes frames into the engine and, on the stats cadence, takes a
+:class:`Snapshot` (the maps, ``engine.maps()``: fresh arrays, the only cost it pays). One
+evaluator thread turns a snapshot into region statistics, drying states and typed messages for
+the sink, beside the next pushes. The drying monitor is shared by both threads (a reset comes
+from a command on the pipeline thread, a step from the evaluator): a lock guards it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FuturesTimeout
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edgedsm.analysis import region_stats
+from edgedsm.config import DaemonConfig
+from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.drying import DryingMonitor, Transition
+from edgedsm.errors import ConfigError, FrameError
+from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.frames import Frame
+from edgedsm.messages import Alert, AlertKind, Clock, LaserState, MapFrame, MapStats, RegionState, StateReport, Stats
+from edgedsm.publish.sink import Sink
+
+log = logging.getLogger(__name__)
+
+#: How long stopping waits for an evaluation in flight (s); well inside SIGTERM's 2 s.
+EVALUATION_TIMEOUT_S = 1.0
+#: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
+SMALL_FRAME_PIXELS = 1 << 18
+
+
+def available_memory() -> int | None:
+    """Bytes the kernel says can be allocated without swapping (None if unknown)."""
+    try:
+        with open("/proc/meminfo") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
+
+
+def check_engine_memory(frame: Frame, window: int, mode: str) -> None:
+    """Refuse, with the config key to change, a window whose ring cannot fit in memory."""
+    if mode != "sliding":
+        return  # tumbling and exponential keep m frames only
+    needed = frame.pixels.size * (window * frame.pixels.itemsize + 40)
+    free = available_memory()
+    if free is not None and needed > 0.8 * free:
+        raise ConfigError(f"estimator.window: a sliding window of {window} frames of {frame.shape[1]}x{frame.shape[0]} "
+                          f"needs {needed / 2**30:.1f} GiB; this machine has {free / 2**30:.1f} GiB available "
+                          "(use a shorter window, or mode = 'tumbling' or 'exponential')")
+
+
+@dataclass(frozen=True)
+class Status:
+    """What the pipeline knows beside the maps at one evaluation (monotonic ``now``)."""
+
+    now: float
+    frames: int
+    fps: float
+    laser: LaserState
+    drops: dict[str, int]
+    camera: dict[str, float | int | str | None]
+    ambient_level: float | None
+    warning: str | None
+    fault: str | None
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One evaluation's input, handed from the pipeline thread to the evaluator thread."""
+
+    status: Status
+    ready: bool
+    maps: dict[str, np.ndarray] = field(default_factory=dict)  # fresh arrays, not modified later
+    publish_maps: bool = False
+
+
+class Evaluation:
+    """The engine, the region masks and the drying monitor (see the module docstring)."""
+
+    def __init__(self, config: DaemonConfig, sink: Sink, clock: Clock, counters: Counter[str],
+                 probes: PipelineProbes | None = None) -> None:
+        self.config = config
+        self.sink = sink
+        self.clock = clock
+        self.counters = counters
+        self.probes = probes or PipelineProbes()
+        self.engine: SlidingWindow | None = None
+        self.masks: dict[str, np.ndarray] = {}
+        self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
+        self.monitor_lock = threading.Lock()
+        self._state_published = False
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate")
+        self._pending: Future[None] | None = None  # the latest analysis
+        self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
+
+    # -- pipeline thread --------------------------------------------------------------------------
+    def push(self, frame: Frame, dark: np.ndarray | None) -> bool:
+        """Push one frame (ambient-corrected with ``dark`` when configured); False if refused."""
+        if self.engine is None:  # the first frame fixes the shape; later misfits are refused
+            self._make_engine(frame)
+        assert self.engine is not None
+        pixels = frame.pixels
+        if self.config.estimator.ambient_correction and dark is not None and dark.shape == pixels.shape:
+            # ambient-corrected S2: the dark level is subtracted before normalising (saturating at 0)
+            pixels = np.subtract(pixels, np.minimum(pixels, dark))
+        try:
+            self.engine.push(pixels)
+        except FrameError as exc:
+            self.counters["dropped_invalid"] += 1
+            log.warning("frame %d dropped: %s", frame.seq, exc)
+            if self.probes.frame_dropped is not None:
+                self.probes.frame_dropped(frame, "invalid")
+            return False
+        return True
+
+    @property
+    def ready(self) -> bool:
+        return self.engine is not None and self.engine.ready
+
+    def _make_engine(self, frame: Frame) -> None:
+        est = self.config.estimator
+        threads = est.threads
+        if threads is None and frame.pixels.size < SMALL_FRAME_PIXELS:
+            # a parallel pass over a small frame costs more in thread wake-ups than it saves, and
+            # stalls badly when the capture thread competes for the cores
+            threads = 1
+        check_engine_memory(frame, est.window, est.mode)
+        self.engine = SlidingWindow(frame.shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
+                                    estimators=ESTIMATORS, mode=est.mode, threads=threads)
+        self.masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
+
+    def reset(self, why: str, states: bool = True) -> None:
+        """Empty the estimator window; with ``states``, every region goes back to warming up."""
+        if self.engine is not None:
+            self.engine.reset()
+        if states:
+            with self.monitor_lock:
+                transitions = self.monitor.reset(self.clock.monotonic(), why)
+            for transition in transitions:
+                self.publish_alert(self._alert(transition))
+        log.info("measurement restarted (%s)", why)
+
+    def publish_alert(self, alert: Alert) -> None:
+        """Hand an alert to the sink on the evaluator thread (sinks are called from one thread,
+        in order: after the evaluation already handed over, before the next)."""
+        self._last = self._executor.submit(self._publish_alert, alert)
+
+    def _publish_alert(self, alert: Alert) -> None:
+        try:
+            self.sink.publish_alert(alert)
+        except Exception as exc:  # logged here: nobody waits for this one's result
+            log.error("alert %r could not be handed over: %s", alert.describe(), exc)
+
+    def evaluate(self, status: Status, maps_due: bool, wait: bool = False) -> Snapshot | None:
+        """Snapshot now, analyse and publish on the evaluator thread; None if skipped.
+
+        An evaluation that is due while the previous one still runs is skipped (counted);
+        ``wait`` makes this one run to its end (and re-raises its error here).
+        """
+        if self._pending is not None:
+            if not self._pending.done() and not wait:
+                self.counters["evaluations_skipped"] += 1
+                return None
+            pending, self._pending = self._pending, None
+            pending.result()  # re-raises an error of the evaluator thread here
+        started = time.perf_counter()
+        ready = self.ready
+        maps = self.engine.maps() if ready and self.engine is not None else {}
+        snapshot = Snapshot(status, ready, maps, publish_maps=bool(maps) and maps_due)
+        if self.probes.snapshot_taken is not None:
+            self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
+        self._pending = self._last = self._executor.submit(self._analyse, snapshot)
+        if wait:
+            pending, self._pending = self._pending, None
+            pending.result()
+        return snapshot
+
+    def finish(self) -> None:
+        """Let the work handed over end (bounded), so alerts and maps are not lost."""
+        pending, self._pending, self._last = self._last, None, None
+        if pending is not None:
+            try:
+                pending.result(timeout=EVALUATION_TIMEOUT_S)
+            except FuturesTimeout:
+                log.warning("the last evaluation did not finish within %.1f s", EVALUATION_TIMEOUT_S)
+            except Exception:
+                log.exception("the last evaluation failed")
+        self._executor.shutdown(wait=False)
+        # the window's ring is the bulk of the daemon's memory (N frames): released now, not
+        # when the garbage collector gets to the pipeline (a reload builds a new one at once)
+        self.engine = None
+
+    def states_line(self) -> str:
+        with self.monitor_lock:
+            return ", ".join(f"{name} {machine.state}" for name, machine in self.monitor.regions.items())
+
+    # -- evaluator thread ---------------------------------------------------------------------------
+    def _analyse(self, snapshot: Snapshot) -> None:
+        """Region statistics, drying states, messages to the sink."""
+        started = time.perf_counter()
+        status = snapshot.status
+        estimator = self.config.estimator.activity
+        regions: dict[str, dict[str, MapStats]] = {}
+        activities: dict[str, float] = {}
+        for name, mask in self.masks.items() if snapshot.maps else ():
+            per_map = {key: MapStats(**region_stats(values, mask).as_dict()) for key, values in snapshot.maps.items()}
+            regions[name] = per_map
+            mean = per_map[estimator].mean
+            if mean is not None:
+                activities[name] = mean
+        with self.monitor_lock:
+            transitions = self.monitor.step(status.now, activities, ready=snapshot.ready and status.fault is None,
+                                             fault=status.fault)
+            report = self._report(status, estimator)
+        for transition in transitions:
+            self.sink.publish_alert(self._alert(transition))
+        t = self.clock.to_wall(status.now)
+        stats = Stats(t=t, frames=status.frames, ready=snapshot.ready, fps=status.fps, laser=status.laser,
+                      estimator=estimator, drops=status.drops, camera=status.camera,
+                      ambient_level=status.ambient_level, regions=regions,
+                      states={name: region.state for name, region in report.regions.items()},
+                      warning=status.warning)
+        self.sink.publish_stats(stats)
+        if transitions or not self._state_published:
+            self.sink.publish_state(report)
+            self._state_published = True
+        if snapshot.publish_maps:
+            est = self.config.estimator
+            for name, values in snapshot.maps.items():
+                self.counters["maps_published"] += 1
+                self.sink.publish_map(MapFrame(name, values, seq=status.frames, t=t, window=est.window, lag=est.lag,
+                                               extra={"estimator": name, "frames": status.frames}))
+        if self.probes.evaluated is not None:
+            self.probes.evaluated(stats, time.perf_counter() - started)
+
+    def _report(self, status: Status, estimator: str) -> StateReport:
+        """Every region's state (the monitor lock held)."""
+        regions = {name: RegionState(region=name, state=machine.state.value, since=self.clock.to_wall(machine.since),
+                                     activity=machine.activity, time_to_dry_s=machine.time_to_dry())
+                   for name, machine in self.monitor.regions.items()}
+        return StateReport(t=self.clock.to_wall(status.now), estimator=estimator, laser=status.laser, regions=regions)
+
+    def _alert(self, transition: Transition) -> Alert:
+        log.warning("region %s: %s -> %s (%s)", transition.region, transition.from_state, transition.to_state,
+                    transition.reason)
+        return alert_of(transition, self.clock)
+
+
+def alert_of(transition: Transition, clock: Clock) -> Alert:
+    """The alert of a drying-state transition, its time on the wall clock."""
+    return Alert(kind=AlertKind.TRANSITION, t=clock.to_wall(transition.t), reason=transition.reason,
+                 region=transition.region, from_state=transition.from_state.value,
+                 to_state=transition.to_state.value, activity=transition.activity)
