@@ -13,13 +13,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edgedsm.errors import EdgedsmError
+from edgedsm.errors import DataError
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp")
 
 
-class ImageIOError(EdgedsmError):
-    """A frame file could not be read or written."""
+class ImageIOError(DataError):
+    """A frame file could not be read or written (exit code 65: the data, not the program)."""
+
+
+class InputMissing(ImageIOError):
+    """The input named does not exist (exit code 66, EX_NOINPUT)."""
+
+    exit_code = 66
 
 
 def _check_frame(frame: np.ndarray) -> np.ndarray:
@@ -37,7 +43,7 @@ def read_stack(path: str | Path) -> np.ndarray:
             raise ImageIOError(f"{path}: no PNG, TIFF or BMP images in this directory")
         return np.stack([_read_image(p) for p in files])
     if not path.exists():
-        raise ImageIOError(f"{path}: no such file or directory")
+        raise InputMissing(f"{path}: no such file or directory")
     suffix = path.suffix.lower()
     if suffix == ".npy":
         try:

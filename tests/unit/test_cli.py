@@ -76,7 +76,7 @@ def test_analyze_refuses_lag_that_does_not_fit(tmp_path, scene_file, capsys):
     main(["simulate", str(scene_file), "-o", str(frames), "--frames", "5", "--no-progress"])
     assert main(["analyze", str(frames), "--lag", "5", "-o", str(tmp_path / "m.npy")]) == 1
     assert "does not fit a window of N=5" in capsys.readouterr().err
-    assert main(["analyze", str(tmp_path / "nope.npy"), "-o", str(tmp_path / "m.npy")]) == 1
+    assert main(["analyze", str(tmp_path / "nope.npy"), "-o", str(tmp_path / "m.npy")]) == 66  # EX_NOINPUT
     assert "no such file" in capsys.readouterr().err
 
 

@@ -61,3 +61,12 @@ def test_a_missing_device_at_start_exits_69(tmp_path, capsys):
     assert main(["probe", "camera", "v4l2:/dev/no-such-video", "--frames", "1"]) == 69
     err = capsys.readouterr().err
     assert "/dev/no-such-video" in err and "Traceback" not in err
+
+
+def test_analyze_of_a_corrupt_recording_exits_65(tmp_path, capsys):
+    path = tmp_path / "rec.npy"
+    path.write_bytes(b"\x93NUMPY garbage")
+    assert main(["analyze", str(path), "--estimator", "s1", "--window", "4", "--lag", "1",
+                 "-o", str(tmp_path / "map.npy")]) == 65
+    err = capsys.readouterr().err
+    assert "rec.npy" in err and "Traceback" not in err
