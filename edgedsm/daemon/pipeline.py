@@ -145,6 +145,11 @@ class Pipeline:
             return {"ok": True}
         return {"ok": False, "error": f"unknown command {name!r}"}
 
+    @property
+    def frame_shape(self) -> tuple[int, int] | None:
+        """The camera's frame (rows, columns), once a frame came."""
+        return self.evaluation.frame_shape
+
     def request_maps(self) -> None:
         """Publish the maps at the next evaluation, whatever the cadence (pipeline thread)."""
         self._last_maps_t = float("-inf")
@@ -154,6 +159,7 @@ class Pipeline:
         frame = self.capture.take(timeout_s)
         if frame is None:
             return None
+        self.evaluation.prepare(frame)  # at the first frame: regions checked before the laser goes on
         self._last_frame_t = self.clock.monotonic()
         self.counters["frames"] += 1
         self._frames_t.append(self._last_frame_t)

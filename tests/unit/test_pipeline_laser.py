@@ -373,3 +373,17 @@ def test_a_laser_not_confirmed_off_at_stop_is_critical_published_and_exit_69(rep
     alerts = [r.getMessage() for r in caplog.records if r.getMessage().startswith("alert: fault")]
     assert alerts and "may still be on" in alerts[-1]
     assert service.laser_not_off is not None and "no answer" in service.laser_not_off
+
+
+def test_a_region_outside_the_frame_is_refused_before_the_laser_goes_on(setup):
+    from edgedsm.errors import ConfigError
+
+    config, scene, relay, sink = setup
+    config.regions[0] = config.regions[0].model_copy(
+        update={"shape": "rect", "x": 500, "y": 500, "width": 10, "height": 10})
+    camera = SimulatedCamera(scene, time_scale=0)
+    couple_simulated_laser(camera, relay)
+    pipeline = Pipeline(config, camera, sink, relay=relay)
+    with pytest.raises(ConfigError, match=r"regions\.plate: the region has no pixel inside the 64x64 frame"):
+        pipeline.run(lambda: False, max_frames=300)
+    assert relay.board.history and not any(s.on for s in relay.board.history)
