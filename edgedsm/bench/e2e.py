@@ -129,7 +129,7 @@ def memory_mib() -> dict[str, float]:
 
 
 class StatsTimer:
-    """A sink beside the MQTT one (``FanOut``): notes when each stats message was handed over."""
+    """A sink before the MQTT one (``FanOut``): notes when each stats message is handed over."""
 
     def __init__(self) -> None:
         self.stats_sent: list[tuple[float, int]] = []  # (monotonic, frames counted in it)
@@ -352,7 +352,7 @@ def run_trial(label: str, recording: Path, port: int, state_dir: Path, *, rate: 
     try:
         mqtt.publisher.wait_connected(10)
         camera = open_camera_for(config)
-        pipeline = Pipeline(config, camera, FanOut([mqtt, timer]), cadence=Cadence(stats_s, maps_s),
+        pipeline = Pipeline(config, camera, FanOut([timer, mqtt]), cadence=Cadence(stats_s, maps_s),
                             probes=instruments.probes())
         started = time.monotonic()
         cpu0 = time.process_time()
@@ -481,7 +481,7 @@ def memory_run(port: int, workdir: Path, frames: int) -> MemoryRun:
         mqtt.publisher.wait_connected(10)
         camera = open_camera_for(config)
         clock = Clock(monotonic=lambda: box["p"].counters["frames"] / TARGET_FPS if box else 0.0)
-        pipeline = Pipeline(config, camera, FanOut([mqtt, timer]), cadence=Cadence(5.0, 60.0), clock=clock,
+        pipeline = Pipeline(config, camera, FanOut([timer, mqtt]), cadence=Cadence(5.0, 60.0), clock=clock,
                             probes=instruments.probes())
         box["p"] = pipeline
         started = time.monotonic()

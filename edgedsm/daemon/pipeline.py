@@ -95,6 +95,7 @@ class Pipeline:
         self._outage: str | None = None  # why the camera is down (None: it is up)
         self._back_since: float | None = None  # frames flowing again since (during an outage)
         self._fault: str | None = None  # reported at the next evaluation, then cleared
+        self._camera_ok = False  # as last judged by _watch_camera
         self._urgent = False  # evaluate at once (the laser or the camera changed), whatever the cadence
 
     # -- commands (called from other threads) -------------------------------------------------
@@ -128,7 +129,7 @@ class Pipeline:
             if state not in ("on", "off", "auto"):
                 return {"ok": False, "error": "state must be 'on', 'off' or 'auto'"}
             before = acq.laser
-            reply = acq.command(state, self.clock.monotonic(), self._outage is None)
+            reply = acq.command(state, self.clock.monotonic(), self.capture, self._camera_ok)
             self._urgent = self._urgent or acq.laser != before
             return reply
         if name == "rebaseline":
@@ -235,7 +236,7 @@ class Pipeline:
                 now = self.clock.monotonic()
                 if capture.error is not None:
                     raise capture.error
-                camera_ok = self._watch_camera(now)
+                camera_ok = self._camera_ok = self._watch_camera(now)
                 if camera_ok and acq.dark_due(now):
                     acq.take_dark_frames(capture, self._take, grab_timeout_s)
                 laser = acq.laser
