@@ -331,7 +331,9 @@ def test_a_flapping_camera_is_damped_one_fault_and_the_laser_off_throughout(setu
         wait_until(lambda: relay.board.is_on, timeout=10, what="the laser on again")
     reopens = camera.opens[1:]
     gaps = np.diff(reopens)
-    assert len(reopens) == 6 and np.all(np.diff(gaps) > -0.02), gaps  # backoff grows through the outage
+    # the backoff grows through the outage (0.05, 0.1, 0.2, 0.4 s capped, each after a 0.1 s grab
+    # timeout): it does not start over at each reopening that brings no frame
+    assert len(reopens) == 6 and gaps[-1] > gaps[0] + 0.25 and np.all(np.diff(gaps) > -0.1), gaps
     ons_in_outage = [t for t, on in switches if on and camera.died_at < t < camera.opens[-1]]
     assert ons_in_outage == []  # laser off while the camera is down
     faults = [a for a in sink.alerts if a.kind == AlertKind.FAULT]
