@@ -377,12 +377,16 @@ def test_a_laser_not_confirmed_off_at_stop_is_critical_published_and_exit_69(rep
     assert service.laser_not_off is not None and "no answer" in service.laser_not_off
 
 
-def test_a_region_outside_the_frame_is_refused_before_the_laser_goes_on(setup):
+def test_a_region_outside_the_frame_is_refused_before_the_laser_goes_on(setup, repo, tmp_path):
     from edgedsm.errors import ConfigError
 
-    config, scene, relay, sink = setup
-    config.regions[0] = config.regions[0].model_copy(
-        update={"shape": "rect", "x": 500, "y": 500, "width": 10, "height": 10})
+    _, scene, relay, sink = setup
+    text = (repo / "config" / "daemon" / "demo.toml").read_text(encoding="utf-8")
+    text = text.replace('name = "plate"', 'name = "plate"\nshape = "rect"\nx = 500\ny = 500\nwidth = 10\nheight = 10')
+    text = text.replace("sim:../scenes/", f"sim:{repo / 'config' / 'scenes'}/")
+    (tmp_path / "outside.toml").write_text(text, encoding="utf-8")
+    config = load_config(tmp_path / "outside.toml")
+    config.mqtt = None
     camera = SimulatedCamera(scene, time_scale=0)
     couple_simulated_laser(camera, relay)
     pipeline = Pipeline(config, camera, sink, relay=relay)
