@@ -49,6 +49,7 @@ import argparse
 import contextlib
 import dataclasses
 import datetime
+import gc
 import itertools
 import json
 import logging
@@ -129,7 +130,7 @@ def memory_mib() -> dict[str, float]:
 
 
 class StatsTimer:
-    """A sink beside the MQTT one (``FanOut``): notes when each stats message was handed over."""
+    """A sink before the MQTT one (``FanOut``): notes when each stats message is handed over."""
 
     def __init__(self) -> None:
         self.stats_sent: list[tuple[float, int]] = []  # (monotonic, frames counted in it)
@@ -169,6 +170,7 @@ class Instruments:
         self.snapshot_s: list[float] = []  # pipeline thread: engine.maps() for an evaluation
         self.evaluate_s: list[float] = []  # evaluator thread: statistics, states, messages
         self.rss: list[tuple[int, float]] = []  # (frames, MiB)
+        self.memory: dict[str, float] = {}  # the latest sample, taken while the pipeline ran
         self.ready_at: int | None = None  # frames counted when the window filled
         self.first_evaluation_at: int | None = None  # frames when maps were first evaluated
         self._frames = 0
@@ -187,7 +189,8 @@ class Instruments:
         if self.record:
             self.dequeued.append(frame.seq)
         if self.rss_every and count % self.rss_every == 0:
-            self.rss.append((count, memory_mib()["anon"]))
+            self.memory = memory_mib()
+            self.rss.append((count, self.memory["anon"]))
 
     def _pushed(self, frame: Frame, t: float, cost: float) -> None:
         self._pushes += 1
@@ -341,6 +344,7 @@ def run_trial(label: str, recording: Path, port: int, state_dir: Path, *, rate: 
 
     config = daemon_config(recording, port, state_dir, rate or 0, queue_frames, stats_s, maps_s)
     assert config.mqtt is not None
+    gc.collect()  # the previous trial's pipeline and camera (with its mapping of the recording) gone
     mqtt = MqttSink(config.mqtt, state_dir).start()
     listener = StatsListener(port, Topics.from_settings(config.mqtt).stats)
     timer = StatsTimer()
@@ -349,14 +353,15 @@ def run_trial(label: str, recording: Path, port: int, state_dir: Path, *, rate: 
     try:
         mqtt.publisher.wait_connected(10)
         camera = open_camera_for(config)
-        pipeline = Pipeline(config, camera, FanOut([mqtt, timer]), cadence=Cadence(stats_s, maps_s),
+        pipeline = Pipeline(config, camera, FanOut([timer, mqtt]), cadence=Cadence(stats_s, maps_s),
                             probes=instruments.probes())
         started = time.monotonic()
         cpu0 = time.process_time()
         pipeline.run(lambda: time.monotonic() - started >= seconds)
         wall = time.monotonic() - started
         cpu = time.process_time() - cpu0
-        memory = memory_mib()
+        # read while the pipeline ran: at its end it releases the window's ring
+        memory = instruments.memory or memory_mib()
         time.sleep(0.3)  # the last stats message on its way
     finally:
         listener.close()
@@ -477,7 +482,7 @@ def memory_run(port: int, workdir: Path, frames: int) -> MemoryRun:
         mqtt.publisher.wait_connected(10)
         camera = open_camera_for(config)
         clock = Clock(monotonic=lambda: box["p"].counters["frames"] / TARGET_FPS if box else 0.0)
-        pipeline = Pipeline(config, camera, FanOut([mqtt, timer]), cadence=Cadence(5.0, 60.0), clock=clock,
+        pipeline = Pipeline(config, camera, FanOut([timer, mqtt]), cadence=Cadence(5.0, 60.0), clock=clock,
                             probes=instruments.probes())
         box["p"] = pipeline
         started = time.monotonic()
@@ -676,7 +681,7 @@ def run(args: argparse.Namespace) -> int:
     emit()
     at_size = [t for t in trials if not np.isnan(t.rss_growth)]
     if at_size:
-        emit(f"At {SIZE}²: anonymous RSS at the end of the trials {min(t.rss for t in at_size):.0f} to "
+        emit(f"At {SIZE}²: anonymous RSS near the end of the trials {min(t.rss for t in at_size):.0f} to "
              f"{max(t.rss for t in at_size):.0f} MiB; within a trial, after the first evaluation of maps, it "
              f"changed by {min(t.rss_growth for t in at_size):+.1f} to {max(t.rss_growth for t in at_size):+.1f} MiB "
              f"(up to {max(t.processed for t in at_size)} frames per trial).")
@@ -684,7 +689,7 @@ def run(args: argparse.Namespace) -> int:
     emit(f"Growth after warm-up: {growth:+.1f} MiB ({per_100k:+.2f} MiB per 100 000 frames). "
          f"At {SIZE}² the resident set is dominated by the window's ring of N = {WINDOW} frames "
          f"({WINDOW * SIZE * SIZE / 2**20:.0f} MiB) plus the integer sums and the maps of an evaluation: "
-         "the *anon* figures of the first table, read at the end of each trial (resident memory the "
+         "the *anon* figures of the first table, read within the last 100 frames of each trial (resident memory the "
          "process allocated); *file* is the part of the memory-mapped recording that was resident, which "
          f"a camera would not have (peak resident set of the whole run: {memory.peak:.0f} MiB).")
     if args.output:

@@ -99,7 +99,9 @@ class Acquisition:
             self.laser = "unknown"
             self._on_fault(reason)
             self._off_delays = OFF_RETRY.delays()
-        self._next_off_t = self.clock() + next(self._off_delays)
+        delay = next(self._off_delays)
+        self._next_off_t = self.clock() + delay
+        log.warning("switching the laser off is retried in %.1f s", delay)
 
     def switch_off(self, why: str) -> bool:
         """Switch off now (never rate-limited); False if it could not be confirmed."""
@@ -129,7 +131,7 @@ class Acquisition:
                     f"went on {since:.2f} s ago; try again in {self.min_switch_interval_s - since:.2f} s")
         return None
 
-    def command(self, state: str, now: float, camera_ok: bool) -> dict[str, object]:
+    def command(self, state: str, now: float, capture: Capture, camera_ok: bool) -> dict[str, object]:
         """The `laser` command: ``off`` holds it off, ``on``/``auto`` give it back to the plan."""
         if state == "off":
             self.manual_off = True
@@ -146,7 +148,7 @@ class Acquisition:
         if self.laser == "off" and (why := self.refusal(now)):
             return {"ok": False, "error": why, "laser": self.laser}
         self.manual_off = False
-        self.tick(now, None, camera_ok)
+        self.tick(now, capture, camera_ok)
         return {"ok": True, "laser": self.laser}
 
     @property
@@ -168,7 +170,7 @@ class Acquisition:
             self._burst_ended(now)  # the burst's final maps and states, once
         return False
 
-    def tick(self, now: float, capture: Capture | None, camera_ok: bool) -> None:
+    def tick(self, now: float, capture: Capture, camera_ok: bool) -> None:
         """Once per loop: retry a pending switch-off; switch the laser as the plan wants."""
         if self.laser == "unknown":
             self._wanted = False
@@ -183,8 +185,7 @@ class Acquisition:
                 self.switch_off(why)
             else:
                 self._check_relay(now)
-        elif wants and self.refusal(now) is None and self._switch(True, "measuring") \
-                and capture is not None and self.relay is not None:
+        elif wants and self.refusal(now) is None and self._switch(True, "measuring") and self.relay is not None:
             capture.drain()  # frames exposed before the laser was on
 
     def admit(self) -> bool:

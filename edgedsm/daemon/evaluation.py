@@ -97,6 +97,7 @@ class Evaluation:
         self.counters = counters
         self.probes = probes or PipelineProbes()
         self.engine: SlidingWindow | None = None
+        self.frame_shape: tuple[int, int] | None = None  # fixed by the first frame
         self.masks: dict[str, np.ndarray] = {}
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
@@ -106,6 +107,12 @@ class Evaluation:
         self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
 
     # -- pipeline thread --------------------------------------------------------------------------
+    def prepare(self, frame: Frame) -> None:
+        """At the first frame (before the laser goes on): the engine and the region masks for its
+        shape. A region outside the frame or a window too big for memory is a ``ConfigError``."""
+        if self.frame_shape is None:
+            self._make_engine(frame)
+
     def push(self, frame: Frame, dark: np.ndarray | None) -> bool:
         """Push one frame (ambient-corrected with ``dark`` when configured); False if refused."""
         if self.engine is None:  # the first frame fixes the shape; later misfits are refused
@@ -137,9 +144,10 @@ class Evaluation:
             # stalls badly when the capture thread competes for the cores
             threads = 1
         check_engine_memory(frame, est.window, est.mode)
+        self.masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
         self.engine = SlidingWindow(frame.shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
                                     estimators=ESTIMATORS, mode=est.mode, threads=threads)
-        self.masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
+        self.frame_shape = frame.shape
 
     def reset(self, why: str, states: bool = True) -> None:
         """Empty the estimator window; with ``states``, every region goes back to warming up."""

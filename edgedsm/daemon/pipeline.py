@@ -95,6 +95,7 @@ class Pipeline:
         self._outage: str | None = None  # why the camera is down (None: it is up)
         self._back_since: float | None = None  # frames flowing again since (during an outage)
         self._fault: str | None = None  # reported at the next evaluation, then cleared
+        self._camera_ok = False  # as last judged by _watch_camera
         self._urgent = False  # evaluate at once (the laser or the camera changed), whatever the cadence
 
     # -- commands (called from other threads) -------------------------------------------------
@@ -128,7 +129,7 @@ class Pipeline:
             if state not in ("on", "off", "auto"):
                 return {"ok": False, "error": "state must be 'on', 'off' or 'auto'"}
             before = acq.laser
-            reply = acq.command(state, self.clock.monotonic(), self._outage is None)
+            reply = acq.command(state, self.clock.monotonic(), self.capture, self._camera_ok)
             self._urgent = self._urgent or acq.laser != before
             return reply
         if name == "rebaseline":
@@ -145,6 +146,11 @@ class Pipeline:
             return {"ok": True}
         return {"ok": False, "error": f"unknown command {name!r}"}
 
+    @property
+    def frame_shape(self) -> tuple[int, int] | None:
+        """The camera's frame (rows, columns), once a frame came."""
+        return self.evaluation.frame_shape
+
     def request_maps(self) -> None:
         """Publish the maps at the next evaluation, whatever the cadence (pipeline thread)."""
         self._last_maps_t = float("-inf")
@@ -154,6 +160,7 @@ class Pipeline:
         frame = self.capture.take(timeout_s)
         if frame is None:
             return None
+        self.evaluation.prepare(frame)  # at the first frame: regions checked before the laser goes on
         self._last_frame_t = self.clock.monotonic()
         self.counters["frames"] += 1
         self._frames_t.append(self._last_frame_t)
@@ -229,7 +236,7 @@ class Pipeline:
                 now = self.clock.monotonic()
                 if capture.error is not None:
                     raise capture.error
-                camera_ok = self._watch_camera(now)
+                camera_ok = self._camera_ok = self._watch_camera(now)
                 if camera_ok and acq.dark_due(now):
                     acq.take_dark_frames(capture, self._take, grab_timeout_s)
                 laser = acq.laser

@@ -4,8 +4,10 @@ systemd notification and watchdog, configuration reload.
 - SIGTERM / SIGINT: stop; the laser is switched off, ``offline`` published, exit 0 (within 2 s).
   If the laser could not be confirmed off: logged CRITICAL, a ``fault`` alert published before
   ``offline``, exit 69 (``EX_UNAVAILABLE``: the relay is not answering).
-- SIGHUP: reload the config file. A bad file is refused (logged with every key path) and the
-  daemon keeps running with the old one; a good one restarts the pipeline with it.
+- SIGHUP: reload the config file, transactionally (``edgedsm.daemon.reload``): the new one is
+  checked completely first (file, camera, regions inside its frame, relay); if anything is
+  wrong the reason is logged and published as a warning alert and the daemon keeps running
+  with the old one; a good one restarts the pipeline with it.
 - ``Type=notify``: READY once measuring, STATUS lines, WATCHDOG pings only while frames keep
   arriving (a stalled camera lets systemd's watchdog restart the service).
 """
@@ -25,11 +27,12 @@ from typing import Any
 from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.notify import Notifier
 from edgedsm.daemon.pipeline import Cadence, Pipeline
+from edgedsm.daemon.reload import ReloadRefused, check_reload
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
-from edgedsm.errors import ConfigError, DeviceError
+from edgedsm.errors import DeviceError
 from edgedsm.messages import Alert, AlertKind
 from edgedsm.publish.commands import Command
 from edgedsm.publish.sink import FanOut, LogSink, Sink
@@ -120,12 +123,16 @@ class Service:
             log.warning("reload requested but the daemon was not started from a file")
             return False
         self.notifier.reloading()
+        pipeline = self.pipeline
         try:
-            new = load_config(self.config_path)
-            open_camera_for(new)  # reads a scene file (a missing one is a ConfigError); opens nothing
-        except ConfigError as exc:
-            log.error("reload refused, keeping the running configuration:\n%s", exc)
-            self.notifier.ready(status="reload refused: bad configuration (see the log)")
+            new = check_reload(self.config_path, self.config, pipeline.frame_shape if pipeline else None)
+        except ReloadRefused as exc:
+            log.error("reload refused, keeping the running configuration: %s", exc)
+            summary = str(exc).splitlines()[0].rstrip(":")
+            if pipeline is not None:
+                pipeline.evaluation.publish_alert(Alert(kind=AlertKind.WARNING, t=time.time(),
+                                                        reason=f"reload refused, running configuration kept: {exc}"))
+            self.notifier.ready(status=f"reload refused: {summary} (see the log)")
             return False
         log.warning("configuration reloaded from %s", self.config_path)
         self.config = new

@@ -641,6 +641,52 @@ def test_sighup_refuses_bad_configs_and_applies_a_good_one(
     assert subscriber.on(topics.availability)[-1].payload == b"offline"
 
 
+@pytest.mark.timeout(90)
+def test_sighup_reload_is_transactional_a_config_that_cannot_run_is_refused(
+        tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon]) -> None:
+    """Issue 11 §3: files that parse but cannot run (a relay device that does not exist, a region
+    outside the camera's frame) and files that do not even decode are refused before the running
+    pipeline is touched: logged, published as a warning alert, the old configuration kept."""
+    broker = make_broker()
+    topics = Topics.of("edgedsm", "e2e")
+    config = base_config(tmp_path, port=broker.port)
+    path = write_config(tmp_path / "daemon.toml", config)
+    subscriber = subscribers(broker.port, [topics.availability, topics.stats, topics.alerts])
+    daemon = daemons(path)
+    wait_frames_beyond(subscriber, topics, 20)
+    outside = {**config["regions"][0], "shape": "rect", "x": 5000, "y": 5000, "width": 10, "height": 10}
+    bad_files: dict[str, bytes] = {
+        "missing relay device": toml_text(
+            {**config, "laser": {"uri": f"serial:{tmp_path / 'no-such-tty'}?protocol=lcus&channel=1"}}).encode(),
+        "region outside the frame": toml_text({**config, "regions": [outside]}).encode(),
+        "not UTF-8": toml_text(config).encode().replace(b'name = "e2e"', b'name = "\xff\xfe"'),
+    }
+    for refused, (what, data) in enumerate(bad_files.items(), start=1):
+        partial = path.with_name("daemon.toml.partial")
+        partial.write_bytes(data)
+        partial.replace(path)
+        sent = time.time()
+        daemon.signal(signal.SIGHUP)
+        wait_until(lambda: daemon.log.count("reload refused") >= refused, WAIT_S,  # noqa: B023 (called at once)
+                   f"the refusal of the {what}")
+        wait_until(lambda: len(_stats_after(subscriber, topics, sent + 1.0)) >= 2, WAIT_S,  # noqa: B023
+                   f"stats after refusing the {what}")
+        assert daemon.process.poll() is None, daemon.log
+        wait_until(lambda: len([a for a in distinct_alerts(subscriber, topics)
+                                if a["type"] == "warning"]) >= refused,  # noqa: B023 (called at once)
+                   WAIT_S, f"a warning alert about the {what}")
+    log = daemon.log
+    assert "Traceback" not in log and "configuration reloaded" not in log
+    warnings = [a["reason"] for a in distinct_alerts(subscriber, topics) if a["type"] == "warning"]
+    assert len(warnings) == 3 and all(w.startswith("reload refused") for w in warnings)
+    assert "no-such-tty" in warnings[0]
+    assert "no pixel inside the 128x128 frame" in warnings[1]
+    assert re.search("UnicodeDecodeError|not UTF-8", warnings[2]), warnings[2]
+    code, took = daemon.terminate()
+    assert code == 0 and took < STOP_BOUND_S, daemon.log
+
+
 # -- 6. systemd notification and the watchdog ----------------------------------------------
 
 class NotifySocket:

@@ -331,7 +331,9 @@ def test_a_flapping_camera_is_damped_one_fault_and_the_laser_off_throughout(setu
         wait_until(lambda: relay.board.is_on, timeout=10, what="the laser on again")
     reopens = camera.opens[1:]
     gaps = np.diff(reopens)
-    assert len(reopens) == 6 and np.all(np.diff(gaps) > -0.02), gaps  # backoff grows through the outage
+    # the backoff grows through the outage (0.05, 0.1, 0.2, 0.4 s capped, each after a 0.1 s grab
+    # timeout): it does not start over at each reopening that brings no frame
+    assert len(reopens) == 6 and gaps[-1] > gaps[0] + 0.25 and np.all(np.diff(gaps) > -0.1), gaps
     ons_in_outage = [t for t, on in switches if on and camera.died_at < t < camera.opens[-1]]
     assert ons_in_outage == []  # laser off while the camera is down
     faults = [a for a in sink.alerts if a.kind == AlertKind.FAULT]
@@ -373,3 +375,21 @@ def test_a_laser_not_confirmed_off_at_stop_is_critical_published_and_exit_69(rep
     alerts = [r.getMessage() for r in caplog.records if r.getMessage().startswith("alert: fault")]
     assert alerts and "may still be on" in alerts[-1]
     assert service.laser_not_off is not None and "no answer" in service.laser_not_off
+
+
+def test_a_region_outside_the_frame_is_refused_before_the_laser_goes_on(setup, repo, tmp_path):
+    from edgedsm.errors import ConfigError
+
+    _, scene, relay, sink = setup
+    text = (repo / "config" / "daemon" / "demo.toml").read_text(encoding="utf-8")
+    text = text.replace('name = "plate"', 'name = "plate"\nshape = "rect"\nx = 500\ny = 500\nwidth = 10\nheight = 10')
+    text = text.replace("sim:../scenes/", f"sim:{repo / 'config' / 'scenes'}/")
+    (tmp_path / "outside.toml").write_text(text, encoding="utf-8")
+    config = load_config(tmp_path / "outside.toml")
+    config.mqtt = None
+    camera = SimulatedCamera(scene, time_scale=0)
+    couple_simulated_laser(camera, relay)
+    pipeline = Pipeline(config, camera, sink, relay=relay)
+    with pytest.raises(ConfigError, match=r"regions\.plate: the region has no pixel inside the 64x64 frame"):
+        pipeline.run(lambda: False, max_frames=300)
+    assert relay.board.history and not any(s.on for s in relay.board.history)

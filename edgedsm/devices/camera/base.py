@@ -273,14 +273,19 @@ class Camera(abc.ABC):
                 self._sleep(delay)
             try:
                 self._do_open()
-            except DeviceError as exc:
+                self._opened = True
+                self._reapply_settings()
+                self._start()
+            except DeviceError as exc:  # not back yet (a half-open device is closed again)
                 last = exc
                 log.info("%s: reconnect failed (%s)", self.description, exc)
+                if self._opened:
+                    self._streaming = False
+                    with contextlib.suppress(DeviceError):
+                        self._do_close()
+                    self._opened = False
                 continue
-            self._opened = True
-            self._reapply_settings()
             self.stats["reconnects"] += 1
-            self._start()
             log.warning("%s: reconnected", self.description)
             watch.on_reconnected()
             return True

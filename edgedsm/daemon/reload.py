@@ -1,0 +1,76 @@
+"""A transactional reload: the new configuration is built and checked completely before the
+running pipeline is touched.
+
+Checked, in order: the file (read, parsed, validated; any error — not UTF-8, too deep, a bad
+key — is a refusal, never a traceback), the camera (its URI and scene; a camera other than the
+running one is opened and must deliver a frame), the regions (each must have pixels inside that
+frame), the laser relay (one other than the running one must answer a switch-off). Anything
+wrong raises :class:`ReloadRefused` with the reason, and the daemon keeps its running
+configuration.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from edgedsm.config import DaemonConfig, load_config
+from edgedsm.devices.laser import open_relay
+from edgedsm.errors import ConfigError, DeviceError, EdgedsmError
+
+log = logging.getLogger(__name__)
+
+
+class ReloadRefused(EdgedsmError):
+    """The new configuration cannot run; the message says why (first line: a summary)."""
+
+
+def _same_camera(new: DaemonConfig, running: DaemonConfig) -> bool:
+    return new.camera.uri == running.camera.uri and new.base_dir == running.base_dir
+
+
+def _probe_frame_shape(config: DaemonConfig) -> tuple[int, int]:
+    """Open the configured camera, take one frame, close it: the frame's (rows, columns)."""
+    from edgedsm.daemon.service import open_camera_for
+
+    camera = open_camera_for(config)
+    try:
+        camera.open()
+        if config.camera.pixel_format:
+            camera.set_pixel_format(config.camera.pixel_format)
+        for frame in camera.frames(1, timeout_s=config.camera.grab_timeout_s):
+            return frame.shape
+        raise DeviceError(f"{config.camera.uri}: the camera delivered no frame")
+    finally:
+        camera.close()
+
+
+def check_reload(path: Path, running: DaemonConfig, running_shape: tuple[int, int] | None) -> DaemonConfig:
+    """The configuration in ``path``, checked as the module docstring says; raises ``ReloadRefused``.
+
+    ``running_shape``: the running camera's frame shape (None before its first frame).
+    """
+    from edgedsm.daemon.service import open_camera_for
+
+    try:
+        new = load_config(path)
+    except ConfigError as exc:
+        raise ReloadRefused(f"bad configuration:\n{exc}") from exc
+    except Exception as exc:  # not UTF-8, nested too deep, unreadable: a refusal, not a crash
+        raise ReloadRefused(f"{path}: cannot be read as a configuration: {type(exc).__name__}: {exc}") from exc
+    try:
+        open_camera_for(new)  # the URI and scene file; opens nothing
+        # the running camera cannot be opened twice: its frame is known
+        shape = running_shape if _same_camera(new, running) else _probe_frame_shape(new)
+        if shape is not None:
+            for region in new.regions:
+                region.mask(shape, new.base_dir)
+        if new.laser is not None and (running.laser is None or new.laser.uri != running.laser.uri):
+            relay = open_relay(new.laser.uri)
+            try:
+                relay.off()  # the new laser must answer; off is where it must be anyway
+            finally:
+                relay.detach()
+    except EdgedsmError as exc:
+        raise ReloadRefused(f"the new configuration cannot run: {exc}") from exc
+    return new
