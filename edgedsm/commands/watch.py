@@ -86,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     conn.add_argument("--host", help="broker host (default localhost)")
     conn.add_argument("--port", type=int, help="broker port (default 1883)")
     conn.add_argument("--prefix", dest="topic_prefix", metavar="PREFIX", help="topic prefix (default edgedsm)")
-    conn.add_argument("--device", help="device name in the topics (default cam0)")
+    conn.add_argument("--device", help="device in the topics (default: the config's, else camera1 as the daemon)")
     conn.add_argument("--username", help="user name; the password is read from $EDGEDSM_MQTT_PASSWORD")
     conn.add_argument("--tls", action="store_true", help="use TLS (implied by --ca-file/--cert-file)")
     conn.add_argument("--ca-file", type=Path, help="CA certificate(s) of the broker (PEM)")

@@ -632,7 +632,7 @@ def test_watch_timeout_and_count_not_reached(broker):
     quiet = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--timeout", "1")
     out, err = quiet.communicate(timeout=WAIT_S)
     assert quiet.returncode == 0, err
-    assert "watching edgedsm/cam0" in out
+    assert "watching edgedsm/camera1" in out
     short = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--count", "1", "--timeout", "1")
     out, err = short.communicate(timeout=WAIT_S)
     assert short.returncode == 1 and "timed out after 1 s with 0 of 1 alert(s)" in err
