@@ -1,0 +1,172 @@
+"""Home Assistant discovery and Prometheus metrics of a real daemon (`edgedsm run`) on a REAL
+mosquitto: configs retained and their state topics live (templates rendered as Home Assistant
+does), `/metrics` scraped with a real HTTP client and parsed with `prometheus_client.parser`,
+`/healthz`, a removed region's entity removed at the next start."""
+
+from __future__ import annotations
+
+import http.client
+import json
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import jinja2
+import numpy as np
+import pytest
+from helpers_mqtt import WAIT_S, Broker, Received, Subscriber, free_port, wait_until
+from prometheus_client.parser import text_string_to_metric_families
+from test_daemon_e2e import Daemon, base_config, write_config
+
+from edgedsm.publish import Topics
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+PREFIX = "homeassistant"
+
+
+@pytest.fixture
+def daemons() -> Iterator[Callable[[Path], Daemon]]:
+    """`edgedsm run -c CONFIG` processes, killed after the test if still running."""
+    made: list[Daemon] = []
+
+    def start(config: Path) -> Daemon:
+        made.append(Daemon(config))
+        return made[-1]
+
+    yield start
+    for daemon in made:
+        daemon.kill()
+
+
+def _config(tmp_path: Path, port: int, http_port: int, region: str = "plate") -> dict[str, Any]:
+    config = base_config(tmp_path, port=port, region=region)
+    config["mqtt"]["maps_interval_s"] = 1.0
+    config["homeassistant"] = {"discovery_prefix": PREFIX}
+    config["http"] = {"listen": f"127.0.0.1:{http_port}", "stale_after_s": 3.0}
+    return config
+
+
+def _get(port: int, path: str) -> tuple[int, bytes]:
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    try:
+        connection.request("GET", path)
+        response = connection.getresponse()
+        return response.status, response.read()
+    finally:
+        connection.close()
+
+
+def _render(template: str, payload: bytes) -> str:
+    return jinja2.Environment().from_string(template).render(value_json=json.loads(payload))
+
+
+def _configs(subscriber: Subscriber) -> dict[str, dict[str, Any]]:
+    """The latest non-empty discovery config per topic."""
+    found: dict[str, dict[str, Any]] = {}
+    for message in subscriber.messages:
+        if message.topic.startswith(f"{PREFIX}/") and message.topic.endswith("/config"):
+            if message.payload:
+                found[message.topic] = json.loads(message.payload)
+            else:
+                found.pop(message.topic, None)
+    return found
+
+
+def _last(subscriber: Subscriber, topic: str) -> Received | None:
+    messages = subscriber.on(topic)
+    return messages[-1] if messages else None
+
+
+@pytest.mark.timeout(120)
+def test_home_assistant_entities_and_metrics_of_a_running_daemon(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[[Path], Daemon]) -> None:
+    http_port = free_port()
+    config = write_config(tmp_path / "edgedsm.toml", _config(tmp_path, broker.port, http_port))
+    topics = Topics.of("edgedsm", "e2e")
+    live = subscribers(broker.port, [f"{PREFIX}/#", f"{topics.base}/#"])
+    daemon = daemons(config)
+    wait_until(lambda: _last(live, topics.map("s2") + "/color") is not None, WAIT_S, "a colour map")
+    wait_until(lambda: any("activity" in m.topic or "_s2/" in m.topic for m in live.messages
+                           if m.topic.startswith(PREFIX)), WAIT_S, "the activity entities")
+
+    # a subscriber arriving later gets every config, retained
+    late = subscribers(broker.port, [f"{PREFIX}/#", f"{topics.maps_filter}/color"])
+    wait_until(lambda: len(_configs(late)) >= 10, WAIT_S, "retained discovery configs")
+    assert all(m.retain for m in late.messages)
+    configs = _configs(late)
+    kinds = sorted(topic.split("/")[1] for topic in configs)
+    assert kinds == ["binary_sensor", "binary_sensor", "image", "image", "image", "sensor", "sensor", "sensor",
+                     "sensor", "sensor"], sorted(configs)
+    devices = {json.dumps(c["device"], sort_keys=True) for c in configs.values()}
+    assert len(devices) == 1 and json.loads(devices.pop())["identifiers"] == ["edgedsm_edgedsm_e2e"]
+
+    # every referenced topic carries a value the template turns into a valid state
+    for topic, entity in configs.items():
+        if "image_topic" in entity:
+            png = _last(late, entity["image_topic"])
+            assert png is not None and png.retain, entity["image_topic"]  # a viewer starting later sees it
+            image = cv2.imdecode(np.frombuffer(png.payload, np.uint8), cv2.IMREAD_UNCHANGED)
+            assert image.dtype == np.uint8 and image.shape[2] == 3
+            continue
+        message = _last(live, entity["state_topic"])
+        assert message is not None, f"{topic}: nothing on {entity['state_topic']}"
+        value = _render(entity["value_template"], message.payload) if "value_template" in entity \
+            else message.payload.decode()
+        if entity.get("device_class") == "enum":
+            assert value in entity["options"]
+        elif topic.split("/")[1] == "binary_sensor":
+            assert value in (entity["payload_on"], entity["payload_off"]), (topic, value)
+        elif value != "None":
+            assert float(value) >= 0, (topic, value)
+        if "availability_topic" in entity:
+            assert _last(live, entity["availability_topic"]).payload == b"online"
+    state_entity = configs[f"{PREFIX}/sensor/edgedsm_e2e/plate_state/config"]
+    state = _last(live, topics.state)
+    assert _render(state_entity["value_template"], state.payload) == state.json()["regions"]["plate"]["state"]
+
+    # Prometheus: scraped and parsed
+    wait_until(lambda: _get(http_port, "/healthz")[0] == 200, WAIT_S, "/healthz 200")
+    status, body = _get(http_port, "/metrics")
+    assert status == 200
+    samples = {(s.name, tuple(sorted(s.labels.items()))): s.value
+               for family in text_string_to_metric_families(body.decode()) for s in family.samples}
+    assert samples[("edgedsm_frames_total", ())] > 0
+    assert samples[("edgedsm_mqtt_connected", ())] == 1
+    assert samples[("edgedsm_alerts_pending", ())] >= 0
+    assert 0 < samples[("edgedsm_engine_ms_per_frame", ())] < 1000
+    states = [v for (name, labels), v in samples.items() if name == "edgedsm_region_state"]
+    assert len(states) == 5 and sum(states) == 1
+    assert ("edgedsm_region_activity", (("estimator", "s2"), ("region", "plate"))) in samples
+    assert _get(http_port, "/nothing")[0] == 404
+    assert _get(http_port, "/healthz")[0] == 200  # still measuring
+
+    code, _ = daemon.terminate()
+    assert code == 0
+    wait_until(lambda: _last(live, topics.availability).payload == b"offline", WAIT_S, "offline")
+
+
+@pytest.mark.timeout(120)
+def test_a_region_removed_from_the_config_loses_its_entities_at_the_next_start(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[[Path], Daemon]) -> None:
+    config = tmp_path / "edgedsm.toml"
+    write_config(config, _config(tmp_path, broker.port, free_port(), region="plate"))
+    old = f"{PREFIX}/sensor/edgedsm_e2e/plate_state/config"
+    new = f"{PREFIX}/sensor/edgedsm_e2e/panel_state/config"
+    watcher = subscribers(broker.port, [f"{PREFIX}/#"])
+    first = daemons(config)
+    wait_until(lambda: old in _configs(watcher) and f"{PREFIX}/sensor/edgedsm_e2e/plate_s2/config"
+               in _configs(watcher), WAIT_S, "the plate's entities")
+    assert first.terminate()[0] == 0
+    write_config(config, _config(tmp_path, broker.port, free_port(), region="panel"))
+    second = daemons(config)
+    wait_until(lambda: new in _configs(watcher), WAIT_S, "the panel's entities")
+    assert second.terminate()[0] == 0
+    later = subscribers(broker.port, [f"{PREFIX}/#"])
+    wait_until(lambda: new in _configs(later), WAIT_S, "retained configs")
+    assert not [topic for topic in _configs(later) if "/plate_" in topic]
+    removed = [m.topic for m in watcher.messages if not m.payload]
+    assert old in removed and f"{PREFIX}/sensor/edgedsm_e2e/plate_s2/config" in removed
