@@ -84,7 +84,9 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
         tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
         daemons: Callable[[Path], Daemon]) -> None:
     http_port = free_port()
-    config = write_config(tmp_path / "edgedsm.toml", _config(tmp_path, broker.port, http_port))
+    settings = _config(tmp_path, broker.port, http_port)
+    settings["logging"] = {"level": "info", "json_lines": True}
+    config = write_config(tmp_path / "edgedsm.toml", settings)
     topics = Topics.of("edgedsm", "e2e")
     live = subscribers(broker.port, [f"{PREFIX}/#", f"{topics.base}/#"])
     daemon = daemons(config)
@@ -142,6 +144,12 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     assert ("edgedsm_region_activity", (("estimator", "s2"), ("region", "plate"))) in samples
     assert _get(http_port, "/nothing")[0] == 404
     assert _get(http_port, "/healthz")[0] == 200  # still measuring
+
+    # the JSON log names the region and the state entered on every transition
+    daemon.wait_log(r'"region": "plate", "state": "', WAIT_S)
+    transition = next(json.loads(line) for line in daemon.log.splitlines() if '"region": "plate"' in line)
+    assert transition["level"] == "warning"
+    assert transition["message"].startswith(f"region plate: warming_up -> {transition['state']} ")
 
     code, _ = daemon.terminate()
     assert code == 0
