@@ -645,7 +645,8 @@ def test_watch_over_tls_with_password_from_environment(secure_broker, publishers
     monkeypatch.setenv("EDGEDSM_MQTT_PASSWORD", "s3cret")
     publisher = publishers(_tls_settings(broker, tls))
     publisher.wait_connected(WAIT_S)
-    common = ["--host", "localhost", "--port", str(broker.port), "--username", "line3", "--ca-file", str(tls.ca),
+    common = ["--host", "localhost", "--port", str(broker.port), "--device", "cam0", "--username", "line3",
+              "--ca-file", str(tls.ca),
               "--cert-file", str(tls.client_cert), "--key-file", str(tls.client_key), "--timeout", "2"]
     good = _watch(*common, env={"EDGEDSM_MQTT_PASSWORD": "s3cret"})
     out, err = good.communicate(timeout=WAIT_S)
