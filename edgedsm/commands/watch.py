@@ -64,6 +64,9 @@ NAME = "watch"
 HELP = "print a daemon's availability, state changes and alerts live (MQTT subscriber)"
 
 CONNECT_WAIT_S = 10.0
+#: After this long connected without any availability on our base, say so (retained: it is
+#: there at once when a daemon ever ran under this name).
+SILENCE_HINT_S = 2.0
 EXCERPT_CHARS = 80  # of an unreadable payload, shown beside the reason
 
 
@@ -170,6 +173,8 @@ class Watcher:
         self.connected = threading.Event()
         self.refusal: str | None = None
         self._availability: str | None = None
+        self.others: set[str] = set()  # other devices with an availability under the same prefix
+        self._hinted = False
         self._states: dict[str, str] = {}
         self._metas: dict[str, dict[str, Any]] = {}
         self._pngs: dict[str, bytes] = {}
@@ -203,6 +208,20 @@ class Watcher:
         stopper.start()
         stopper.join(timeout=2.0)
 
+    @property
+    def _all_availability(self) -> str:
+        return f"{self.topics.prefix}/+/availability"
+
+    def hint_if_silent(self) -> None:
+        """Once: say so when no daemon ever published on this base, and which devices did."""
+        if self._hinted or self._availability is not None or not self.connected.is_set():
+            return
+        self._hinted = True
+        seen = ", ".join(sorted(self.others)) or "none"
+        self._event("silence", f"no daemon has published on {self.topics.base} (no availability); devices "
+                               f"seen under {self.topics.prefix}/: {seen}", label="connection",
+                    base=self.topics.base, devices=sorted(self.others))
+
     def _event(self, kind: str, text: str, *, label: str | None = None, **data: Any) -> None:
         """One line: ``<time>  <label>  <text>``, or with ``json_lines`` one JSON object
         (``time``: UTC epoch s of arrival, ``event``: the kind, then the event's own fields)."""
@@ -218,7 +237,8 @@ class Watcher:
         if reason.is_failure:
             self.refusal = describe_refusal(reason, self.settings, self.password is not None)
             return
-        topics = [self.topics.availability, self.topics.state, self.topics.alerts, self.topics.replies_filter]
+        topics = [self.topics.availability, self.topics.state, self.topics.alerts, self.topics.replies_filter,
+                  self._all_availability]
         if self.show_stats:
             topics.append(self.topics.stats)
         if self.save_maps is not None:
@@ -244,6 +264,8 @@ class Watcher:
         try:
             if topic == self.topics.availability:
                 self._availability_message(message.payload.decode("utf-8", "replace"), message.retain)
+            elif mqtt.topic_matches_sub(self._all_availability, topic):
+                self.others.add(topic[len(self.topics.prefix) + 1:-len("/availability")])
             elif topic == self.topics.state:
                 self._state_message(StateReport.model_validate_json(message.payload))
             elif topic == self.topics.alerts:
@@ -370,8 +392,11 @@ def run(args: argparse.Namespace) -> int:
     deadline = None if args.timeout is None else time.monotonic() + args.timeout
     watcher.start(wait_s=CONNECT_WAIT_S if deadline is None else max(0.5, min(CONNECT_WAIT_S, args.timeout)))
     timed_out = False
+    silent_check = time.monotonic() + SILENCE_HINT_S
     try:
         while not watcher.done.is_set():
+            if time.monotonic() >= silent_check:
+                watcher.hint_if_silent()
             remaining = None if deadline is None else deadline - time.monotonic()
             if remaining is not None and remaining <= 0:
                 timed_out = True

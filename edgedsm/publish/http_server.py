@@ -3,16 +3,19 @@
 Bad input never reaches the measurement: only ``GET``/``HEAD`` of the two paths are served;
 other paths are 404, other methods 405, a request with a body 413, a request line or headers
 beyond the limits 414/431 (``http.server``'s own checks), and a client that stalls is dropped
-after ``REQUEST_TIMEOUT_S``. Requests run on their own threads, never the pipeline's.
+after ``REQUEST_TIMEOUT_S``; beyond ``MAX_CLIENTS`` connections at once, 503 at once. Requests
+run on their own threads, never the pipeline's.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 from collections.abc import Callable
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
 
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
@@ -24,6 +27,33 @@ log = logging.getLogger(__name__)
 REQUEST_TIMEOUT_S = 5.0
 #: Most header lines accepted (``http.client``'s limit is 100).
 MAX_HEADERS = 32
+#: Connections served at once; more are answered 503 at once (a flood costs no threads).
+MAX_CLIENTS = 16
+
+
+class _BoundedServer(ThreadingHTTPServer):
+    """A thread per connection, at most ``MAX_CLIENTS`` at once."""
+
+    daemon_threads = True
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.slots = threading.BoundedSemaphore(MAX_CLIENTS)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if not self.slots.acquire(blocking=False):
+            with contextlib.suppress(OSError):
+                request.sendall(b"HTTP/1.0 503 Service Unavailable\r\nContent-Length: 0\r\n"
+                                b"Connection: close\r\n\r\n")
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.slots.release()
 
 
 class MetricsServer:
@@ -35,11 +65,10 @@ class MetricsServer:
         self.healthy = healthy
         handler = _handler_for(self)
         try:
-            self._server = ThreadingHTTPServer(address, handler)
+            self._server = _BoundedServer(address, handler)
         except OSError as exc:
             raise ConfigError(f"http.listen: cannot listen on {address[0]}:{address[1]}: {exc.strerror or exc}") \
                 from None
-        self._server.daemon_threads = True
         self.thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.2},
                                        name="edgedsm-http", daemon=True)
 

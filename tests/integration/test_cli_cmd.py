@@ -58,6 +58,14 @@ def test_cmd_exit_status_says_accepted_refused_or_no_reply(tmp_path: Path, broke
     silent = _cmd("publish_maps", "--broker", broker_arg, "--timeout", "1")  # default device: nobody there
     assert silent.returncode == 2 and "no reply from edgedsm/camera1 within 1 s" in silent.stderr
 
+    watch = subprocess.run([sys.executable, "-m", "edgedsm", "watch", "--host", "127.0.0.1", "--port",
+                            str(broker.port), "--timeout", "3"], capture_output=True, text=True, env=child_env(),
+                           timeout=WAIT_S + 20)
+    assert watch.returncode == 0, watch.stderr
+    assert "watching edgedsm/camera1 (default device name" in watch.stderr
+    assert "no daemon has published on edgedsm/camera1 (no availability); devices seen under edgedsm/: line3" \
+        in watch.stdout
+
     bad = _cmd("laser", "--device", "line3", "--broker", broker_arg, "--args", "[1]")
     assert bad.returncode == 65 and "--args must be a JSON object" in bad.stderr
     assert daemon.process.poll() is None  # still measuring

@@ -170,3 +170,27 @@ def test_the_grafana_dashboard_uses_only_metrics_the_daemon_exposes(sink: Metric
     used = {name for panel in dashboard["panels"] for target in panel["targets"]
             for name in re.findall(r"edgedsm_[a-z_]+", target["expr"])}
     assert len(used) >= 10 and used <= exposed, used - exposed
+
+
+def test_a_connection_flood_is_answered_503_and_serving_resumes(sink: MetricsSink) -> None:
+    import time
+
+    from edgedsm.publish.http_server import MAX_CLIENTS
+
+    assert sink.server is not None
+    sink.frame_taken(_frame(1), 1)
+    idle = [socket.create_connection(("127.0.0.1", sink.server.port)) for _ in range(MAX_CLIENTS)]
+    try:
+        deadline = time.monotonic() + 5
+        answer = _get(sink, "/healthz")
+        while answer != (503, b"") and time.monotonic() < deadline:  # slots taken as connections are accepted
+            answer = _get(sink, "/healthz")
+        assert answer == (503, b"")  # refused at once: no body, no thread
+    finally:
+        for connection in idle:
+            connection.close()
+    deadline = time.monotonic() + 5
+    answer = _get(sink, "/healthz")
+    while answer[0] != 200 and time.monotonic() < deadline:  # the idle handlers see EOF and free their slots
+        answer = _get(sink, "/healthz")
+    assert answer[0] == 200
