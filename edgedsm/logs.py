@@ -1,9 +1,12 @@
 """Log lines of the daemon: plain (journald priorities when stderr is the journal) or JSON lines.
 
 - When systemd connects stderr to the journal it sets ``JOURNAL_STREAM=<device>:<inode>`` of that
-  stream; if it matches our stderr, every line starts with ``<N>`` (sd-daemon(3) priorities), so
-  ``journalctl -p warning`` finds warnings, errors and transitions. A traceback's every line
-  carries the prefix: journald reads each line as its own entry.
+  stream; if it matches our stderr, records go to the journal's native socket
+  (systemd.journal-fields(7)): ``PRIORITY``, ``MESSAGE`` (a traceback kept in the same entry),
+  ``LOGGER``, ``CODE_*`` and, on transitions, ``REGION`` and ``STATE`` (``journalctl
+  REGION=panel``). A record the socket refuses, or no socket, falls back to stderr lines that
+  start with ``<N>`` (sd-daemon(3) priorities), every line of a traceback included, so
+  ``journalctl -p warning`` finds warnings, errors and transitions either way.
 - ``json_lines``: one JSON object per record; an exception's traceback is kept under
   ``exception``; ``extra={"region": ..., "state": ...}`` fields are kept under their names.
 """
@@ -13,12 +16,17 @@ from __future__ import annotations
 import json
 import logging
 import os
+import socket
+import struct
 import sys
 
 #: sd-daemon(3) priorities by logging level.
 _PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3, logging.CRITICAL: 2}
-#: ``extra`` fields a record may carry into a JSON line (transitions name the region and state).
+#: ``extra`` fields a record may carry into a JSON line or a journal entry (transitions name the
+#: region and the state entered).
 STRUCTURED_FIELDS = ("region", "state")
+#: journald's native protocol socket (systemd.journal-fields(7), sd_journal_sendv(3)).
+JOURNAL_SOCKET = "/run/systemd/journal/socket"
 
 
 def priority(levelno: int) -> int:
@@ -69,17 +77,67 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(line, default=str)
 
 
+def journal_field(name: str, value: object) -> bytes:
+    """One field of the native protocol: ``NAME=value\\n``, or the length-prefixed form for a
+    value with a newline (a traceback)."""
+    data = str(value).encode("utf-8", "replace")
+    if b"\n" not in data:
+        return name.encode() + b"=" + data + b"\n"
+    return name.encode() + b"\n" + struct.pack("<Q", len(data)) + data + b"\n"
+
+
+class JournalHandler(logging.Handler):
+    """Sends each record to journald as one entry with fields; ``fallback`` takes it when the
+    socket refuses (too large, journald restarting)."""
+
+    def __init__(self, path: str, fallback: logging.Handler, identifier: str = "edgedsm") -> None:
+        super().__init__()
+        self.path = path
+        self.fallback = fallback
+        self.identifier = identifier
+        self.socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+
+    def entry(self, record: logging.LogRecord) -> bytes:
+        message = record.getMessage()
+        if record.exc_info:
+            message += "\n" + logging.Formatter().formatException(record.exc_info)
+        fields = [journal_field("MESSAGE", message), journal_field("PRIORITY", priority(record.levelno)),
+                  journal_field("SYSLOG_IDENTIFIER", self.identifier), journal_field("LOGGER", record.name),
+                  journal_field("CODE_FILE", record.pathname), journal_field("CODE_LINE", record.lineno),
+                  journal_field("CODE_FUNC", record.funcName)]
+        fields += [journal_field(name.upper(), getattr(record, name)) for name in STRUCTURED_FIELDS
+                   if hasattr(record, name)]
+        return b"".join(fields)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.socket.sendto(self.entry(record), self.path)
+        except OSError:
+            self.fallback.handle(record)
+        except Exception:
+            self.handleError(record)
+
+    def close(self) -> None:
+        self.socket.close()
+        super().close()
+
+
 def configure_logging(level: str, json_lines: bool) -> None:
     """Route the root logger to stderr in the configured format (replacing earlier handlers)."""
-    handler = logging.StreamHandler(sys.stderr)
+    handler: logging.Handler = logging.StreamHandler(sys.stderr)
     # journald adds its own timestamps; keep lines short
     plain = "%(levelname)s %(name)s: %(message)s"
     if json_lines:
         handler.setFormatter(JsonFormatter())
     elif stderr_is_journal():
         handler.setFormatter(JournalFormatter(plain))
+        if os.path.exists(JOURNAL_SOCKET):
+            handler = JournalHandler(JOURNAL_SOCKET, fallback=handler)
     else:
         handler.setFormatter(logging.Formatter(plain))
     root = logging.getLogger()
+    for old in root.handlers:
+        if isinstance(old, JournalHandler):
+            old.close()  # its socket
     root.handlers[:] = [handler]
     root.setLevel(level.upper())

@@ -55,6 +55,7 @@ class MetricsSink:
         self._monotonic = monotonic
         self._lock = threading.Lock()
         self._stats: Stats | None = None
+        self._report: StateReport | None = None
         self._frames_seen = 0
         self._last_frame_t: float | None = None
         self._push_s: deque[float] = deque(maxlen=ENGINE_FRAMES)
@@ -85,7 +86,9 @@ class MetricsSink:
 
     # -- the Sink protocol ---------------------------------------------------------------------------
     def publish_state(self, report: StateReport) -> None:
-        return None  # the stats carry every region's state, at every evaluation
+        # the stats carry every region's state at every evaluation; the report adds time to dry
+        with self._lock:
+            self._report = report
 
     def publish_alert(self, alert: Alert) -> None:
         return None
@@ -125,10 +128,17 @@ class MetricsSink:
 
     def families(self) -> Iterator[GaugeMetricFamily | CounterMetricFamily]:
         with self._lock:
-            stats = self._stats
+            stats, report = self._stats, self._report
             pushes, push_total = self._pushes, self._push_total_s
             recent = list(self._push_s)
         yield from _stats_families(stats)
+        time_to_dry = GaugeMetricFamily("edgedsm_region_time_to_dry_seconds",
+                                        "extrapolated time until the region is dry (as of the last state report)",
+                                        labels=["region"])
+        for region, state in sorted(report.regions.items()) if report is not None else ():
+            if state.time_to_dry_s is not None:
+                time_to_dry.add_metric([region], state.time_to_dry_s)
+        yield time_to_dry
         engine = GaugeMetricFamily("edgedsm_engine_ms_per_frame",
                                    f"engine cost of one frame, ms (mean of the last {ENGINE_FRAMES} frames)")
         engine.add_metric([], 1000 * sum(recent) / len(recent) if recent else math.nan)

@@ -5,12 +5,15 @@ from __future__ import annotations
 import json
 import logging
 import os
+import socket
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from edgedsm.commands.run import configure_logging
+from edgedsm.logs import JournalHandler
 
 
 class Stderr:
@@ -24,7 +27,8 @@ class Stderr:
 
 
 @pytest.fixture
-def stream(capsys: pytest.CaptureFixture[str]) -> Iterator[Stderr]:
+def stream(capsys: pytest.CaptureFixture[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Stderr]:
+    monkeypatch.setattr("edgedsm.logs.JOURNAL_SOCKET", str(tmp_path / "no-journal-here"))
     yield Stderr(capsys)
     logging.getLogger().handlers.clear()
 
@@ -97,3 +101,67 @@ def test_no_prefix_when_stderr_is_not_the_journal(stream: Stderr, monkeypatch: p
     configure_logging("info", json_lines=False)
     logging.getLogger("edgedsm.test").warning("hello")
     assert stream.getvalue() == "WARNING edgedsm.test: hello\n"
+
+
+def _fields(datagram: bytes) -> dict[str, str]:
+    """Parse the journal's native protocol (both field forms)."""
+    fields: dict[str, str] = {}
+    rest = datagram
+    while rest:
+        line, _, after = rest.partition(b"\n")
+        if b"=" in line:
+            name, _, value = line.partition(b"=")
+            fields[name.decode()] = value.decode()
+            rest = after
+        else:
+            size = struct.unpack("<Q", after[:8])[0]
+            fields[line.decode()] = after[8:8 + size].decode()
+            rest = after[8 + size + 1:]
+    return fields
+
+
+@pytest.fixture
+def journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[socket.socket]:
+    path = tmp_path / "journal.socket"
+    receiver = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    receiver.bind(str(path))
+    receiver.settimeout(5)
+    monkeypatch.setattr("edgedsm.logs.JOURNAL_SOCKET", str(path))
+    monkeypatch.setenv("JOURNAL_STREAM", "8:42")
+    monkeypatch.setattr("edgedsm.logs.stderr_identity", lambda: "8:42")
+    yield receiver
+    receiver.close()
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, JournalHandler):
+            handler.close()
+    logging.getLogger().handlers.clear()
+
+
+def test_the_journal_gets_one_entry_with_priority_region_and_state(journal: socket.socket) -> None:
+    configure_logging("info", json_lines=False)
+    logging.getLogger("edgedsm.daemon.evaluation").warning("region %s: wet -> drying", "panel",
+                                                           extra={"region": "panel", "state": "drying"})
+    fields = _fields(journal.recv(65536))
+    assert fields["MESSAGE"] == "region panel: wet -> drying"
+    assert (fields["PRIORITY"], fields["REGION"], fields["STATE"]) == ("4", "panel", "drying")
+    assert fields["LOGGER"] == "edgedsm.daemon.evaluation" and fields["SYSLOG_IDENTIFIER"] == "edgedsm"
+
+
+def test_a_traceback_stays_in_its_journal_entry(journal: socket.socket) -> None:
+    configure_logging("info", json_lines=False)
+    try:
+        raise KeyError("lost")
+    except KeyError:
+        logging.getLogger("edgedsm.test").exception("failed")
+    fields = _fields(journal.recv(65536))
+    assert fields["PRIORITY"] == "3"
+    assert fields["MESSAGE"].startswith("failed\nTraceback (most recent call last)")
+    assert fields["MESSAGE"].endswith("KeyError: 'lost'")
+
+
+def test_a_journal_that_refuses_falls_back_to_prefixed_stderr(journal: socket.socket,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    configure_logging("info", json_lines=False)
+    journal.close()  # the path is still there, nobody reads: sendto fails
+    logging.getLogger("edgedsm.test").error("still logged")
+    assert capsys.readouterr().err == "<3>ERROR edgedsm.test: still logged\n"

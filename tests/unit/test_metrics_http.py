@@ -92,6 +92,17 @@ def test_metrics_carry_the_latest_stats_probes_and_link(sink: MetricsSink) -> No
     assert samples[("edgedsm_engine_push_seconds_total", ())] == pytest.approx(0.006)
 
 
+def test_time_to_dry_comes_from_the_state_report(sink: MetricsSink) -> None:
+    from edgedsm.messages import RegionState, StateReport
+
+    sink.publish_state(StateReport(t=1.0, estimator="s2", regions={
+        "panel": RegionState(region="panel", state="drying", since=0.0, time_to_dry_s=75.0),
+        "edge": RegionState(region="edge", state="wet", since=0.0)}))
+    samples = _samples(_get(sink, "/metrics")[1])
+    assert samples[("edgedsm_region_time_to_dry_seconds", (("region", "panel"),))] == 75.0
+    assert ("edgedsm_region_time_to_dry_seconds", (("region", "edge"),)) not in samples
+
+
 def test_a_state_change_moves_the_one(sink: MetricsSink) -> None:
     sink.publish_stats(_stats(10, state="wet", laser="unknown"))
     sink.publish_stats(_stats(20, state="dry", laser="unknown"))
