@@ -75,7 +75,11 @@ def make_sink(config: DaemonConfig, on_command: CommandHandler) -> Sink:
     if config.http is not None:
         from edgedsm.publish.prometheus import MetricsSink
 
-        sinks.append(MetricsSink(config.http.stale_after_s, link=link).serve(config.http.address))
+        try:
+            sinks.append(MetricsSink(config.http.stale_after_s, link=link).serve(config.http.address))
+        except ConfigError:
+            FanOut(sinks).close(1.0)  # the port is taken: release what was started
+            raise
     return FanOut(sinks if link is not None else [LogSink(), *sinks]) if sinks else LogSink()
 
 
