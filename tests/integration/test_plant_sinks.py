@@ -178,3 +178,37 @@ def test_a_region_removed_from_the_config_loses_its_entities_at_the_next_start(
     assert not [topic for topic in _configs(later) if "/plate_" in topic]
     removed = [m.topic for m in watcher.messages if not m.payload]
     assert old in removed and f"{PREFIX}/sensor/edgedsm_e2e/plate_s2/config" in removed
+
+
+@pytest.mark.timeout(60)
+def test_new_estimators_appear_and_home_assistant_restarting_gets_every_config_again(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber]) -> None:
+    import paho.mqtt.publish as single
+
+    from edgedsm.messages import MapStats, Stats
+    from edgedsm.publish.homeassistant import HomeAssistantSink
+    from edgedsm.publish.settings import MqttSettings
+
+    settings = MqttSettings(host="127.0.0.1", port=broker.port, device="line3", reconnect_min_s=0.1,
+                            reconnect_max_s=0.5)
+    watcher = subscribers(broker.port, [f"{PREFIX}/#"])
+    sink = HomeAssistantSink(settings, PREFIX, ["panel"], tmp_path / "state", colormap=None, password="").start()
+    try:
+        wait_until(lambda: sink.connected and len(_configs(watcher)) == 4, WAIT_S, "the static entities")
+        one = MapStats(pixels=4, mean=0.2, std=0.1, p05=0.1, median=0.2, p95=0.3)
+        stats = Stats(t=1.0, frames=5, ready=True, fps=10.0, laser="on", estimator="s2",
+                      regions={"panel": {"s2": one, "tau_c": one}, "ghost": {"s2": one}})
+        sink.publish_stats(stats)
+        tau = f"{PREFIX}/sensor/edgedsm_line3/panel_tau_c/config"
+        wait_until(lambda: tau in _configs(watcher), WAIT_S, "the tau_c sensor")
+        assert len(_configs(watcher)) == 6  # panel s2 and tau_c; 'ghost' is not a configured region
+        assert _configs(watcher)[tau]["name"] == "panel TAU_C"
+        before = len(watcher.messages)
+        single.single(f"{PREFIX}/status", b"online", hostname="127.0.0.1", port=broker.port)
+        again = lambda: {m.topic for m in watcher.messages[before:] if m.topic.endswith("/config")}  # noqa: E731
+        wait_until(lambda: len(again()) >= 6, WAIT_S, "every config again")
+        assert again() == set(_configs(watcher))
+        remembered = json.loads((tmp_path / "state" / "homeassistant-line3.json").read_text())
+        assert remembered[tau] == "panel" and len(remembered) == 6
+    finally:
+        sink.close(1.0)
