@@ -96,8 +96,13 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
 
     # a subscriber arriving later gets every config, retained
     late = subscribers(broker.port, [f"{PREFIX}/#", f"{topics.maps_filter}/color"])
-    wait_until(lambda: len(_configs(late)) >= 10, WAIT_S, "retained discovery configs")
-    assert all(m.retain for m in late.messages)
+    colour_topics = [topics.map(name) + "/color" for name in ("s1", "s2", "s3")]
+    wait_until(lambda: len(_configs(late)) >= 10 and all(late.on(topic) for topic in colour_topics), WAIT_S,
+               "retained discovery configs and colour maps")
+    first: dict[str, Received] = {}
+    for message in late.messages:
+        first.setdefault(message.topic, message)
+    assert all(m.retain for m in first.values())  # later copies (a new map) arrive live, not retained
     configs = _configs(late)
     kinds = sorted(topic.split("/")[1] for topic in configs)
     assert kinds == ["binary_sensor", "binary_sensor", "image", "image", "image", "sensor", "sensor", "sensor",
@@ -108,7 +113,7 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     # every referenced topic carries a value the template turns into a valid state
     for topic, entity in configs.items():
         if "image_topic" in entity:
-            png = _last(late, entity["image_topic"])
+            png = first.get(entity["image_topic"])
             assert png is not None and png.retain, entity["image_topic"]  # a viewer starting later sees it
             image = cv2.imdecode(np.frombuffer(png.payload, np.uint8), cv2.IMREAD_UNCHANGED)
             assert image.dtype == np.uint8 and image.shape[2] == 3
