@@ -15,8 +15,8 @@ import sys
 from edgedsm import __version__
 from edgedsm.errors import ConfigError, DataError, DeviceError, EdgedsmError
 
-COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "probe",
-            "init")
+COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "cmd",
+            "probe", "init")
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2

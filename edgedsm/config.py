@@ -22,12 +22,12 @@ from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_cam
 from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.drying import Thresholds
 from edgedsm.errors import ConfigError
-from edgedsm.publish.settings import MqttSettings
+from edgedsm.publish.settings import DEFAULT_DEVICE, TOPIC_PREFIX_PATTERN, MqttSettings
 from edgedsm.validation import StrictModel, read_toml, validate
 
 
 class DeviceSection(StrictModel):
-    name: str = Field("camera1", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$",
+    name: str = Field(DEFAULT_DEVICE, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$",
                       description="instance name; the MQTT topics are <prefix>/<name>/...")
     state_dir: Path = Field(default_factory=lambda: Path(os.environ.get("STATE_DIRECTORY", "/var/lib/edgedsm")),
                             description="durable state (alert queue); default: systemd's $STATE_DIRECTORY")
@@ -210,6 +210,37 @@ class LoggingSection(StrictModel):
     json_lines: bool = Field(False, description="one JSON object per log line (for log shippers)")
 
 
+class HomeAssistantSection(StrictModel):
+    """``[homeassistant]``: MQTT discovery of this device's entities (needs ``[mqtt]``)."""
+
+    discovery_prefix: str = Field("homeassistant", min_length=1, max_length=128, pattern=TOPIC_PREFIX_PATTERN,
+                                  description="Home Assistant's discovery prefix (its MQTT integration setting)")
+    color_maps: bool = Field(True, description="publish colour-mapped 8-bit PNG maps on <base>/map/<name>/color "
+                                               "(with a colour bar) and announce them as image entities")
+    colormap: Literal["turbo", "viridis", "inferno", "jet"] = Field("turbo", description="OpenCV colour map")
+
+
+class HttpSection(StrictModel):
+    """``[http]``: Prometheus ``/metrics`` and ``/healthz`` on a small HTTP server."""
+
+    listen: str = Field("127.0.0.1:9108", min_length=3, max_length=64, pattern=r"^[^\s:]+:\d{1,5}$",
+                        description="HOST:PORT to listen on (127.0.0.1 keeps it on this machine)")
+    stale_after_s: float = Field(10.0, gt=0, le=3600,
+                                 description="/healthz says 503 when no frame arrived for this long")
+
+    @field_validator("listen")
+    @classmethod
+    def _port_in_range(cls, value: str) -> str:
+        if not 1 <= int(value.rpartition(":")[2]) <= 65535:
+            raise ValueError("the port must be 1..65535")
+        return value
+
+    @property
+    def address(self) -> tuple[str, int]:
+        host, _, port = self.listen.rpartition(":")
+        return host, int(port)
+
+
 def _default_regions() -> list[RegionSection]:
     return [FullArea(name="full", wet_above=0.9, dry_below=0.5)]
 
@@ -224,6 +255,8 @@ class DaemonConfig(StrictModel):
         default_factory=_default_regions, description="regions of interest, each with drying thresholds")
     mqtt: MqttSettings | None = Field(None, description="broker; absent = no publishing")
     logging: LoggingSection = Field(default_factory=LoggingSection)
+    homeassistant: HomeAssistantSection | None = Field(None, description="Home Assistant discovery; absent = off")
+    http: HttpSection | None = Field(None, description="metrics and health over HTTP; absent = off")
     _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
     _source: str = PrivateAttr("")
 
@@ -247,6 +280,8 @@ class DaemonConfig(StrictModel):
             raise ValueError("bursts mode: burst_frames must be >= estimator.window")
         if self.mqtt is not None and "device" not in self.mqtt.model_fields_set:
             self.mqtt.device = self.device.name  # one name for the instance, its logs and its topics
+        if self.homeassistant is not None and self.mqtt is None:
+            raise ValueError("[homeassistant] needs [mqtt]: discovery is published on the broker")
         return self
 
 

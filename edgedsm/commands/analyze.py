@@ -13,6 +13,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="MAP.npy", help="float64 map as .npy")
     parser.add_argument("--png", nargs="?", const=True, metavar="PNG",
                         help="also write a colour-mapped picture (default: MAP.png beside the .npy)")
+    parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,9 +60,16 @@ def run(args: argparse.Namespace) -> int:
     np.save(output, result)
     message = (f"{args.estimator.upper()} from frames {args.start}..{args.start + window - 1}, lag {args.lag}: "
                f"mean {result.mean():.4g}, min {result.min():.4g}, max {result.max():.4g} -> {output}")
+    png = None
     if args.png:
         png = output.with_suffix(".png") if args.png is True else Path(args.png)
         save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}  m={args.lag}")
         message += f", {png}"
-    print(message)
+    if args.json:
+        print(json.dumps({"estimator": args.estimator, "start": args.start, "window": window, "lag": args.lag,
+                          "shape": list(result.shape), "mean": float(result.mean()), "min": float(result.min()),
+                          "max": float(result.max()), "output": str(output),
+                          "png": str(png) if png is not None else None}))
+    else:
+        print(message)
     return 0

@@ -24,6 +24,8 @@ HELP = "validate a daemon configuration file (exit 78 when bad)"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", nargs="?", metavar="CONFIG", help="daemon configuration (TOML)")
     parser.add_argument("--schema", action="store_true", help="print the JSON Schema of the configuration")
+    parser.add_argument("--json", action="store_true",
+                        help="print the summary as one JSON object (errors still go to stderr, exit 78)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,7 +41,22 @@ def run(args: argparse.Namespace) -> int:
     frame_shape = known_frame_shape(config.camera.spec)
     if frame_shape is not None:
         check_regions(config, frame_shape)
-    mqtt = f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else "none (log only)"
+    from edgedsm.publish.topics import Topics
+
+    base = Topics.from_settings(config.mqtt).base if config.mqtt else None
+    if args.json:
+        print(json.dumps({
+            "config": args.config, "ok": True, "device": config.device.name, "topic_base": base,
+            "camera": config.camera.uri, "laser": config.laser.uri if config.laser else None,
+            "estimator": {"activity": config.estimator.activity, "window": config.estimator.window,
+                          "lag": config.estimator.lag, "mode": config.estimator.mode},
+            "regions": [region.name for region in config.regions],
+            "frame_shape": list(frame_shape) if frame_shape is not None else None,
+            "mqtt": f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else None,
+            "homeassistant": config.homeassistant.discovery_prefix if config.homeassistant else None,
+            "http": config.http.listen if config.http else None}))
+        return 0
+    mqtt = f"{config.mqtt.host}:{config.mqtt.port}, topics {base}/..." if config.mqtt else "none (log only)"
     regions = (f"{len(config.regions)} region(s) inside the {frame_shape[1]}x{frame_shape[0]} frame"
                if frame_shape is not None else f"{len(config.regions)} region(s) (frame size known at start)")
     print(f"{args.config}: OK — camera {config.camera.uri}, laser {config.laser.uri if config.laser else 'none'}, "

@@ -25,7 +25,11 @@ Exit status: 0 frames grabbed, 1 no camera or no frames, 78 bad CAMERA_URI.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
+import json
+import math
+import sys
 import time
 
 import numpy as np
@@ -70,6 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--exposure", type=_positive_float, metavar="MICROSECONDS",
                         help="set the exposure first (µs)")
     parser.add_argument("--frame-rate", type=_positive_float, metavar="FPS", help="set the frame rate first")
+    parser.add_argument("--json", action="store_true",
+                        help="print the measurements as one JSON object on stdout (the lines go to stderr)")
 
 
 def _say(text: str) -> None:
@@ -114,6 +120,21 @@ def summarize(frames: list[Frame], seconds: float) -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.json:
+        _probe(args)
+        return 0
+    with contextlib.redirect_stdout(sys.stderr):  # the readable lines go to stderr, the JSON alone to stdout
+        result = _probe(args)
+    print(json.dumps(result, default=_json_number))
+    return 0
+
+
+def _json_number(value: object) -> object:
+    return None if isinstance(value, float) and not math.isfinite(value) else str(value)
+
+
+def _probe(args: argparse.Namespace) -> dict[str, object]:
+    """Probe the camera, printing as it goes; returns what was measured."""
     spec = parse_camera_uri(args.uri)
     list_visible(spec)
     camera = open_camera(spec)
@@ -155,4 +176,8 @@ def run(args: argparse.Namespace) -> int:
             _say("stream counters: " + ", ".join(f"{k.removeprefix('n_')} {v}" for k, v in shown.items()))
         if stats["saturated"] > 0.001:
             _say("warning: more than 0.1 % of the pixels are saturated; lower the exposure or laser power")
-    return 0
+    finite = {key: (value if math.isfinite(value) else None) for key, value in stats.items()}
+    return {"uri": spec.uri, "camera": camera.description, "width": width, "height": height,
+            "format": describe_format(camera, frames[0]), "bits": frames[0].bits, "frames": len(frames),
+            "first_seq": frames[0].seq, "last_seq": frames[-1].seq, "missing_upstream": gaps,
+            "driver_counters": counters, **finite}

@@ -12,10 +12,7 @@ Example:
 from __future__ import annotations
 
 import argparse
-import json
-import logging
 import os
-import sys
 
 NAME = "run"
 HELP = "run the measurement daemon (systemd service)"
@@ -25,22 +22,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-c", "--config", required=True, metavar="CONFIG", help="daemon configuration (TOML)")
 
 
-class _JsonFormatter(logging.Formatter):
-    def format(self, record: logging.LogRecord) -> str:
-        return json.dumps({"t": record.created, "level": record.levelname.lower(), "logger": record.name,
-                           "message": record.getMessage()})
-
-
 def configure_logging(level: str, json_lines: bool) -> None:
-    handler = logging.StreamHandler(sys.stderr)
-    if json_lines:
-        handler.setFormatter(_JsonFormatter())
-    else:
-        # journald adds its own timestamps; keep lines short
-        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
-    root = logging.getLogger()
-    root.handlers[:] = [handler]
-    root.setLevel(level.upper())
+    """See :func:`edgedsm.logs.configure_logging`."""
+    from edgedsm.logs import configure_logging as configure
+
+    configure(level, json_lines)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -64,6 +64,9 @@ NAME = "watch"
 HELP = "print a daemon's availability, state changes and alerts live (MQTT subscriber)"
 
 CONNECT_WAIT_S = 10.0
+#: After this long connected without any availability on our base, say so (retained: it is
+#: there at once when a daemon ever ran under this name).
+SILENCE_HINT_S = 2.0
 EXCERPT_CHARS = 80  # of an unreadable payload, shown beside the reason
 
 
@@ -86,7 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     conn.add_argument("--host", help="broker host (default localhost)")
     conn.add_argument("--port", type=int, help="broker port (default 1883)")
     conn.add_argument("--prefix", dest="topic_prefix", metavar="PREFIX", help="topic prefix (default edgedsm)")
-    conn.add_argument("--device", help="device name in the topics (default cam0)")
+    conn.add_argument("--device", help="device in the topics (default: the config's, else camera1 as the daemon)")
     conn.add_argument("--username", help="user name; the password is read from $EDGEDSM_MQTT_PASSWORD")
     conn.add_argument("--tls", action="store_true", help="use TLS (implied by --ca-file/--cert-file)")
     conn.add_argument("--ca-file", type=Path, help="CA certificate(s) of the broker (PEM)")
@@ -103,6 +106,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     stop = parser.add_argument_group("stopping")
     stop.add_argument("--count", type=_positive(int, 1), metavar="N", help="exit after N distinct alerts")
     stop.add_argument("--timeout", type=_positive(float, 0.0), metavar="S", help="exit after S seconds")
+    out.add_argument("--json", action="store_true", help="one JSON object per event (for scripts)")
 
 
 def settings_from_args(args: argparse.Namespace) -> MqttSettings:
@@ -155,8 +159,9 @@ class Watcher:
 
     def __init__(self, settings: MqttSettings, *, password: str | None, client_id: str | None = None,
                  save_maps: Path | None = None, show_stats: bool = False, count: int | None = None,
-                 emit: Callable[[str], None] | None = None) -> None:
+                 emit: Callable[[str], None] | None = None, json_lines: bool = False) -> None:
         self.settings = settings
+        self.json_lines = json_lines
         self.topics = Topics.from_settings(settings)
         self.password = password
         self.save_maps = save_maps
@@ -168,6 +173,8 @@ class Watcher:
         self.connected = threading.Event()
         self.refusal: str | None = None
         self._availability: str | None = None
+        self.others: set[str] = set()  # other devices with an availability under the same prefix
+        self._hinted = False
         self._states: dict[str, str] = {}
         self._metas: dict[str, dict[str, Any]] = {}
         self._pngs: dict[str, bytes] = {}
@@ -201,6 +208,28 @@ class Watcher:
         stopper.start()
         stopper.join(timeout=2.0)
 
+    @property
+    def _all_availability(self) -> str:
+        return f"{self.topics.prefix}/+/availability"
+
+    def hint_if_silent(self) -> None:
+        """Once: say so when no daemon ever published on this base, and which devices did."""
+        if self._hinted or self._availability is not None or not self.connected.is_set():
+            return
+        self._hinted = True
+        seen = ", ".join(sorted(self.others)) or "none"
+        self._event("silence", f"no daemon has published on {self.topics.base} (no availability); devices "
+                               f"seen under {self.topics.prefix}/: {seen}", label="connection",
+                    base=self.topics.base, devices=sorted(self.others))
+
+    def _event(self, kind: str, text: str, *, label: str | None = None, **data: Any) -> None:
+        """One line: ``<time>  <label>  <text>``, or with ``json_lines`` one JSON object
+        (``time``: UTC epoch s of arrival, ``event``: the kind, then the event's own fields)."""
+        if self.json_lines:
+            self.emit(json.dumps({"time": time.time(), "event": kind, **data}, default=str))
+        else:
+            self.emit(f"{_now()}  {label or kind:<13} {text}")
+
     # -- callbacks (paho's thread) --------------------------------------------------------------
 
     def _on_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
@@ -208,29 +237,35 @@ class Watcher:
         if reason.is_failure:
             self.refusal = describe_refusal(reason, self.settings, self.password is not None)
             return
-        topics = [self.topics.availability, self.topics.state, self.topics.alerts, self.topics.replies_filter]
+        topics = [self.topics.availability, self.topics.state, self.topics.alerts, self.topics.replies_filter,
+                  self._all_availability]
         if self.show_stats:
             topics.append(self.topics.stats)
         if self.save_maps is not None:
             topics += [self.topics.maps_filter, f"{self.topics.maps_filter}/meta"]
         client.subscribe([(topic, 1) for topic in topics])
         if self.connected.is_set() or getattr(flags, "session_present", False):
-            self.emit(f"{_now()}  connection    re-established to {self.settings.host}:{self.settings.port}")
+            self._event("connection", f"re-established to {self.settings.host}:{self.settings.port}",
+                        status="re-established", broker=f"{self.settings.host}:{self.settings.port}",
+                        base=self.topics.base)
         else:
-            self.emit(f"{_now()}  connection    {self.settings.host}:{self.settings.port}, "
-                      f"watching {self.topics.base}")
+            self._event("connection", f"{self.settings.host}:{self.settings.port}, watching {self.topics.base}",
+                        status="connected", broker=f"{self.settings.host}:{self.settings.port}",
+                        base=self.topics.base)
         self.connected.set()
 
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
                        properties: Properties | None) -> None:
         if self.connected.is_set() and not self.done.is_set():
-            self.emit(f"{_now()}  connection    lost ({reason}); reconnecting")
+            self._event("connection", f"lost ({reason}); reconnecting", status="lost", reason=str(reason))
 
     def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
         topic = message.topic
         try:
             if topic == self.topics.availability:
                 self._availability_message(message.payload.decode("utf-8", "replace"), message.retain)
+            elif mqtt.topic_matches_sub(self._all_availability, topic):
+                self.others.add(topic[len(self.topics.prefix) + 1:-len("/availability")])
             elif topic == self.topics.state:
                 self._state_message(StateReport.model_validate_json(message.payload))
             elif topic == self.topics.alerts:
@@ -249,14 +284,15 @@ class Watcher:
     def _unreadable(self, topic: str, payload: bytes, reason: str) -> None:
         excerpt = payload[:EXCERPT_CHARS].decode("utf-8", "replace")
         more = "..." if len(payload) > EXCERPT_CHARS else ""
-        self.emit(f"{_now()}  unreadable    {topic}: {reason}: {excerpt!r}{more}")
+        self._event("unreadable", f"{topic}: {reason}: {excerpt!r}{more}", topic=topic, reason=reason)
 
     # -- one handler per kind of message --------------------------------------------------------
 
     def _availability_message(self, value: str, retained: bool) -> None:
         if value != self._availability:
             self._availability = value
-            self.emit(f"{_now()}  availability  {value}{' (retained)' if retained else ''}")
+            self._event("availability", f"{value}{' (retained)' if retained else ''}", value=value,
+                        retained=retained)
 
     def _state_message(self, report: StateReport) -> None:
         for name, region in report.regions.items():
@@ -266,7 +302,7 @@ class Watcher:
             self._states[name] = region.state
             detail = f" (activity {_number(region.activity)})" if region.activity is not None else ""
             change = f"{previous} -> {region.state}" if previous is not None else region.state
-            self.emit(f"{_now()}  state         {name}: {change}{detail}")
+            self._event("state", f"{name}: {change}{detail}", **{"from": previous}, **region.to_json())
 
     def _alert_message(self, alert: Alert) -> None:
         key = (alert.stream, alert.seq)
@@ -282,7 +318,7 @@ class Watcher:
         if alert.reason:
             parts.append(f"- {alert.reason}")
         label = f"alert #{alert.seq if alert.seq is not None else '?'}"
-        self.emit(f"{_now()}  {label:<13} {' '.join(parts)}")
+        self._event("alert", " ".join(parts), label=label, alert=alert.to_json())
         if self.count is not None and len(self.alerts_seen) >= self.count:
             self.done.set()
 
@@ -294,12 +330,12 @@ class Watcher:
             parts.append(f"warning: {stats.warning}")
         if stats.mqtt and stats.mqtt.get("storage_error"):
             parts.append(f"storage: {stats.mqtt['storage_error']}")
-        self.emit(f"{_now()}  stats         {', '.join(parts)}")
+        self._event("stats", ", ".join(parts), stats=stats.to_json())
 
     def _reply_message(self, reply: CommandReply) -> None:
         outcome = "ok" if reply.ok else f"refused: {reply.error}"
         rid = f" (request {reply.request_id})" if reply.request_id is not None else ""
-        self.emit(f"{_now()}  command       {reply.command}: {outcome}{rid}")
+        self._event("command", f"{reply.command}: {outcome}{rid}", reply=reply.model_dump(mode="json"))
 
     def _map_message(self, rest: str, payload: bytes) -> None:
         if self.save_maps is None:
@@ -321,7 +357,7 @@ class Watcher:
         except MapCodecError as exc:
             if "CRC" in str(exc):
                 return  # PNG and meta of different updates: wait for the partner
-            self.emit(f"{_now()}  map {name:<9} not decoded: {exc}")
+            self._event("map", f"not decoded: {exc}", label=f"map {name:<9}", name=name, error=str(exc))
             self._metas.pop(name, None)
             self._pngs.pop(name, None)
             return
@@ -331,8 +367,9 @@ class Watcher:
         path = self.save_maps / f"{stem}.png"
         title = f"{name.upper()} seq {seq}" if seq is not None else name.upper()
         save_map_png(path, values, title=title)
-        self.emit(f"{_now()}  map {name:<9} #{seq} {values.shape[0]}x{values.shape[1]} "
-                  f"[{_number(meta.get('min'))}, {_number(meta.get('max'))}] saved to {path}")
+        self._event("map", f"#{seq} {values.shape[0]}x{values.shape[1]} "
+                    f"[{_number(meta.get('min'))}, {_number(meta.get('max'))}] saved to {path}",
+                    label=f"map {name:<9}", name=name, seq=seq, shape=list(values.shape), path=str(path))
 
 
 def _validation_reason(exc: ValidationError) -> str:
@@ -347,12 +384,19 @@ def run(args: argparse.Namespace) -> int:
     if args.save_maps is not None:
         args.save_maps.mkdir(parents=True, exist_ok=True)
     watcher = Watcher(settings, password=resolve_password(), client_id=args.client_id,
-                      save_maps=args.save_maps, show_stats=args.stats, count=args.count)
+                      save_maps=args.save_maps, show_stats=args.stats, count=args.count, json_lines=args.json)
+    if args.config is None and args.device is None:
+        # the daemon's default name: say so, a daemon named otherwise would look silent
+        print(f"edgedsm watch: watching {watcher.topics.base} (default device name; give --device or -c CONFIG "
+              "for another)", file=sys.stderr)
     deadline = None if args.timeout is None else time.monotonic() + args.timeout
     watcher.start(wait_s=CONNECT_WAIT_S if deadline is None else max(0.5, min(CONNECT_WAIT_S, args.timeout)))
     timed_out = False
+    silent_check = time.monotonic() + SILENCE_HINT_S
     try:
         while not watcher.done.is_set():
+            if time.monotonic() >= silent_check:
+                watcher.hint_if_silent()
             remaining = None if deadline is None else deadline - time.monotonic()
             if remaining is not None and remaining <= 0:
                 timed_out = True

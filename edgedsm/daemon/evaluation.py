@@ -262,7 +262,7 @@ class Evaluation:
 
     def _alert(self, transition: Transition) -> Alert:
         log.warning("region %s: %s -> %s (%s)", transition.region, transition.from_state, transition.to_state,
-                    transition.reason)
+                    transition.reason, extra={"region": transition.region, "state": transition.to_state.value})
         return alert_of(transition, self.clock)
 
 

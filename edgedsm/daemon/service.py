@@ -27,6 +27,7 @@ from typing import Any
 from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.notify import Notifier
 from edgedsm.daemon.pipeline import Cadence, Pipeline
+from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.reload import ReloadRefused, check_reload
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
@@ -61,11 +62,36 @@ def make_sink(config: DaemonConfig, on_command: CommandHandler) -> Sink:
     """Where the pipeline's messages go: every configured sink (MQTT JSON when ``[mqtt]`` is set),
     or the log when none is. A new sink is added here; the pipeline does not change."""
     sinks: list[Sink] = []
+    link = None
     if config.mqtt is not None:
         from edgedsm.publish.json_sink import MqttSink
 
-        sinks.append(MqttSink(config.mqtt, config.device.state_dir, on_command).start())
-    return FanOut(sinks) if sinks else LogSink()
+        link = MqttSink(config.mqtt, config.device.state_dir, on_command).start()
+        sinks.append(link)
+    if config.mqtt is not None and config.homeassistant is not None:
+        from edgedsm.publish.homeassistant import HomeAssistantSink
+
+        ha = config.homeassistant
+        sinks.append(HomeAssistantSink(config.mqtt, ha.discovery_prefix, [r.name for r in config.regions],
+                                       config.device.state_dir, colormap=ha.colormap if ha.color_maps else None
+                                       ).start())
+    if config.http is not None:
+        from edgedsm.publish.prometheus import MetricsSink
+
+        try:
+            sinks.append(MetricsSink(config.http.stale_after_s, link=link).serve(config.http.address))
+        except ConfigError:
+            FanOut(sinks).close(1.0)  # the port is taken: release what was started
+            raise
+    return FanOut(sinks if link is not None else [LogSink(), *sinks]) if sinks else LogSink()
+
+
+def probes_for(sink: Sink) -> PipelineProbes:
+    """The pipeline probes the sinks measure with (the metrics' frame arrivals and engine cost)."""
+    for each in getattr(sink, "sinks", [sink]):
+        if hasattr(each, "frame_taken") and hasattr(each, "frame_pushed"):
+            return PipelineProbes(frame_taken=each.frame_taken, frame_pushed=each.frame_pushed)
+    return PipelineProbes()
 
 
 def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
@@ -189,7 +215,8 @@ class Service:
             relay = open_relay(config.laser.spec) if config.laser is not None else None
             couple_simulated_laser(camera, relay)
             pipeline = Pipeline(config, camera, sink, relay=relay,
-                                cadence=self.cadence or self._cadence(config), on_alive=alive)
+                                cadence=self.cadence or self._cadence(config), on_alive=alive,
+                                probes=probes_for(sink))
             holder["pipeline"] = self.pipeline = pipeline
             safety = LaserSafety(relay) if relay is not None else None
             try:

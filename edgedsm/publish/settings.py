@@ -25,7 +25,10 @@ CREDENTIAL_NAME = "mqtt-password"
 
 # A topic level: no MQTT wildcards, no NUL, no empty levels (they confuse subscribers).
 _TOPIC_PREFIX = r"^[^#+/\x00\s]+(/[^#+/\x00\s]+)*$"
+TOPIC_PREFIX_PATTERN = _TOPIC_PREFIX  # for other topic-prefix fields (e.g. [homeassistant])
 _DEVICE = r"^[A-Za-z0-9_.-]{1,64}$"
+#: The one default device name: ``[device] name``, ``[mqtt] device`` and ``edgedsm watch`` agree.
+DEFAULT_DEVICE = "camera1"
 
 
 class MqttTlsSettings(StrictModel):
@@ -66,7 +69,7 @@ class MqttSettings(StrictModel):
                     "Must be unique on the broker: a second client with the same id throws the first off")
     topic_prefix: str = Field("edgedsm", min_length=1, max_length=128, pattern=_TOPIC_PREFIX,
                               description="first topic level(s), e.g. 'plant1/edgedsm'; no wildcards")
-    device: str = Field("cam0", pattern=_DEVICE,
+    device: str = Field(DEFAULT_DEVICE, pattern=_DEVICE,
                         description="this camera's name in the topics (letters, digits, '_', '.', '-')")
     protocol: Literal["3.1.1", "5"] = Field(
         "5", description="MQTT protocol version; '5' also honours a command's response topic")

@@ -632,7 +632,7 @@ def test_watch_timeout_and_count_not_reached(broker):
     quiet = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--timeout", "1")
     out, err = quiet.communicate(timeout=WAIT_S)
     assert quiet.returncode == 0, err
-    assert "watching edgedsm/cam0" in out
+    assert "watching edgedsm/camera1" in out
     short = _watch("--port", str(broker.port), "--host", "127.0.0.1", "--count", "1", "--timeout", "1")
     out, err = short.communicate(timeout=WAIT_S)
     assert short.returncode == 1 and "timed out after 1 s with 0 of 1 alert(s)" in err
@@ -645,7 +645,8 @@ def test_watch_over_tls_with_password_from_environment(secure_broker, publishers
     monkeypatch.setenv("EDGEDSM_MQTT_PASSWORD", "s3cret")
     publisher = publishers(_tls_settings(broker, tls))
     publisher.wait_connected(WAIT_S)
-    common = ["--host", "localhost", "--port", str(broker.port), "--username", "line3", "--ca-file", str(tls.ca),
+    common = ["--host", "localhost", "--port", str(broker.port), "--device", "cam0", "--username", "line3",
+              "--ca-file", str(tls.ca),
               "--cert-file", str(tls.client_cert), "--key-file", str(tls.client_key), "--timeout", "2"]
     good = _watch(*common, env={"EDGEDSM_MQTT_PASSWORD": "s3cret"})
     out, err = good.communicate(timeout=WAIT_S)

@@ -13,7 +13,7 @@ from edgedsm.validation import validate
 def test_defaults_and_derived_client_id():
     settings = MqttSettings()
     assert (settings.host, settings.port, settings.topic_prefix) == ("localhost", 1883, "edgedsm")
-    assert settings.effective_client_id == "edgedsm-cam0"
+    assert settings.effective_client_id == "edgedsm-camera1"
     assert MqttSettings(topic_prefix="plant/a", device="line3").effective_client_id == "plant-a-line3"
     assert MqttSettings(client_id="x1").effective_client_id == "x1"
 

@@ -1,0 +1,114 @@
+"""Home Assistant MQTT discovery payloads for one edgedsm device (pure: topics and JSON only).
+
+Every entity belongs to ONE device (``device`` block: identifiers, name, model, sw_version) and
+is available while ``<base>/availability`` says ``online``. State topics are the daemon's own
+(``docs/mqtt.md``) read with ``value_template``s; nothing is published twice:
+
+- per region: ``<region> state`` (enum sensor, the five states) and ``<region> time to dry``
+  (duration, s) from the retained ``<base>/state``; ``<region> <estimator>`` activity from
+  ``<base>/stats``, one sensor per estimator the stats carry (new estimators appear by themselves);
+- the laser (read-only binary sensor) from ``<base>/stats``; the link (connectivity binary sensor)
+  from ``<base>/availability``;
+- per map: an ``image`` entity on ``<base>/map/<name>/color`` (8-bit colour PNG with colour bar).
+
+Templates render ``None`` for a missing value, which Home Assistant shows as unknown.
+Discovery topics are ``<discovery_prefix>/<component>/<node_id>/<object_id>/config``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from edgedsm import __version__
+from edgedsm.publish.topics import Topics
+
+STATES = ["warming_up", "wet", "drying", "dry", "fault"]
+
+
+def slug(text: str) -> str:
+    """``text`` with every character Home Assistant refuses in ids replaced by ``_``."""
+    return re.sub(r"[^A-Za-z0-9_-]", "_", text)
+
+
+def colour_map_topic(topics: Topics, name: str) -> str:
+    """Where the colour picture of map ``name`` goes, beside the exact 16-bit one."""
+    return f"{topics.map(name)}/color"
+
+
+@dataclass(frozen=True)
+class Entity:
+    """One discovery config: where it goes, what it says, and the region it belongs to (if any)."""
+
+    topic: str
+    config: dict[str, Any]
+    region: str | None = None
+
+
+class Discovery:
+    """Builds the discovery configs of one device (``topics``) under ``prefix``."""
+
+    def __init__(self, prefix: str, topics: Topics, device: str) -> None:
+        self.prefix = prefix.strip("/")
+        self.topics = topics
+        self.node = slug(f"edgedsm_{device}")
+        self.identifier = slug(f"edgedsm_{topics.base}")
+        self.device_block = {"identifiers": [self.identifier], "name": f"edgedsm {device}",
+                             "manufacturer": "edgedsm", "model": "dynamic speckle activity monitor",
+                             "sw_version": __version__}
+
+    def _entity(self, component: str, key: str, config: dict[str, Any], region: str | None = None,
+                available: bool = True) -> Entity:
+        object_id = slug(key)
+        payload: dict[str, Any] = {"unique_id": f"{self.identifier}_{object_id}", **config,
+                                   "device": self.device_block,
+                                   "origin": {"name": "edgedsm", "sw_version": __version__}}
+        if available:
+            payload.update(availability_topic=self.topics.availability, payload_available="online",
+                           payload_not_available="offline")
+        return Entity(f"{self.prefix}/{component}/{self.node}/{object_id}/config", payload, region)
+
+    @staticmethod
+    def _region_value(region: str, key: str) -> str:
+        return f"{{{{ value_json.get('regions', {{}}).get('{region}', {{}}).get('{key}') }}}}"
+
+    def region_entities(self, region: str) -> list[Entity]:
+        """A region's drying state and time to dry."""
+        return [
+            self._entity("sensor", f"{region}_state", {
+                "name": f"{region} state", "state_topic": self.topics.state, "device_class": "enum",
+                "options": STATES, "value_template": self._region_value(region, "state"),
+                "icon": "mdi:water-percent"}, region),
+            self._entity("sensor", f"{region}_time_to_dry", {
+                "name": f"{region} time to dry", "state_topic": self.topics.state, "device_class": "duration",
+                "unit_of_measurement": "s", "value_template": self._region_value(region, "time_to_dry_s")},
+                region),
+        ]
+
+    def activity_entity(self, region: str, estimator: str) -> Entity:
+        """The region mean of one estimator's map, from the stats."""
+        template = (f"{{{{ value_json.get('regions', {{}}).get('{region}', {{}}).get('{estimator}', {{}})"
+                    f".get('mean') }}}}")
+        return self._entity("sensor", f"{region}_{estimator}", {
+            "name": f"{region} {estimator.upper()}", "state_topic": self.topics.stats, "state_class": "measurement",
+            "value_template": template, "icon": "mdi:chart-bell-curve"}, region)
+
+    def device_entities(self) -> list[Entity]:
+        """The laser (read-only) and the device's link to the broker."""
+        return [
+            self._entity("binary_sensor", "laser", {
+                "name": "laser", "state_topic": self.topics.stats, "device_class": "light",
+                "value_template": "{{ {'on': 'ON', 'off': 'OFF'}.get(value_json.get('laser'), 'None') }}",
+                "payload_on": "ON", "payload_off": "OFF", "entity_category": "diagnostic"}),
+            self._entity("binary_sensor", "online", {
+                "name": "online", "state_topic": self.topics.availability, "device_class": "connectivity",
+                "payload_on": "online", "payload_off": "offline", "entity_category": "diagnostic"},
+                available=False),
+        ]
+
+    def image_entity(self, name: str) -> Entity:
+        """The colour picture of map ``name``."""
+        return self._entity("image", f"map_{name}", {
+            "name": f"{name.upper()} map", "image_topic": colour_map_topic(self.topics, name),
+            "content_type": "image/png"})

@@ -1,0 +1,209 @@
+"""The Prometheus sink: the daemon's latest numbers as metrics, and whether frames flow (health).
+
+It keeps the latest :class:`~edgedsm.messages.Stats`, the frame and engine probes of the
+pipeline and the MQTT link's health, and turns them into metric families when scraped (a
+custom collector: what is exposed is always the latest message, never a stale label set).
+Served by :mod:`edgedsm.publish.http_server`; names and meanings in ``docs/integration.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from typing import Protocol
+
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+from prometheus_client.registry import Collector
+
+from edgedsm.frames import Frame
+from edgedsm.messages import Alert, MapFrame, StateReport, Stats
+from edgedsm.publish.http_server import MetricsServer
+
+#: The five drying states, each a label value of ``edgedsm_region_state``.
+STATES = ("warming_up", "wet", "drying", "dry", "fault")
+LASER_STATES = ("on", "off", "unknown")
+#: Engine pushes the ms/frame gauge is averaged over.
+ENGINE_FRAMES = 64
+
+
+class LinkHealth(Protocol):
+    """What the metrics read from the MQTT sink (``MqttSink`` has both)."""
+
+    @property
+    def connected(self) -> bool: ...
+
+    @property
+    def pending_alerts(self) -> int: ...
+
+
+class MetricsSink:
+    """Implements :class:`edgedsm.publish.sink.Sink`; :meth:`frame_taken` and :meth:`frame_pushed`
+    are the pipeline's probes (wired by the daemon).
+
+    ``stale_after_s``: :meth:`healthy` is False when no frame was taken for this long (or none
+    yet). ``link``: the MQTT sink, for ``edgedsm_mqtt_connected`` and ``edgedsm_alerts_pending``.
+    """
+
+    def __init__(self, stale_after_s: float, link: LinkHealth | None = None,
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
+        self.stale_after_s = stale_after_s
+        self.link = link
+        self._monotonic = monotonic
+        self._lock = threading.Lock()
+        self._stats: Stats | None = None
+        self._report: StateReport | None = None
+        self._frames_seen = 0
+        self._last_frame_t: float | None = None
+        self._push_s: deque[float] = deque(maxlen=ENGINE_FRAMES)
+        self._push_total_s = 0.0
+        self._pushes = 0
+        self.registry = CollectorRegistry(auto_describe=False)
+        self.registry.register(_Collector(self))
+        self.server: MetricsServer | None = None
+
+    def serve(self, address: tuple[str, int]) -> MetricsSink:
+        """Serve ``/metrics`` and ``/healthz`` at ``address`` (ConfigError naming ``http.listen``
+        when it cannot listen there); stopped by :meth:`close`."""
+        self.server = MetricsServer(address, self.exposition, self.healthy).start()
+        return self
+
+    # -- pipeline probes (the daemon wires them; pipeline thread) -----------------------------------
+    def frame_taken(self, frame: Frame, count: int) -> None:
+        """A frame arrived (``PipelineProbes.frame_taken``): frames flow."""
+        with self._lock:
+            self._last_frame_t = self._monotonic()
+
+    def frame_pushed(self, frame: Frame, ended: float, cost_s: float) -> None:
+        """A frame went through the engine (``PipelineProbes.frame_pushed``) in ``cost_s``."""
+        with self._lock:
+            self._push_s.append(cost_s)
+            self._push_total_s += cost_s
+            self._pushes += 1
+
+    # -- the Sink protocol ---------------------------------------------------------------------------
+    def publish_state(self, report: StateReport) -> None:
+        # the stats carry every region's state at every evaluation; the report adds time to dry
+        with self._lock:
+            self._report = report
+
+    def publish_alert(self, alert: Alert) -> None:
+        return None
+
+    def publish_stats(self, stats: Stats) -> None:
+        with self._lock:
+            if self._stats is not None and stats.frames > self._stats.frames:
+                self._last_frame_t = self._monotonic()  # frames flow, even without the probes wired
+            self._stats = stats
+
+    def publish_map(self, frame: MapFrame) -> None:
+        return None
+
+    def flush(self, timeout_s: float) -> bool:
+        return True
+
+    def close(self, timeout_s: float) -> None:
+        if self.server is not None:
+            self.server.close()
+            self.server = None
+
+    # -- reading -------------------------------------------------------------------------------------
+    def healthy(self) -> tuple[bool, str]:
+        """(frames flow, one line saying so) for ``/healthz``."""
+        with self._lock:
+            last = self._last_frame_t
+        if last is None:
+            return False, "no frame yet"
+        age = self._monotonic() - last
+        if age > self.stale_after_s:
+            return False, f"no frame for {age:.1f} s (more than {self.stale_after_s:g} s)"
+        return True, f"frames flowing (last {age:.1f} s ago)"
+
+    def exposition(self) -> bytes:
+        """The text exposition format of every metric."""
+        return generate_latest(self.registry)
+
+    def families(self) -> Iterator[GaugeMetricFamily | CounterMetricFamily]:
+        with self._lock:
+            stats, report = self._stats, self._report
+            pushes, push_total = self._pushes, self._push_total_s
+            recent = list(self._push_s)
+        yield from _stats_families(stats)
+        time_to_dry = GaugeMetricFamily("edgedsm_region_time_to_dry_seconds",
+                                        "extrapolated time until the region is dry (as of the last state report)",
+                                        labels=["region"])
+        for region, state in sorted(report.regions.items()) if report is not None else ():
+            if state.time_to_dry_s is not None:
+                time_to_dry.add_metric([region], state.time_to_dry_s)
+        yield time_to_dry
+        engine = GaugeMetricFamily("edgedsm_engine_ms_per_frame",
+                                   f"engine cost of one frame, ms (mean of the last {ENGINE_FRAMES} frames)")
+        engine.add_metric([], 1000 * sum(recent) / len(recent) if recent else math.nan)
+        yield engine
+        seconds = CounterMetricFamily("edgedsm_engine_push_seconds", "engine time spent on frames, s")
+        seconds.add_metric([], push_total)
+        yield seconds
+        pushed = CounterMetricFamily("edgedsm_engine_frames", "frames pushed into the engine")
+        pushed.add_metric([], pushes)
+        yield pushed
+        healthy = GaugeMetricFamily("edgedsm_healthy", "1 while frames flow (what /healthz answers 200 to)")
+        healthy.add_metric([], 1.0 if self.healthy()[0] else 0.0)
+        yield healthy
+        if self.link is not None:
+            connected = GaugeMetricFamily("edgedsm_mqtt_connected", "1 while connected to the MQTT broker")
+            connected.add_metric([], 1.0 if self.link.connected else 0.0)
+            yield connected
+            pending = GaugeMetricFamily("edgedsm_alerts_pending", "alerts not yet acknowledged by the broker")
+            pending.add_metric([], float(self.link.pending_alerts))
+            yield pending
+
+
+def _stats_families(stats: Stats | None) -> Iterator[GaugeMetricFamily | CounterMetricFamily]:
+    """Metric families of the latest stats (none before the first)."""
+    if stats is None:
+        return
+    frames = CounterMetricFamily("edgedsm_frames", "frames taken off the camera queue since the pipeline started")
+    frames.add_metric([], stats.frames)
+    yield frames
+    dropped = CounterMetricFamily("edgedsm_frames_dropped", "frames dropped since the pipeline started, by cause",
+                                  labels=["cause"])
+    for cause, count in sorted(stats.drops.items()):
+        dropped.add_metric([cause], count)
+    yield dropped
+    for name, help_text, value in (("edgedsm_fps", "frames per second over the last 64 frames", stats.fps),
+                                   ("edgedsm_ready", "1 once the estimator window is full", float(stats.ready)),
+                                   ("edgedsm_laser_on", "1 while the laser is confirmed on",
+                                    float(stats.laser == "on")),
+                                   ("edgedsm_ambient_level", "mean of the latest dark frames, grey levels",
+                                    math.nan if stats.ambient_level is None else stats.ambient_level)):
+        gauge = GaugeMetricFamily(name, help_text)
+        gauge.add_metric([], value)
+        yield gauge
+    laser = GaugeMetricFamily("edgedsm_laser_state", "1 for the laser's current state", labels=["state"])
+    for state in LASER_STATES:
+        laser.add_metric([state], float(stats.laser == state))
+    yield laser
+    activity = GaugeMetricFamily("edgedsm_region_activity", "region mean of each estimator's map",
+                                 labels=["region", "estimator"])
+    for region, maps in sorted(stats.regions.items()):
+        for estimator, map_stats in sorted(maps.items()):
+            if map_stats.mean is not None:
+                activity.add_metric([region, estimator], map_stats.mean)
+    yield activity
+    states = GaugeMetricFamily("edgedsm_region_state", "1 for the region's current drying state",
+                               labels=["region", "state"])
+    for region, current in sorted(stats.states.items()):
+        for state in STATES:
+            states.add_metric([region, state], float(current == state))
+    yield states
+
+
+class _Collector(Collector):
+    def __init__(self, sink: MetricsSink) -> None:
+        self.sink = sink
+
+    def collect(self) -> Iterator[GaugeMetricFamily | CounterMetricFamily]:
+        return self.sink.families()

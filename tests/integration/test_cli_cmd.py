@@ -1,0 +1,71 @@
+"""`edgedsm cmd` against a real daemon on a real mosquitto: exit 0 accepted, 1 refused, 2 no reply."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from helpers_mqtt import WAIT_S, Broker, child_env, wait_until
+from test_daemon_e2e import Daemon, base_config, write_config
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+
+@pytest.fixture
+def daemon(tmp_path: Path, broker: Broker) -> Iterator[Daemon]:
+    config = write_config(tmp_path / "edgedsm.toml", base_config(tmp_path, port=broker.port, device="line3"))
+    started = Daemon(config)
+    yield started
+    started.kill()
+
+
+def _cmd(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "edgedsm", "cmd", *args], capture_output=True, text=True,
+                          env=child_env(), timeout=WAIT_S + 20)
+
+
+@pytest.mark.timeout(120)
+def test_cmd_exit_status_says_accepted_refused_or_no_reply(tmp_path: Path, broker: Broker, daemon: Daemon) -> None:
+    broker_arg = f"127.0.0.1:{broker.port}"
+    accepted: list[subprocess.CompletedProcess[str]] = []
+
+    def ready() -> bool:  # the daemon answers once its command channel is subscribed
+        accepted[:] = [_cmd("publish_maps", "--device", "line3", "--broker", broker_arg, "--timeout", "1")]
+        return accepted[0].returncode == 0
+
+    wait_until(ready, WAIT_S, "the daemon accepting publish_maps")
+    assert accepted[0].stdout.strip() == "edgedsm/line3: publish_maps accepted"
+
+    as_json = _cmd("rebaseline", "--device", "line3", "--broker", broker_arg, "--json")
+    assert as_json.returncode == 0, as_json.stderr
+    reply = json.loads(as_json.stdout)
+    assert reply["ok"] is True and reply["command"] == "rebaseline" and reply["request_id"].startswith("cli-")
+
+    refused = _cmd("laser", "--device", "line3", "--broker", broker_arg, "--args", '{"state": "sideways"}')
+    assert refused.returncode == 1 and "refused laser" in refused.stderr and "state" in refused.stderr
+
+    unknown = _cmd("explode", "--device", "line3", "--broker", broker_arg, "--json")
+    assert unknown.returncode == 1 and json.loads(unknown.stdout)["ok"] is False
+
+    config_file = tmp_path / "edgedsm.toml"
+    from_config = _cmd("publish_maps", "-c", str(config_file))
+    assert from_config.returncode == 0, from_config.stderr
+
+    silent = _cmd("publish_maps", "--broker", broker_arg, "--timeout", "1")  # default device: nobody there
+    assert silent.returncode == 2 and "no reply from edgedsm/camera1 within 1 s" in silent.stderr
+
+    watch = subprocess.run([sys.executable, "-m", "edgedsm", "watch", "--host", "127.0.0.1", "--port",
+                            str(broker.port), "--timeout", "3"], capture_output=True, text=True, env=child_env(),
+                           timeout=WAIT_S + 20)
+    assert watch.returncode == 0, watch.stderr
+    assert "watching edgedsm/camera1 (default device name" in watch.stderr
+    assert "no daemon has published on edgedsm/camera1 (no availability); devices seen under edgedsm/: line3" \
+        in watch.stdout
+
+    bad = _cmd("laser", "--device", "line3", "--broker", broker_arg, "--args", "[1]")
+    assert bad.returncode == 65 and "--args must be a JSON object" in bad.stderr
+    assert daemon.process.poll() is None  # still measuring
