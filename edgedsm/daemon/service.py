@@ -19,7 +19,6 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -33,8 +32,9 @@ from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
-from edgedsm.errors import DeviceError
+from edgedsm.errors import ConfigError, DeviceError
 from edgedsm.messages import Alert, AlertKind
+from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.commands import Command
 from edgedsm.publish.sink import FanOut, LogSink, Sink
 
@@ -55,13 +55,12 @@ def open_camera_for(config: DaemonConfig) -> Camera:
     return open_camera(config.camera.spec)
 
 
-CommandHandler = Callable[[str, Command], Mapping[str, Any] | None]
-
-
-def make_sink(config: DaemonConfig, on_command: CommandHandler) -> Sink:
-    """Where the pipeline's messages go: every configured sink (MQTT JSON when ``[mqtt]`` is set),
-    or the log when none is. A new sink is added here; the pipeline does not change."""
+def make_sink(config: DaemonConfig, on_command: CommandHandler) -> tuple[Sink, PipelineProbes]:
+    """Where the pipeline's messages go — every configured sink (MQTT JSON when ``[mqtt]`` is set,
+    Home Assistant, Prometheus), the log when no broker is — and the probes those sinks measure
+    the pipeline with. A new sink is added here; the pipeline does not change."""
     sinks: list[Sink] = []
+    probes = PipelineProbes()
     link = None
     if config.mqtt is not None:
         from edgedsm.publish.json_sink import MqttSink
@@ -79,19 +78,15 @@ def make_sink(config: DaemonConfig, on_command: CommandHandler) -> Sink:
         from edgedsm.publish.prometheus import MetricsSink
 
         try:
-            sinks.append(MetricsSink(config.http.stale_after_s, link=link).serve(config.http.address))
+            metrics = MetricsSink(config.http.stale_after_s, link=link).serve(config.http.address)
         except ConfigError:
             FanOut(sinks).close(1.0)  # the port is taken: release what was started
             raise
-    return FanOut(sinks if link is not None else [LogSink(), *sinks]) if sinks else LogSink()
-
-
-def probes_for(sink: Sink) -> PipelineProbes:
-    """The pipeline probes the sinks measure with (the metrics' frame arrivals and engine cost)."""
-    for each in getattr(sink, "sinks", [sink]):
-        if hasattr(each, "frame_taken") and hasattr(each, "frame_pushed"):
-            return PipelineProbes(frame_taken=each.frame_taken, frame_pushed=each.frame_pushed)
-    return PipelineProbes()
+        sinks.append(metrics)
+        probes = PipelineProbes(frame_taken=metrics.frame_taken, frame_pushed=metrics.frame_pushed)
+    if link is None:
+        sinks.insert(0, LogSink())
+    return FanOut(sinks), probes
 
 
 def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
@@ -209,14 +204,14 @@ class Service:
                 last_ping[1] = now
                 self.notifier.status(pipeline.summary())
 
-        sink = make_sink(config, on_command)
+        sink, probes = make_sink(config, on_command)
         try:
             # opened last and closed by LaserSafety (switched off) whatever happens after
             relay = open_relay(config.laser.spec) if config.laser is not None else None
             couple_simulated_laser(camera, relay)
             pipeline = Pipeline(config, camera, sink, relay=relay,
                                 cadence=self.cadence or self._cadence(config), on_alive=alive,
-                                probes=probes_for(sink))
+                                probes=probes)
             holder["pipeline"] = self.pipeline = pipeline
             safety = LaserSafety(relay) if relay is not None else None
             try:

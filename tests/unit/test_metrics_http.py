@@ -209,7 +209,7 @@ def test_a_connection_flood_is_answered_503_and_serving_resumes(sink: MetricsSin
 
 def test_the_daemon_registers_metrics_beside_the_log_and_wires_its_probes() -> None:
     from edgedsm.config import DaemonConfig
-    from edgedsm.daemon.service import make_sink, probes_for
+    from edgedsm.daemon.service import make_sink
     from edgedsm.errors import ConfigError
     from edgedsm.publish.sink import FanOut, LogSink
 
@@ -217,11 +217,10 @@ def test_the_daemon_registers_metrics_beside_the_log_and_wires_its_probes() -> N
         probe.bind(("127.0.0.1", 0))
         free = probe.getsockname()[1]
     config = DaemonConfig.model_validate({"camera": {"uri": "sim:default"}, "http": {"listen": f"127.0.0.1:{free}"}})
-    sink = make_sink(config, lambda name, command: None)
+    sink, probes = make_sink(config, lambda name, command: None)
     try:
         assert isinstance(sink, FanOut) and [type(s) for s in sink.sinks] == [LogSink, MetricsSink]
         metrics = sink.sinks[1]
-        probes = probes_for(sink)
         probes.frame_taken(_frame(1), 1)
         assert metrics.healthy()[0]
         with pytest.raises(ConfigError, match=f"http.listen: cannot listen on 127.0.0.1:{free}"):
