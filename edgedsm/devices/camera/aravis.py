@@ -6,6 +6,9 @@ a machine without it gets a ``DeviceError`` that names what to install (Debian 1
 
 How the driver uses Aravis, and why:
 
+- **Opening.** Every open (reconnections too) updates Aravis' device list first and opens a
+  GigE Vision camera named by id, serial or MAC address by its IP address, so that Aravis
+  streams to the interface on the camera's subnet (see ``AravisCamera._open_target``).
 - **Buffer pool.** ``buffers`` buffers of one payload each are pushed into the stream when
   streaming starts. Every buffer popped is pushed back, on success and on every error path,
   right after its pixels are copied out, so the pool never shrinks. When the consumer falls
@@ -37,6 +40,7 @@ How the driver uses Aravis, and why:
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
 import threading
 import time
@@ -195,8 +199,9 @@ class AravisCamera(Camera):
             Aravis.enable_interface("Fake")
         self._lost.clear()
         self._last_raw_id = None
+        target = self._open_target()
         try:
-            camera = Aravis.Camera.new(self.device_id)
+            camera = Aravis.Camera.new(target)
         except GLib.Error as exc:  # a missing camera is a GLib.Error, not a None or TypeError
             raise DeviceError(f"{self.description}: cannot open: {exc.message}") from None
         self._camera = camera
@@ -211,6 +216,30 @@ class AravisCamera(Camera):
         except BaseException:
             self._release()
             raise
+
+    def _open_target(self) -> str | None:
+        """What to hand to ``Aravis.Camera.new``: a GigE Vision camera's address where one is known.
+
+        Without a fresh device list, Aravis opens a device id with the first discovery answer,
+        whichever network interface it came in on; a camera that answers on several (the fake
+        camera on loopback answers the broadcast of every interface) then streams to an address
+        it cannot reach, and no frame ever arrives. So the list is updated (as ``list_cameras``
+        does) and a GigE Vision camera is opened by its address, for which Aravis picks the
+        interface on the camera's subnet. An IP address is used as it is; an id the list does
+        not show (a user-defined name) is left to Aravis.
+        """
+        Aravis, _ = load_aravis()
+        wanted = self.device_id
+        if wanted and _is_ip_address(wanted):
+            return wanted
+        Aravis.update_device_list()
+        for i in range(Aravis.get_n_devices()):
+            names = {Aravis.get_device_id(i), Aravis.get_device_serial_nbr(i), Aravis.get_device_physical_id(i)}
+            if wanted is None or wanted in names:
+                address = Aravis.get_device_address(i) if Aravis.get_device_protocol(i) == "GigEVision" else None
+                log.debug("%s: device %d of %d, address %s", self.description, i, Aravis.get_n_devices(), address)
+                return address or Aravis.get_device_id(i)
+        return wanted
 
     def _configure_at_open(self) -> None:
         Aravis, _ = load_aravis()
@@ -445,6 +474,14 @@ class AravisCamera(Camera):
         self._call("set pixel format", camera.set_pixel_format_from_string, pixel_format)
         self._pixel_format = self._call("pixel format", camera.get_pixel_format_as_string)
         return self._pixel_format
+
+
+def _is_ip_address(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _unreference(objects: list[Any]) -> None:
