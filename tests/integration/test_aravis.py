@@ -143,18 +143,39 @@ def test_gige_nothing_but_broken_frames_times_out(gv_factory):
 
 
 @pytest.mark.timeout(45)
-def test_gige_camera_killed_is_device_lost(gv_factory):
+@pytest.mark.parametrize("timeout_s", [0.5, 2.0])
+def test_gige_camera_killed_is_device_lost_within_the_grab_timeout(gv_factory, timeout_s):
+    """The daemon switches the laser off on DeviceLost, so it must come within the grab timeout:
+    Aravis' own heartbeat (5 s) and a control read of a dead camera (2.5 s of retries) are
+    longer (before the fix: 3.0 s for a 0.5 s timeout, 5.7 s for 2 s)."""
     fake = gv_factory()
-    with AravisCamera(ADDRESS) as camera:
-        stream = camera.frames(timeout_s=1)
+    with AravisCamera(fake.device_id) as camera:
+        camera.set_frame_interval(0.02)
+        stream = camera.frames(timeout_s=timeout_s)
         next(stream)
-        fake.kill()
-        started = time.monotonic()
-        with pytest.raises(DeviceLost):
+        killed = fake.kill()
+        assert killed is not None
+        with pytest.raises(DeviceLost, match="no answer"):
             for _ in stream:
                 pass
-        assert time.monotonic() - started < 15
+        took = time.monotonic() - killed
         assert camera.stats["lost"] == 1
+    assert took <= timeout_s + 0.3, f"DeviceLost {took:.2f} s after the kill, grab timeout {timeout_s} s"
+
+
+@pytest.mark.timeout(30)
+def test_gige_camera_that_answers_but_sends_nothing_is_a_timeout_not_a_loss(gv_factory):
+    gv_factory()
+    with AravisCamera(ADDRESS) as camera:
+        camera.set_frame_interval(2.0)  # a frame every 2 s: the grab gives up first
+        stream = camera.frames(timeout_s=0.6)
+        started = time.monotonic()
+        with pytest.raises(DeviceTimeout, match=r"no frame within 0\.6 s \(the camera answers\)"):
+            for _ in stream:
+                pass
+        took = time.monotonic() - started
+    assert took <= 0.6 + 2.0 + 0.3  # the first frame may come and go before the silence
+    assert camera.stats["lost"] == 0 and camera.stats["timeouts"] == 1
 
 
 @pytest.mark.timeout(90)
@@ -218,14 +239,14 @@ def daemon_config(tmp_path: Path, camera_uri: str, port: int) -> dict[str, Any]:
 @pytest.mark.slow
 @pytest.mark.timeout(90)
 @pytest.mark.parametrize("form", ["device id", "address", "in-process Fake"])
-def test_daemon_measures_with_an_aravis_camera(form: str, tmp_path: Path, gv_factory, broker: Broker,
-                                               subscribers: Callable[..., Subscriber]) -> None:
+def test_daemon_measures_with_an_aravis_camera(form: str, tmp_path: Path, request: pytest.FixtureRequest,
+                                               broker: Broker, subscribers: Callable[..., Subscriber]) -> None:
     """`edgedsm run` with camera.uri = aravis:DEVICE-ID (the README's form), aravis:ADDRESS, aravis:Fake_1:
     frames arrive, the region leaves warming up for a measured state, and the camera is never lost."""
     if form == "in-process Fake":
         uri = "aravis:Fake_1"
     else:
-        fake = gv_factory()
+        fake = request.getfixturevalue("gv_factory")()
         uri = f"aravis:{fake.device_id if form == 'device id' else ADDRESS}"
     topics = Topics.of("edgedsm", "gige")
     subscriber = subscribers(broker.port, [topics.stats, topics.alerts])
