@@ -51,24 +51,33 @@ class Plant(Subscriber):
 
 
 class RecordingNumato(NumatoBoard):
-    """The emulated Numato board, also recording when the contact really moved."""
+    """The emulated Numato board, also recording every switching command and when the contact
+    really moved."""
 
     def __init__(self, path: str, channel: int) -> None:
         super().__init__(path, channel)
-        self.changes: list[tuple[float, bool]] = []  # (time.monotonic(), on)
+        self.commands: list[tuple[float, bool]] = []  # (time.monotonic(), on) of every on/off command
+        self.changes: list[tuple[float, bool]] = []   # (time.monotonic(), on) when the contact moved
         self._changes_lock = threading.Lock()
 
     def switch(self, on: bool) -> None:
         was = self.is_on
         super().switch(on)
-        if self.is_on != was:
-            with self._changes_lock:
-                self.changes.append((time.monotonic(), self.is_on))
+        now = time.monotonic()
+        with self._changes_lock:
+            self.commands.append((now, on))
+            if self.is_on != was:
+                self.changes.append((now, self.is_on))
 
     def switched(self, on: bool, after: float) -> float | None:
         """When the contact first moved to ``on`` after ``after`` (monotonic), None if it has not."""
         with self._changes_lock:
             return next((t for t, state in self.changes if state == on and t > after), None)
+
+    def first_command(self, after: float) -> bool | None:
+        """The first on/off command after ``after`` (True = on), None if there was none."""
+        with self._changes_lock:
+            return next((on for t, on in self.commands if t > after), None)
 
     def on_between(self, start: float, end: float) -> bool:
         """Whether the laser was on at any moment in [start, end]."""
