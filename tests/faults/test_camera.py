@@ -43,6 +43,7 @@ def test_fake_gige_camera_killed_and_restarted_twice(
     daemon.wait_until(lambda: plant.measuring_since(0) and board.is_on, 30, "measuring with the laser on")
 
     off_delays: list[float] = []
+    relit_delays: list[float] = []
     for outage in range(1, OUTAGES + 1):
         killed = fake.kill()
         assert killed is not None
@@ -58,6 +59,9 @@ def test_fake_gige_camera_killed_and_restarted_twice(
         fake.start(wait=False)
         daemon.wait_until(lambda: plant.measuring_since(frames_down) and board.is_on,  # noqa: B023
                           25, f"measuring again with the laser on after restart {outage}")
+        relit = board.switched(True, after=restarted)
+        assert relit is not None
+        relit_delays.append(relit - restarted)
         # while the camera was down: the laser stayed off, and the plant was told so
         assert not board.on_between(off, restarted), board.changes
         down = _stats_between(plant, wall_off + 0.6, wall_restarted)
@@ -68,7 +72,8 @@ def test_fake_gige_camera_killed_and_restarted_twice(
     code, _ = daemon.terminate()
     assert code == 0, daemon.log
     print(f"laser off after the camera kills: {', '.join(f'{d:.2f}' for d in off_delays)} s "
-          f"(grab_timeout_s {GRAB_TIMEOUT_S})")
+          f"(grab_timeout_s {GRAB_TIMEOUT_S}); on again after the restarts: "
+          f"{', '.join(f'{d:.2f}' for d in relit_delays)} s")
     assert all(delay <= LASER_OFF_BOUND_S for delay in off_delays), \
         f"laser off {', '.join(f'{d:.2f}' for d in off_delays)} s after the kills (bound {LASER_OFF_BOUND_S} s)"
     alerts = plant.distinct_alerts()
