@@ -10,99 +10,33 @@ these tests fail and say so rather than skip. Every test bounds its own time.
 from __future__ import annotations
 
 import itertools
-import os
-import shutil
-import subprocess
+import json
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+from helpers_aravis import ADDRESS, FakeGvCamera, fake_gv_cameras, require_aravis
+from helpers_daemon import Daemon, write_config
+from helpers_mqtt import Broker, Subscriber
 
 from edgedsm.cli import main
 from edgedsm.devices.camera import Backoff, Region
-from edgedsm.devices.camera.aravis import AravisCamera, list_cameras, load_aravis
+from edgedsm.devices.camera.aravis import AravisCamera
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
+from edgedsm.publish import Topics
 from edgedsm.testing import check_camera_contract
 
 pytestmark = pytest.mark.integration
 
-FAKE_BINARY = "arv-fake-gv-camera-0.8"
-ADDRESS = "127.0.0.1"
-DISCOVERY_TIMEOUT_S = 10.0
-
-
-def require_aravis() -> None:
-    try:
-        load_aravis()
-    except DeviceError as exc:
-        pytest.fail(f"Aravis is required for these tests (scripts/test.sh installs it): {exc}")
-
-
-class FakeGvCamera:
-    """One ``arv-fake-gv-camera-0.8`` process on loopback with its own serial number."""
-
-    def __init__(self, log_dir: Path, serial: str, lost_per_thousand: int = 0) -> None:
-        self.serial = serial
-        self.device_id = f"Aravis-Fake-{serial}"
-        self.lost_per_thousand = lost_per_thousand
-        self.log_path = log_dir / f"fake-gv-{serial}.log"
-        self.process: subprocess.Popen[bytes] | None = None
-
-    def start(self, wait: bool = True) -> FakeGvCamera:
-        """Start the process; ``wait`` until Aravis discovers it (bounded)."""
-        binary = shutil.which(FAKE_BINARY)
-        if binary is None:
-            pytest.fail(f"{FAKE_BINARY} not found: install the Debian package aravis-tools (scripts/test.sh does)")
-        args = [binary, "-i", ADDRESS, "-s", self.serial]
-        if self.lost_per_thousand:
-            args += ["-r", str(self.lost_per_thousand)]
-        with self.log_path.open("ab") as log:
-            self.process = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
-        if wait:
-            self.wait_discoverable()
-        return self
-
-    def wait_discoverable(self) -> None:
-        deadline = time.monotonic() + DISCOVERY_TIMEOUT_S
-        while time.monotonic() < deadline:
-            assert self.process is not None
-            if self.process.poll() is not None:
-                pytest.fail(f"{FAKE_BINARY} exited with {self.process.returncode}: {self.log()}")
-            if any(info.device_id == self.device_id for info in list_cameras()):
-                return
-        pytest.fail(f"{self.device_id} not discoverable within {DISCOVERY_TIMEOUT_S} s: {self.log()}")
-
-    def kill(self) -> None:
-        if self.process is not None and self.process.poll() is None:
-            self.process.kill()
-            self.process.wait(timeout=10)
-        self.process = None
-
-    def log(self) -> str:
-        return self.log_path.read_text(errors="replace")[-2000:] if self.log_path.exists() else ""
-
 
 @pytest.fixture
-def gv_factory(tmp_path) -> Iterator:
+def gv_factory(tmp_path) -> Iterator[Callable[..., FakeGvCamera]]:
     """Starts fake GigE Vision cameras on loopback; kills every one of them afterwards."""
-    require_aravis()
-    started: list[FakeGvCamera] = []
-    already = [info for info in list_cameras() if info.address == ADDRESS]
-    if already:
-        pytest.fail(f"a camera already answers on {ADDRESS} ({already[0].device_id}); stop it first "
-                    f"(pgrep -a {FAKE_BINARY[:15]})")
-
-    def make(lost_per_thousand: int = 0) -> FakeGvCamera:
-        camera = FakeGvCamera(tmp_path, f"EDG{os.getpid() % 100000}", lost_per_thousand)
-        started.append(camera)
-        return camera.start()
-
-    yield make
-    for camera in started:
-        camera.kill()
+    yield from fake_gv_cameras(tmp_path)
 
 
 # -- Aravis' in-process Fake interface ------------------------------------------------------
@@ -187,6 +121,10 @@ def test_gige_packet_loss_drops_and_counts_without_crashing(gv_factory):
         camera.set_region(Region(0, 0, 128, 128))  # 12 packets a frame: some frames survive
         stream = camera.frames(timeout_s=3)
         frames = [next(stream) for _ in range(30)]
+        # a buffer being filled is in neither queue: stop the camera and let the stream hand
+        # its partial frames out before counting
+        camera.camera.stop_acquisition()
+        time.sleep(0.5)
         inside, waiting = camera._stream.get_n_buffers()
         stream.close()
         stats = camera.stream_statistics()
@@ -209,18 +147,39 @@ def test_gige_nothing_but_broken_frames_times_out(gv_factory):
 
 
 @pytest.mark.timeout(45)
-def test_gige_camera_killed_is_device_lost(gv_factory):
+@pytest.mark.parametrize("timeout_s", [0.5, 2.0])
+def test_gige_camera_killed_is_device_lost_within_the_grab_timeout(gv_factory, timeout_s):
+    """The daemon switches the laser off on DeviceLost, so it must come within the grab timeout:
+    Aravis' own heartbeat (5 s) and a control read of a dead camera (2.5 s of retries) are
+    longer (before the fix: 3.0 s for a 0.5 s timeout, 5.7 s for 2 s)."""
     fake = gv_factory()
-    with AravisCamera(ADDRESS) as camera:
-        stream = camera.frames(timeout_s=1)
+    with AravisCamera(fake.device_id) as camera:
+        camera.set_frame_interval(0.02)
+        stream = camera.frames(timeout_s=timeout_s)
         next(stream)
-        fake.kill()
-        started = time.monotonic()
-        with pytest.raises(DeviceLost):
+        killed = fake.kill()
+        assert killed is not None
+        with pytest.raises(DeviceLost, match="no answer"):
             for _ in stream:
                 pass
-        assert time.monotonic() - started < 15
+        took = time.monotonic() - killed
         assert camera.stats["lost"] == 1
+    assert took <= timeout_s + 0.3, f"DeviceLost {took:.2f} s after the kill, grab timeout {timeout_s} s"
+
+
+@pytest.mark.timeout(30)
+def test_gige_camera_that_answers_but_sends_nothing_is_a_timeout_not_a_loss(gv_factory):
+    gv_factory()
+    with AravisCamera(ADDRESS) as camera:
+        camera.set_frame_interval(3.0)  # a frame every 3 s: the grab gives up first
+        stream = camera.frames(timeout_s=1.2)
+        started = time.monotonic()
+        with pytest.raises(DeviceTimeout, match=r"no frame within 1\.2 s \(the camera answers\)"):
+            for _ in stream:
+                pass
+        took = time.monotonic() - started
+    assert took <= 2 * 1.2 + 0.3  # a first frame may come within the first timeout, then the silence
+    assert camera.stats["lost"] == 0 and camera.stats["timeouts"] == 1
 
 
 @pytest.mark.timeout(90)
@@ -262,3 +221,53 @@ def test_probe_command_lists_and_measures(gv_factory, capsys):
     assert "size: 512 x 512 pixels" in out and "format: Mono8" in out
     assert "frames/s" in out and "saturated" in out and "completed_buffers 5" in out
     assert main(["probe", "camera", "aravis:?bad=1"]) == 78
+
+
+# -- the daemon with an Aravis camera -------------------------------------------------------
+
+def daemon_config(tmp_path: Path, camera_uri: str, port: int) -> dict[str, Any]:
+    """A daemon on an Aravis camera at 20 frames/s, a simulated relay and a short window."""
+    return {
+        "device": {"name": "gige", "state_dir": tmp_path / "state"},
+        "camera": {"uri": camera_uri, "frame_interval_s": 0.05, "grab_timeout_s": 2.0, "reconnect_initial_s": 0.5},
+        "laser": {"uri": "sim:"},
+        "acquisition": {"dark_frames": 3, "dark_every_min": 0},
+        "estimator": {"activity": "s2", "window": 20, "lag": 2, "q": 1.0},
+        "regions": [{"name": "plate", "wet_above": 1e6, "dry_below": 1e5, "min_dwell_s": 0.0}],
+        "mqtt": {"host": "127.0.0.1", "port": port, "keepalive_s": 5, "connect_timeout_s": 2.0,
+                 "reconnect_min_s": 0.1, "reconnect_max_s": 0.5, "stats_interval_s": 0.5, "maps_interval_s": 600.0},
+        "logging": {"level": "info"},
+    }
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(90)
+@pytest.mark.parametrize("form", ["device id", "address", "in-process Fake"])
+def test_daemon_measures_with_an_aravis_camera(form: str, tmp_path: Path, request: pytest.FixtureRequest,
+                                               broker: Broker, subscribers: Callable[..., Subscriber]) -> None:
+    """`edgedsm run` with camera.uri = aravis:DEVICE-ID (the README's form), aravis:ADDRESS, aravis:Fake_1:
+    frames arrive, the region leaves warming up for a measured state, and the camera is never lost."""
+    if form == "in-process Fake":
+        uri = "aravis:Fake_1"
+    else:
+        fake = request.getfixturevalue("gv_factory")()
+        uri = f"aravis:{fake.device_id if form == 'device id' else ADDRESS}"
+    topics = Topics.of("edgedsm", "gige")
+    subscriber = subscribers(broker.port, [topics.stats, topics.alerts])
+    daemon = Daemon(write_config(tmp_path / "daemon.toml", daemon_config(tmp_path, uri, broker.port)))
+    try:
+        def measured() -> bool:
+            stats = [m.json() for m in subscriber.on(topics.stats)]
+            return any(s["frames"] > 40 and s["state"].get("plate") in ("wet", "drying", "dry") for s in stats)
+
+        daemon.wait_until(measured, 45, f"stats with frames and a measured state from {uri}")
+        time.sleep(1.0)  # a loss right after the first measurement would still show
+        code, _ = daemon.terminate()
+    finally:
+        daemon.kill()
+    assert code == 0, daemon.log
+    assert "camera lost" not in daemon.log and "reconnected" not in daemon.log, daemon.log
+    last = subscriber.on(topics.stats)[-1].json()
+    assert last["frames"] > 40 and last["fps"] > 5 and last["camera"].get("lost", 0) == 0, last
+    alerts = [json.loads(m.payload) for m in subscriber.on(topics.alerts)]
+    assert not [a for a in alerts if a.get("to") == "fault" or a.get("type") == "fault"], alerts

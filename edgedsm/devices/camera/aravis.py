@@ -6,6 +6,9 @@ a machine without it gets a ``DeviceError`` that names what to install (Debian 1
 
 How the driver uses Aravis, and why:
 
+- **Opening.** Every open (reconnections too) updates Aravis' device list first and opens a
+  GigE Vision camera named by id, serial or MAC address by its IP address, so that Aravis
+  streams to the interface on the camera's subnet (see ``AravisCamera._open_target``).
 - **Buffer pool.** ``buffers`` buffers of one payload each are pushed into the stream when
   streaming starts. Every buffer popped is pushed back, on success and on every error path,
   right after its pixels are copied out, so the pool never shrinks. When the consumer falls
@@ -16,9 +19,13 @@ How the driver uses Aravis, and why:
   packet id, size mismatch, too few bytes) or ``dropped_invalid``; the exact Aravis status is
   counted too, as ``buffer_<status>`` in ``stats``.
 - **Loss.** The device's ``control-lost`` signal (heartbeat failed) sets a flag that the next
-  grab turns into ``DeviceLost``. Because Aravis only notices after a few seconds, a grab
-  that times out also checks the control channel with one register read: if that fails too,
-  the camera is gone (``DeviceLost``), else it is merely silent (``DeviceTimeout``).
+  grab turns into ``DeviceLost``. Aravis only notices after 5 s or more, so a grab that has
+  waited half its timeout also checks the control channel with one register read, on a
+  helper thread: a grab never takes longer than its timeout (a read of a dead GigE Vision
+  camera takes 2.5 s of retries, and longer behind a heartbeat). At the timeout, a camera
+  that answered is merely silent (``DeviceTimeout``); one that did not answer, or answered
+  without our control bits (it restarted), is gone (``DeviceLost``, also raised as soon as
+  the read fails).
 - **Stop.** ``stop_acquisition()`` does not empty the stream's output queue, so stopping
   drains it back into the pool: a restart never delivers stale frames. The stream (its
   receive thread and socket) lives from start to stop; its statistics are added up in
@@ -37,6 +44,7 @@ How the driver uses Aravis, and why:
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
 import threading
 import time
@@ -45,6 +53,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from edgedsm.devices.camera.aravis_threads import AliveCheck, release_in_background
 from edgedsm.devices.camera.base import Camera, Region
 from edgedsm.devices.camera.pixels import PIXEL_BITS, PIXEL_FORMAT_CODES, decode_image
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
@@ -61,8 +70,8 @@ MISSING_ARAVIS = ("Aravis is not available to Python ({reason}). On Debian 12 in
 
 #: Slice of a blocking pop (s): how soon a ``control-lost`` is noticed while waiting.
 POLL_S = 0.1
-#: GigE Vision Control Channel Privilege register: bit 0 exclusive, bit 1 control access.
-GVCP_CCP_REGISTER = 0x0A00
+#: Fraction of a grab's timeout after which the control channel is checked (on a helper thread).
+ALIVE_CHECK_AFTER = 0.5
 #: Device ids of Aravis' in-process fake interface start with this; it is enabled on demand.
 FAKE_PREFIX = "Fake_"
 DEFAULT_BUFFERS = 8
@@ -195,8 +204,9 @@ class AravisCamera(Camera):
             Aravis.enable_interface("Fake")
         self._lost.clear()
         self._last_raw_id = None
+        target = self._open_target()
         try:
-            camera = Aravis.Camera.new(self.device_id)
+            camera = Aravis.Camera.new(target)
         except GLib.Error as exc:  # a missing camera is a GLib.Error, not a None or TypeError
             raise DeviceError(f"{self.description}: cannot open: {exc.message}") from None
         self._camera = camera
@@ -211,6 +221,30 @@ class AravisCamera(Camera):
         except BaseException:
             self._release()
             raise
+
+    def _open_target(self) -> str | None:
+        """What to hand to ``Aravis.Camera.new``: a GigE Vision camera's address where one is known.
+
+        Without a fresh device list, Aravis opens a device id with the first discovery answer,
+        whichever network interface it came in on; a camera that answers on several (the fake
+        camera on loopback answers the broadcast of every interface) then streams to an address
+        it cannot reach, and no frame ever arrives. So the list is updated (as ``list_cameras``
+        does) and a GigE Vision camera is opened by its address, for which Aravis picks the
+        interface on the camera's subnet. An IP address is used as it is; an id the list does
+        not show (a user-defined name) is left to Aravis.
+        """
+        Aravis, _ = load_aravis()
+        wanted = self.device_id
+        if wanted and _is_ip_address(wanted):
+            return wanted
+        Aravis.update_device_list()
+        for i in range(Aravis.get_n_devices()):
+            names = {Aravis.get_device_id(i), Aravis.get_device_serial_nbr(i), Aravis.get_device_physical_id(i)}
+            if wanted is None or wanted in names:
+                address = Aravis.get_device_address(i) if Aravis.get_device_protocol(i) == "GigEVision" else None
+                log.debug("%s: device %d of %d, address %s", self.description, i, Aravis.get_n_devices(), address)
+                return address or Aravis.get_device_id(i)
+        return wanted
 
     def _configure_at_open(self) -> None:
         Aravis, _ = load_aravis()
@@ -249,7 +283,7 @@ class AravisCamera(Camera):
         doomed = [self._stream, self._device, self._camera]
         self._stream = self._device = self._camera = None
         if self._lost.is_set():
-            threading.Thread(target=_unreference, args=(doomed,), name="aravis-release", daemon=True).start()
+            release_in_background(doomed)
         del doomed
 
     def _do_start(self) -> None:
@@ -301,7 +335,7 @@ class AravisCamera(Camera):
         if self._lost.is_set():
             doomed = [stream]
             del stream
-            threading.Thread(target=_unreference, args=(doomed,), name="aravis-release", daemon=True).start()
+            release_in_background(doomed)
 
     # -- acquisition ----------------------------------------------------------------------
     def _do_grab(self, timeout_s: float) -> Frame | None:
@@ -309,14 +343,21 @@ class AravisCamera(Camera):
         # lost device) alive, to be finalized, blocking, in the middle of the next stream.
         if self._stream is None:
             raise DeviceError(f"{self.description}: not streaming")
-        deadline = time.monotonic() + timeout_s
+        started = time.monotonic()
+        deadline = started + timeout_s
+        check: AliveCheck | None = None
         while True:
             if self._lost.is_set():
                 raise DeviceLost(f"{self.description}: control of the camera was lost")
-            remaining = deadline - time.monotonic()
+            now = time.monotonic()
+            if check is None and now >= started + timeout_s * ALIVE_CHECK_AFTER:
+                check = AliveCheck(self.description, self._camera, self._device, load_aravis()[1].Error)
+            if check is not None and check.lost is not None:
+                self._lost.set()
+                raise check.lost
+            remaining = deadline - now
             if remaining <= 0:
-                self._check_alive()
-                raise DeviceTimeout(f"{self.description}: no frame within {timeout_s:g} s")
+                self._judge_silence(timeout_s, check)
             buffer = self._stream.timeout_pop_buffer(max(1, int(min(remaining, POLL_S) * 1e6)))
             if buffer is not None:
                 break
@@ -338,25 +379,17 @@ class AravisCamera(Camera):
                                 f"ones ({dropped}); check packet loss: network, packet size, socket buffer")
         return frame
 
-    def _check_alive(self) -> None:
-        """After a silent wait: one control-channel read tells a quiet camera from a lost one.
-
-        A GigE Vision camera is asked for its Control Channel Privilege register: no answer
-        means it is gone; an answer without our control bits means it restarted meanwhile and
-        no longer streams to us. Either way the camera is lost (and must be opened again).
-        """
-        _, GLib = load_aravis()
-        try:
-            if self._camera.is_gv_device():
-                privilege = self._device.read_register(GVCP_CCP_REGISTER)
-                if not privilege & 0x3:
-                    self._lost.set()
-                    raise DeviceLost(f"{self.description}: the camera restarted (we no longer control it)")
-            else:
-                self._camera.get_integer("Width")
-        except GLib.Error as exc:
+    def _judge_silence(self, timeout_s: float, check: AliveCheck | None) -> None:
+        """No frame within the timeout: ``DeviceTimeout`` if the camera answered the check,
+        else ``DeviceLost`` (the check may still be waiting: the grab does not wait for it)."""
+        if check is not None and check.lost is not None:
             self._lost.set()
-            raise DeviceLost(f"{self.description}: no frames and no answer ({exc.message})") from None
+            raise check.lost
+        if check is not None and check.answered.is_set():
+            raise DeviceTimeout(f"{self.description}: no frame within {timeout_s:g} s (the camera answers)")
+        self._lost.set()
+        raise DeviceLost(f"{self.description}: no frame within {timeout_s:g} s and no answer on the control "
+                         f"channel within {timeout_s * (1 - ALIVE_CHECK_AFTER):g} s")
 
     def _frame_from(self, buffer: Any) -> Frame | None:
         status = buffer.get_status().value_nick  # "success", "missing-packets", ...
@@ -447,12 +480,12 @@ class AravisCamera(Camera):
         return self._pixel_format
 
 
-def _unreference(objects: list[Any]) -> None:
-    """Reaper thread body: drop the last references (the wait happens in GLib, GIL released)."""
+def _is_ip_address(text: str) -> bool:
     try:
-        objects.clear()
-    except Exception:  # never let a finalizer's trouble escape a background thread
-        log.exception("releasing a lost Aravis camera failed")
+        ipaddress.ip_address(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _stream_infos(stream: Any) -> dict[str, int]:
