@@ -65,7 +65,8 @@ class Dashboard:
                            regions_from_configs(settings.daemon_configs))
         self.subscriber = PlantSubscriber(settings.mqtt, self.plant, password=password)
         self.server = DashboardServer(settings.listen, self.plant, self.history, self.hub, token=settings.token,
-                                      send_command=self.subscriber.send_command)
+                                      send_command=self.subscriber.send_command,
+                                      broker_connected=self.subscriber.connected.is_set)
 
     @property
     def url(self) -> str:

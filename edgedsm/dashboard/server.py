@@ -110,13 +110,15 @@ class DashboardServer(ThreadingHTTPServer):
     allow_reuse_address = True
 
     def __init__(self, address: tuple[str, int], plant: Plant, history: History, hub: EventHub, *,
-                 token: str | None, send_command: SendCommand | None) -> None:
+                 token: str | None, send_command: SendCommand | None,
+                 broker_connected: Callable[[], bool] = lambda: False) -> None:
         super().__init__(address, Handler)
         self.plant = plant
         self.history = history
         self.hub = hub
         self.token = token
         self.send_command = send_command
+        self.broker_connected = broker_connected
         self.stopping = threading.Event()
 
     @property
@@ -151,7 +153,8 @@ class Handler(BaseHTTPRequestHandler):
             elif path.startswith("/static/"):
                 self._static(path[len("/static/"):])
             elif path == "/api/info":
-                self._json({"read_only": self.server.token is None, "prefix": self.server.plant.prefix})
+                self._json({"read_only": self.server.token is None, "prefix": self.server.plant.prefix,
+                            "broker_connected": self.server.broker_connected()})
             elif path == "/api/devices":
                 self._json(self.server.plant.snapshot())
             elif path == "/api/events":

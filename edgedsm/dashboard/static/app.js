@@ -132,7 +132,10 @@ function renderMapSelect(device) {
   if ([...select.options].map((o) => o.value).join("\n") !== names.join("\n")) {
     select.replaceChildren(...names.map((n) => el("option", { value: n }, n.toUpperCase())));
     const preferred = (device.stats && device.stats.estimator) || current;
-    if (names.includes(current)) select.value = current; else if (names.includes(preferred)) select.value = preferred;
+    // the judged map first, until the operator picks one
+    if (select.dataset.chosen && names.includes(select.dataset.chosen)) select.value = select.dataset.chosen;
+    else if (names.includes(preferred)) select.value = preferred;
+    else if (names.includes(current)) select.value = current;
   }
   renderMap();
 }
@@ -256,10 +259,14 @@ function drawMarks(u) {
   ctx.restore();
 }
 
+function plotWidth() {
+  return Math.max(320, ($("plot").parentElement.clientWidth || 640) - 24);
+}
+
 function drawPlot() {
   const data = plotData();
   const box = $("plot");
-  const width = Math.max(320, box.clientWidth || 600);
+  const width = plotWidth();
   if (!plot) {
     plot = new uPlot({
       width, height: 260,
@@ -276,6 +283,7 @@ function drawPlot() {
     }, data, box);
   } else {
     plot.setData(data);
+    if (Math.abs(plot.width - plotWidth()) > 8) plot.setSize({ width: plotWidth(), height: 260 });
   }
 }
 
@@ -419,8 +427,8 @@ async function main() {
   startEditor();
   $("region-select").addEventListener("change", loadHistory);
   $("range-select").addEventListener("change", loadHistory);
-  $("map-select").addEventListener("change", renderMap);
-  window.addEventListener("resize", () => plot && plot.setSize({ width: Math.max(320, $("plot").clientWidth), height: 260 }));
+  $("map-select").addEventListener("change", () => { $("map-select").dataset.chosen = $("map-select").value; renderMap(); });
+  window.addEventListener("resize", () => plot && plot.setSize({ width: plotWidth(), height: 260 }));
   connect();
 }
 
