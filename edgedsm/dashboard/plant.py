@@ -226,8 +226,8 @@ class Plant:
         try:
             values = decode_map(png, meta)
         except (MapCodecError, ValueError, TypeError, KeyError) as exc:
-            if "CRC" in str(exc) and suffix == "meta":
-                return None  # the meta of the next picture: wait for it
+            if "CRC" in str(exc):
+                return None  # picture and meta of different updates (QoS 0 may lose one): wait for the partner
             device.pending_png.pop(name, None)
             raise Rejected(f"map not decoded: {exc}") from None
         del device.pending_meta[name], device.pending_png[name]
