@@ -54,6 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-c", "--config", type=Path, action="append", default=[], metavar="CONFIG",
                         help="a daemon config: the first gives the [mqtt] settings; each gives its device's "
                              "region outlines and thresholds (repeatable)")
+    parser.add_argument("--config-dir", type=Path, metavar="DIR",
+                        help="every *.toml in DIR as a -c config (after those given with -c), e.g. /etc/edgedsm")
     parser.add_argument("--broker", type=lambda text: _host_port(text, 1883), metavar="HOST:PORT",
                         help="the broker (default localhost:1883)")
     parser.add_argument("--prefix", dest="topic_prefix", metavar="PREFIX", help="topic prefix (default edgedsm)")
@@ -73,13 +75,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tls.add_argument("--insecure", action="store_true", help="do not check that the certificate names the host")
 
 
+def config_files(args: argparse.Namespace) -> list[Path]:
+    """The -c configs, then those of --config-dir (sorted by name)."""
+    files = list(args.config)
+    if args.config_dir is not None:
+        if not args.config_dir.is_dir():
+            raise ConfigError(f"--config-dir: {args.config_dir}: not a directory")
+        files += sorted(path for path in args.config_dir.glob("*.toml") if path not in files)
+    return files
+
+
 def mqtt_settings(args: argparse.Namespace) -> MqttSettings:
     data: dict[str, Any] = {}
     source = "command line"
-    if args.config:
-        table = read_toml(args.config[0]).get("mqtt")
+    configs = config_files(args)
+    if configs:
+        table = read_toml(configs[0]).get("mqtt")
         if isinstance(table, dict):
-            data, source = dict(table), f"{args.config[0]}: mqtt"
+            data, source = dict(table), f"{configs[0]}: mqtt"
     data.pop("client_id", None)  # a daemon's id: using it would throw the daemon off the broker
     data.pop("device", None)
     if args.broker is not None:
@@ -117,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--retention-days: must be in (0, 3650]")
     settings = DashboardSettings(mqtt=mqtt_settings(args), listen=args.listen, database=args.database,
                                  retention_s=args.retention_days * 86400.0, token=resolve_token(),
-                                 daemon_configs=list(args.config))
+                                 daemon_configs=config_files(args))
     try:
         dashboard = Dashboard(settings, password=resolve_password())
     except OSError as exc:
