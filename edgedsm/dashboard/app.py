@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -63,10 +64,14 @@ class Dashboard:
         self.hub = EventHub()
         self.plant = Plant(settings.mqtt.topic_prefix, self.history, self.hub.publish,
                            regions_from_configs(settings.daemon_configs))
-        self.subscriber = PlantSubscriber(settings.mqtt, self.plant, password=password)
-        self.server = DashboardServer(settings.listen, self.plant, self.history, self.hub, token=settings.token,
-                                      send_command=self.subscriber.send_command,
-                                      broker_connected=self.subscriber.connected.is_set)
+        try:
+            self.subscriber = PlantSubscriber(settings.mqtt, self.plant, password=password)
+            self.server = DashboardServer(settings.listen, self.plant, self.history, self.hub, token=settings.token,
+                                          send_command=self.subscriber.send_command,
+                                          broker_connected=self.subscriber.connected.is_set)
+        except BaseException:
+            self.history.close()
+            raise
 
     @property
     def url(self) -> str:
@@ -78,6 +83,14 @@ class Dashboard:
 
     def serve_forever(self) -> None:
         self.server.serve_forever(poll_interval=0.5)
+
+    def serve_in_background(self, connect_wait_s: float = 5.0) -> Dashboard:
+        """Connect and serve from threads (the demo runs it beside the daemon); waits for the broker
+        up to ``connect_wait_s`` so that the first alerts are seen."""
+        self.start()
+        self.subscriber.connected.wait(connect_wait_s)
+        threading.Thread(target=self.serve_forever, name="dashboard-http", daemon=True).start()
+        return self
 
     def stop(self) -> None:
         self.server.stop()
