@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -58,6 +59,12 @@ class DashboardProcess:
 
     def get(self, path: str) -> bytes:
         with urllib.request.urlopen(self.url.rstrip("/") + path, timeout=5) as answer:
+            return answer.read()
+
+    def post(self, path: str, body: dict) -> bytes:
+        request = urllib.request.Request(self.url.rstrip("/") + path, data=json.dumps(body).encode(),
+                                         headers={"Content-Type": "application/json"})
+        with urllib.request.urlopen(request, timeout=5) as answer:
             return answer.read()
 
 

@@ -15,6 +15,7 @@ import os
 import re
 import sqlite3
 import time
+import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +28,10 @@ import pytest
 from helpers_dashboard import DashboardProcess, make_browser, severe_console_messages, wait_for
 from helpers_mqtt import REPO, Broker
 from paho.mqtt.enums import CallbackAPIVersion
+from pydantic import TypeAdapter
 from test_daemon_e2e import DRYING_SCENE, Daemon, base_config, write_config
+
+from edgedsm.config import RegionSection
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -199,6 +203,31 @@ def test_hostile_payloads_are_escaped_and_break_nothing(plant: Plant) -> None:
     plant.publish(f"{base}/state", {"t": time.time(), "estimator": "s2",
                                     "regions": {name: {"region": name, "state": "drying", "since": now}}})
     wait_for(lambda: f"{name}: drying" in plant.card_text("evil"), SHOW_S, "a valid update after the hostile ones")
+    _no_errors(plant)
+
+
+@pytest.mark.timeout(60)
+def test_a_region_drawn_on_the_map_gets_statistics_and_a_toml_block(plant: Plant) -> None:
+    from selenium.webdriver import ActionChains
+
+    plant.js("window.edgedsmDashboard.select('plate-b')")
+    wait_for(lambda: plant.js("const i = document.getElementById('map-img'); return i.complete && i.naturalWidth > 0"),
+             30, "the map of plate-b")
+    plant.browser.find_element("css selector", "[data-tool=rect]").click()
+    overlay = plant.browser.find_element("id", "map-overlay")
+    size = overlay.size["width"]  # 384 CSS px for the 128 px map: 3 screen px per map px
+    (ActionChains(plant.browser).move_to_element_with_offset(overlay, -size // 2 + 42, -size // 2 + 42)
+     .click_and_hold().move_by_offset(60, 45).move_by_offset(60, 45).release().perform())
+    toml_text = wait_for(lambda: plant.js("return document.getElementById('editor-toml').value"), 10, "the TOML")
+    region = TypeAdapter(RegionSection).validate_python(tomllib.loads(toml_text)["regions"][0])
+    assert region.shape == "rect" and region.name == "new_region"
+    assert (region.x, region.y, region.width, region.height) == pytest.approx((14, 14, 40, 30), abs=1.0)
+    answer = json.loads(plant.dashboard.post("/api/region-stats", {
+        "device": "plate-b", "map": plant.js("return document.getElementById('map-select').value"),
+        "shape": {"shape": "rect", "x": region.x, "y": region.y, "width": region.width, "height": region.height}}))
+    shown = plant.js("return document.getElementById('editor-stats').textContent")
+    assert answer["stats"]["pixels"] >= 1000 and shown.startswith(f"{answer['stats']['pixels']} px")
+    plant.browser.save_screenshot(str(plant.shots / "dashboard-editor.png"))
     _no_errors(plant)
 
 
