@@ -5,13 +5,17 @@ Starts a private mosquitto, ``edgedsm dashboard`` as its own process with one pa
 devices at R updates per second what a daemon publishes: statistics (3 regions x 3 maps), the
 state on every transition, an alert on every transition, and a 128² map pair every 10 s.
 Prints one table row per device count: messages and bytes per second on the broker, the
-dashboard's CPU (user + system, % of one core, from /proc), events pushed to the page.
+dashboard's CPU (user + system, % of one core, from /proc), events pushed to the page. With
+``--browser`` the page is also opened in Debian's chromium (headless, through Selenium and
+chromium-driver) and its responsiveness measured: the longest delay of a 50 ms timer (how long
+the page could not react to a click) and the number of tasks over 50 ms.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -106,7 +110,32 @@ def _page(url: str, counter: list[int], stop: threading.Event) -> None:
                 return
 
 
-def measure(devices: int, rate: float, seconds: float, warmup: float, tmp: str) -> dict[str, float]:
+LAG_PROBE = """
+window.__lag = {max: 0, long: 0};
+let last = performance.now();
+setInterval(() => { const now = performance.now(); window.__lag.max = Math.max(window.__lag.max, now - last - 50);
+  last = now; }, 50);
+new PerformanceObserver((list) => { window.__lag.long += list.getEntries().length; }).observe({type: "longtask"});
+"""
+
+
+def _browser(url: str, profile: str):  # -> selenium WebDriver
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = "/usr/bin/chromium"
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--window-size=1400,1200", f"--user-data-dir={profile}"):
+        options.add_argument(flag)
+    browser = webdriver.Chrome(options=options, service=Service(executable_path="/usr/bin/chromedriver"))
+    browser.get(url)
+    return browser
+
+
+def measure(devices: int, rate: float, seconds: float, warmup: float, tmp: str,
+            browser: bool = False) -> dict[str, float]:
     with LocalBroker() as broker:
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [os.getcwd(), os.environ.get("PYTHONPATH")]))}
         dashboard = subprocess.Popen([sys.executable, "-m", "edgedsm", "dashboard", "--broker",
@@ -119,10 +148,16 @@ def measure(devices: int, rate: float, seconds: float, warmup: float, tmp: str) 
             threading.Thread(target=_page, args=(url, events, stop), daemon=True).start()
             load = Load(broker.port, devices, rate)
             load.thread.start()
+            page = _browser(url, f"{tmp}/bench-profile-{devices}") if browser else None
             time.sleep(warmup)
+            if page is not None:
+                page.execute_script(LAG_PROBE)
             cpu0, t0, m0, b0, e0 = _cpu_seconds(dashboard.pid), time.monotonic(), load.messages, load.bytes, events[0]
             time.sleep(seconds)
             cpu1, t1, m1, b1, e1 = _cpu_seconds(dashboard.pid), time.monotonic(), load.messages, load.bytes, events[0]
+            lag = page.execute_script("return window.__lag") if page is not None else {"max": math.nan, "long": 0}
+            if page is not None:
+                page.quit()
             load.close()
             stop.set()
         finally:
@@ -132,7 +167,8 @@ def measure(devices: int, rate: float, seconds: float, warmup: float, tmp: str) 
                 dashboard.stdout.close()
     elapsed = t1 - t0
     return {"devices": devices, "rate": rate, "msg_s": (m1 - m0) / elapsed, "kb_s": (b1 - b0) / elapsed / 1024,
-            "cpu": 100 * (cpu1 - cpu0) / elapsed, "events_s": (e1 - e0) / elapsed}
+            "cpu": 100 * (cpu1 - cpu0) / elapsed, "events_s": (e1 - e0) / elapsed, "lag_ms": lag["max"],
+            "long_tasks": lag["long"]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -142,12 +178,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=30.0, help="measured time per row")
     parser.add_argument("--warmup", type=float, default=5.0)
     parser.add_argument("--tmp", default="/tmp")
+    parser.add_argument("--browser", action="store_true", help="also measure the page in chromium (headless)")
     args = parser.parse_args(argv)
-    print(f"{'devices':>7} {'updates/s':>9} {'msg/s':>8} {'KiB/s':>8} {'dashboard CPU':>14} {'page events/s':>14}")
+    print(f"{'devices':>7} {'updates/s':>9} {'msg/s':>8} {'KiB/s':>8} {'dashboard CPU':>14} {'page events/s':>14}"
+          + (f" {'page max delay':>15} {'tasks > 50 ms':>14}" if args.browser else ""))
     for count in args.devices:
-        row = measure(count, args.rate, args.seconds, args.warmup, args.tmp)
+        row = measure(count, args.rate, args.seconds, args.warmup, args.tmp, args.browser)
+        page = f" {row['lag_ms']:>12.0f} ms {row['long_tasks']:>14d}" if args.browser else ""
         print(f"{row['devices']:>7} {row['rate']:>9.1f} {row['msg_s']:>8.1f} {row['kb_s']:>8.1f} "
-              f"{row['cpu']:>12.1f} % {row['events_s']:>14.1f}", flush=True)
+              f"{row['cpu']:>12.1f} % {row['events_s']:>14.1f}{page}", flush=True)
     return 0
 
 
