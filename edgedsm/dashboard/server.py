@@ -145,9 +145,12 @@ class Handler(BaseHTTPRequestHandler):
 
     def do_GET(self) -> None:
         url = urlsplit(self.path)
-        query = {key: values[0] for key, values in parse_qs(url.query, max_num_fields=20).items()}
         path = url.path
         try:
+            try:
+                query = {key: values[0] for key, values in parse_qs(url.query, max_num_fields=20).items()}
+            except ValueError:
+                raise BadRequest("too many query fields") from None
             if path in ("/", "/index.html"):
                 self._static("index.html")
             elif path.startswith("/static/"):
@@ -171,6 +174,9 @@ class Handler(BaseHTTPRequestHandler):
             self._error(HTTPStatus.BAD_REQUEST, str(exc))
         except (BrokenPipeError, ConnectionResetError):
             pass
+        except Exception:  # a bug answers 500 and is logged; the server goes on
+            log.exception("dashboard: %s %s failed", self.command, self.path[:200])
+            self._error(HTTPStatus.INTERNAL_SERVER_ERROR, "internal error (logged)")
 
     def do_POST(self) -> None:
         path = urlsplit(self.path).path
@@ -186,6 +192,9 @@ class Handler(BaseHTTPRequestHandler):
             self._error(HTTPStatus.BAD_REQUEST, str(exc))
         except (BrokenPipeError, ConnectionResetError):
             pass
+        except Exception:  # a bug answers 500 and is logged; the server goes on
+            log.exception("dashboard: %s %s failed", self.command, self.path[:200])
+            self._error(HTTPStatus.INTERNAL_SERVER_ERROR, "internal error (logged)")
 
     # -- pages ------------------------------------------------------------------------------
 

@@ -227,3 +227,12 @@ def test_only_the_page_files_are_served_and_bodies_are_bounded(server: tuple[Das
     assert call(made, "/static/%2e%2e/server.py")[0] == 404
     assert call(made, "/api/region-stats", b"x" * (65 * 1024))[0] == 400
     assert call(made, "/api/region-stats", b"[1]")[0] == 400
+
+
+def test_malformed_queries_are_refused_not_crashed(server: tuple[DashboardServer, Any]) -> None:
+    made = server[0]
+    many = "&".join(f"k{i}=1" for i in range(30))
+    assert call(made, f"/api/devices?{many}")[0] == 400
+    assert call(made, "/api/map.png?device=nobody&name=s2")[0] == 404
+    assert call(made, "/api/history?device=a&region=b&from=10&to=5")[0] == 400
+    assert call(made, "/api/devices")[0] == 200

@@ -213,7 +213,7 @@ function shapeElement(shape, frame, cls) {
 function renderAlerts(device) {
   const items = (device.alerts || []).slice().reverse().map((a) => {
     const change = a.type === "transition" ? `${a.from} → ${a.to}` : a.type;
-    return el("li", { class: stateClass(a.type) === "unknown" ? a.type : "" },
+    return el("li", { class: ["fault", "warning"].includes(a.type) ? a.type : "" },
       `${clock(a.t)} ${a.region || "device"}: ${change}${a.reason ? " – " + a.reason : ""}`);
   });
   $("alerts").replaceChildren(...items);
