@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import socket
 import sqlite3
 import threading
 import time
@@ -236,3 +237,36 @@ def test_malformed_queries_are_refused_not_crashed(server: tuple[DashboardServer
     assert call(made, "/api/map.png?device=nobody&name=s2")[0] == 404
     assert call(made, "/api/history?device=a&region=b&from=10&to=5")[0] == 400
     assert call(made, "/api/devices")[0] == 200
+
+
+def test_command_line_errors_are_one_line_with_exit_78(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    from edgedsm.cli import main
+
+    database = str(tmp_path / "h.sqlite3")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["dashboard", "--database", database, "--listen", f"127.0.0.1:{port}"]) == 78
+    assert f"--listen 127.0.0.1:{port}:" in capsys.readouterr().err
+    assert main(["dashboard", "--database", database, "--config-dir", str(tmp_path / "none")]) == 78
+    assert "--config-dir" in capsys.readouterr().err
+    monkeypatch.setenv("EDGEDSM_DASHBOARD_TOKEN", "short")
+    assert main(["dashboard", "--database", database]) == 78
+    assert "at least 16 characters" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["dashboard", "--listen", "127.0.0.1:http"])
+    assert exit_info.value.code == 2
+
+
+def test_region_outlines_and_thresholds_come_from_the_daemon_configs(tmp_path: Path) -> None:
+    from edgedsm.dashboard.app import regions_from_configs
+
+    config = tmp_path / "line3.toml"
+    config.write_text('[device]\nname = "line3"\n[[regions]]\nname = "edge"\nshape = "circle"\ncx = 5\ncy = 6\n'
+                      'radius = 4\nwet_above = 0.3\ndry_below = 0.1\n[[regions]]\nname = "all"\nwet_above = 2\n'
+                      'dry_below = 1\n')
+    found = regions_from_configs([config])
+    assert found["line3"]["edge"] == RegionInfo("edge", {"shape": "circle", "cx": 5, "cy": 6, "radius": 4}, 0.3, 0.1)
+    assert found["line3"]["all"].shape == {"shape": "full"} and found["line3"]["all"].wet_above == 2.0
