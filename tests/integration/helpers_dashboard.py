@@ -23,10 +23,10 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic
 class DashboardProcess:
     """`python -m edgedsm dashboard ...`; the URL is read from its first line."""
 
-    def __init__(self, args: list[str], timeout: float = 15.0) -> None:
+    def __init__(self, args: list[str], env: dict[str, str] | None = None) -> None:
         self.process = subprocess.Popen([sys.executable, "-m", "edgedsm", "-v", "dashboard", *args],
                                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                        text=True, env=child_env())
+                                        text=True, env={**child_env(), **(env or {})})
         self.errors: list[str] = []
         assert self.process.stdout is not None
         line = self.process.stdout.readline()

@@ -49,6 +49,7 @@ n_max = 1000
 bits = 8
 """
 SHOW_S = 2.0  # a change on MQTT must be on the page within this
+TOKEN = "commissioning-token-42"
 
 
 @dataclass
@@ -60,6 +61,7 @@ class Plant:
     database: Path
     publisher: mqtt.Client
     shots: Path
+    commands: list[tuple[str, bytes]]
 
     def publish(self, topic: str, payload: bytes | str | dict, retain: bool = False) -> None:
         data = json.dumps(payload) if isinstance(payload, dict) else payload
@@ -98,12 +100,16 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
                     "dry_below": 0.16, "min_dwell_s": 1.0}])
     database = tmp / "history.sqlite3"
     dashboard = DashboardProcess(["--broker", f"127.0.0.1:{broker.port}", "--listen", "127.0.0.1:0",
-                                  "--database", str(database), "-c", str(drying), "-c", str(wet)])
+                                  "--database", str(database), "-c", str(drying), "-c", str(wet)],
+                                 env={"EDGEDSM_DASHBOARD_TOKEN": TOKEN})
     wait_for(lambda: json.loads(dashboard.get("/api/info"))["broker_connected"], 10,
               "the dashboard subscribed (before the daemons' first alerts: alerts are not retained)")
     daemons = {"plate-a": Daemon(drying), "plate-b": Daemon(wet)}
+    replies: list[tuple[str, bytes]] = []
     publisher = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="dashboard-test-publisher")
+    publisher.on_message = lambda client, userdata, message: replies.append((message.topic, message.payload))
     publisher.connect("127.0.0.1", broker.port)
+    publisher.subscribe("edgedsm/+/cmd/#", qos=1)
     publisher.loop_start()
     browser = None
     try:
@@ -112,7 +118,7 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
         shots = Path(os.environ.get("EDGEDSM_DOCS_SCREENSHOTS") or tmp)
         if not shots.is_absolute():
             shots = REPO / shots
-        yield Plant(broker, daemons, dashboard, browser, database, publisher, shots)
+        yield Plant(broker, daemons, dashboard, browser, database, publisher, shots, replies)
     finally:
         if browser is not None:
             browser.quit()
@@ -124,8 +130,10 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
         broker.stop()
 
 
-def _no_errors(plant: Plant) -> None:
-    assert severe_console_messages(plant.browser) == []
+def _no_errors(plant: Plant, allowed: str | None = None) -> None:
+    """No console errors (``allowed``: a message the test caused on purpose)."""
+    messages = severe_console_messages(plant.browser)
+    assert [message for message in messages if allowed is None or not re.search(allowed, message)] == []
     assert plant.dashboard.errors == []
 
 
@@ -229,6 +237,28 @@ def test_a_region_drawn_on_the_map_gets_statistics_and_a_toml_block(plant: Plant
     assert answer["stats"]["pixels"] >= 1000 and shown.startswith(f"{answer['stats']['pixels']} px")
     plant.browser.save_screenshot(str(plant.shots / "dashboard-editor.png"))
     _no_errors(plant)
+
+
+@pytest.mark.timeout(60)
+def test_a_command_from_the_page_needs_the_token_and_reaches_the_daemon(plant: Plant) -> None:
+    plant.js("window.edgedsmDashboard.select('plate-b')")
+    buttons = plant.js("return [...document.querySelectorAll('[data-command]')].map(b => b.dataset.command)")
+    assert buttons == ["rebaseline", "dark", "publish_maps"]  # never the laser
+    button = plant.browser.find_element("css selector", "[data-command=publish_maps]")
+    plant.browser.find_element("id", "token").send_keys("wrong-token-wrong-token")
+    button.click()
+    wait_for(lambda: "wrong or missing token" in plant.js("return document.getElementById('command-result')"
+                                                          ".textContent"), 5, "the refusal of a wrong token")
+    assert not [topic for topic, _ in plant.commands if topic.startswith("edgedsm/plate-b/cmd/publish_maps")]
+    token = plant.browser.find_element("id", "token")
+    token.clear()
+    token.send_keys(TOKEN)
+    button.click()
+    reply = wait_for(lambda: next((json.loads(payload) for topic, payload in plant.commands
+                                   if topic == "edgedsm/plate-b/cmd/publish_maps/reply"), None), 10,
+                     "the daemon's reply to publish_maps")
+    assert reply["ok"] is True and str(reply["request_id"]).startswith("dashboard-")
+    _no_errors(plant, allowed=r"/api/command - Failed to load resource: .* 401 \(Unauthorized\)$")
 
 
 @pytest.mark.timeout(120)
