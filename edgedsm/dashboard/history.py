@@ -20,6 +20,7 @@ log = logging.getLogger(__name__)
 
 COMMIT_EVERY_S = 0.5
 PRUNE_EVERY_S = 3600.0
+WARN_EVERY_S = 60.0  # a disk that refuses writes is logged at most this often
 QUEUE_LIMIT = 100_000  # pending rows; beyond that new rows are dropped (and counted)
 MAX_POINTS = 5000  # a history answer holds at most this many points (averaged into time buckets)
 
@@ -65,6 +66,7 @@ class History:
         self.path = Path(path)
         self.retention_s = retention_s
         self.dropped = 0
+        self._last_warning = -WARN_EVERY_S
         self._queue: queue.Queue[Sample | AlertRow | None] = queue.Queue(QUEUE_LIMIT)
         self._flushed = threading.Condition()
         self._written = 0
@@ -132,7 +134,9 @@ class History:
                 connection.executemany("INSERT OR IGNORE INTO alerts VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", alerts)
         except sqlite3.Error as exc:  # a full disk must not stop the live view
             self.dropped += len(batch)
-            log.warning("history: %d rows not written: %s", len(batch), exc)
+            if time.monotonic() - self._last_warning > WARN_EVERY_S:
+                self._last_warning = time.monotonic()
+                log.warning("history: rows not written (%d so far): %s", self.dropped, exc)
         with self._flushed:
             self._written += len(batch)
             self._flushed.notify_all()

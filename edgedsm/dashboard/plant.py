@@ -166,9 +166,9 @@ class Plant:
             device.availability = text
         elif kind == "state":
             report = _parse(StateReport, payload)
-            device.state = report.to_json()
             if len(report.regions) > MAX_REGIONS:
                 raise Rejected(f"{len(report.regions)} regions (at most {MAX_REGIONS} are shown)")
+            device.state = report.to_json()
         elif kind == "stats":
             self._stats(device, _parse(Stats, payload))
         elif kind == "alerts":
@@ -231,7 +231,8 @@ class Plant:
             device.pending_png.pop(name, None)
             raise Rejected(f"map not decoded: {exc}") from None
         del device.pending_meta[name], device.pending_png[name]
-        device.maps[name] = MapImage(values, meta, maps.colour_png(values))
+        # float32 for the editor's statistics: half the memory, far finer than the PNG's 16-bit steps
+        device.maps[name] = MapImage(values.astype(np.float32), meta, maps.colour_png(values))
         return "map", {"device": device.name, "map": name, **_map_info(device.maps[name])}
 
 
