@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from edgedsm.errors import EdgedsmError
 from edgedsm.estimators import ESTIMATORS, all_maps
 from edgedsm.imageio import save_map_png
 from edgedsm.resources import data_file
+
+if TYPE_CHECKING:
+    from edgedsm.dashboard.app import Dashboard
 
 NAME = "demo"
 HELP = "activity maps of a simulated scene, then the daemon watching a plate dry (the README's first command)"
@@ -162,7 +166,7 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
     return 0
 
 
-def _start_dashboard(config: DaemonConfig, config_path: Path, listen: str):  # -> Dashboard | None
+def _start_dashboard(config: DaemonConfig, config_path: Path, listen: str) -> Dashboard:
     """The plant dashboard on the demo's broker, its history beside the daemon's state."""
     from edgedsm.dashboard.app import Dashboard, DashboardSettings
 
