@@ -16,7 +16,7 @@ from edgedsm import __version__
 from edgedsm.errors import ConfigError, DataError, DeviceError, EdgedsmError
 
 COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "cmd",
-            "probe", "init")
+            "probe", "init", "dashboard")
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2

@@ -4,7 +4,8 @@
 source "$(dirname "${BASH_SOURCE[0]}")/_env.sh"
 # socat: PTY pairs for the emulated relay boards; systemd: systemd-analyze checks the unit
 # (procps: the unit's ExecReload=/bin/kill, which `verify` checks).
-apt_install socat systemd procps mosquitto openssl gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev
+# chromium + chromium-driver: the dashboard's browser tests (Selenium drives the system browser).
+apt_install socat systemd procps mosquitto openssl chromium chromium-driver gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev
 ensure_venv test
 cd "$ROOT"
 "$VENV/bin/ruff" check edgedsm tests

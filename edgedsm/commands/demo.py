@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from edgedsm.errors import EdgedsmError
 from edgedsm.estimators import ESTIMATORS, all_maps
 from edgedsm.imageio import save_map_png
 from edgedsm.resources import data_file
+
+if TYPE_CHECKING:
+    from edgedsm.dashboard.app import Dashboard
 
 NAME = "demo"
 HELP = "activity maps of a simulated scene, then the daemon watching a plate dry (the README's first command)"
@@ -47,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="daemon config of part 2 (default: config/daemon/demo.toml)")
     parser.add_argument("--broker", metavar="HOST:PORT", help="use this broker instead of a private mosquitto")
     parser.add_argument("--time-limit", type=float, default=180.0, help="seconds part 2 may take (default 180)")
+    parser.add_argument("--dashboard", metavar="HOST:PORT", default="127.0.0.1:8080",
+                        help="serve the plant dashboard of part 2 here (default 127.0.0.1:8080, another free "
+                             "port if taken; 'off': none); on a terminal it stays up until Ctrl-C")
     add_progress_flag(parser)
 
 
@@ -83,10 +90,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote frames.npy, s1/s2/s3 .npy and .png to {output.resolve()}")
     if not args.daemon:
         return 0
-    return run_daemon_demo(args.daemon_config, args.broker, args.time_limit, output / "state")
+    return run_daemon_demo(args.daemon_config, args.broker, args.time_limit, output / "state", args.dashboard)
 
 
-def run_daemon_demo(config_path: Path, broker: str | None, time_limit: float, state_dir: Path) -> int:
+def run_daemon_demo(config_path: Path, broker: str | None, time_limit: float, state_dir: Path,
+                    dashboard: str = "off") -> int:
     """Part 2: the daemon in a thread, a watch subscriber in this one, until the plate is dry."""
     from edgedsm.config import load_config
 
@@ -100,12 +108,13 @@ def run_daemon_demo(config_path: Path, broker: str | None, time_limit: float, st
     if quiet:
         daemon_log.setLevel(logging.ERROR)  # the watch lines below tell the story
     try:
-        return _daemon_demo(config, config_path, broker, time_limit)
+        return _daemon_demo(config, config_path, broker, time_limit, dashboard)
     finally:
         daemon_log.setLevel(previous_level)
 
 
-def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, time_limit: float) -> int:
+def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, time_limit: float,
+                 dashboard_listen: str = "off") -> int:
     from edgedsm.commands.watch import Watcher
     from edgedsm.daemon.broker import LocalBroker
     from edgedsm.daemon.service import Service
@@ -121,6 +130,10 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
             config.mqtt.host, config.mqtt.port = host or "127.0.0.1", int(port)
         print(f"edgedsm demo: daemon on {config.camera.uri} (laser {config.laser.uri if config.laser else 'none'}); "
               f"watching {config.mqtt.topic_prefix}/{config.mqtt.device}/# until the plate is dry\n")
+        dashboard = None if dashboard_listen == "off" else _start_dashboard(config, config_path, dashboard_listen)
+        if dashboard is not None:
+            stack.callback(dashboard.stop)
+            print(f"edgedsm demo: plant dashboard at {dashboard.url}")
         service = Service(config_path, config=config)
         thread = threading.Thread(target=service.run, name="edgedsm-demo-daemon", daemon=True)
         thread.start()
@@ -140,8 +153,30 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
             watcher.stop()
             service.stop()
             thread.join(timeout=5)
-    if not finished:
-        print(f"edgedsm demo: the plate was not dry within {time_limit:g} s", file=sys.stderr)
-        return 1
-    print("\nedgedsm demo: the plate is dry; daemon stopped, laser off.")
+        if not finished:
+            print(f"edgedsm demo: the plate was not dry within {time_limit:g} s", file=sys.stderr)
+            return 1
+        print("\nedgedsm demo: the plate is dry; daemon stopped, laser off.")
+        if dashboard is not None:
+            print(f"edgedsm demo: its drying curve: {dashboard.url}", flush=True)
+            if sys.stdout.isatty():
+                print("edgedsm demo: the dashboard stays up until Ctrl-C", flush=True)
+                with contextlib.suppress(KeyboardInterrupt):
+                    threading.Event().wait()
     return 0
+
+
+def _start_dashboard(config: DaemonConfig, config_path: Path, listen: str) -> Dashboard:
+    """The plant dashboard on the demo's broker, its history beside the daemon's state."""
+    from edgedsm.dashboard.app import Dashboard, DashboardSettings
+
+    assert config.mqtt is not None
+    host, _, port = listen.rpartition(":")
+    settings = DashboardSettings(mqtt=config.mqtt, listen=(host or "127.0.0.1", int(port)),
+                                 database=Path(config.device.state_dir) / "dashboard.sqlite3", retention_s=86400.0,
+                                 token=None, daemon_configs=[config_path])
+    try:
+        return Dashboard(settings, password=None).serve_in_background()
+    except OSError:  # the port is taken: any free one
+        settings.listen = (settings.listen[0], 0)
+        return Dashboard(settings, password=None).serve_in_background()

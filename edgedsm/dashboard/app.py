@@ -1,0 +1,98 @@
+"""Wires the dashboard: history database, plant view, event hub, MQTT subscriber, HTTP server."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from edgedsm.dashboard.history import History
+from edgedsm.dashboard.plant import Plant, RegionInfo
+from edgedsm.dashboard.server import DashboardServer, EventHub
+from edgedsm.dashboard.subscriber import PlantSubscriber
+from edgedsm.publish.settings import MqttSettings
+from edgedsm.validation import read_toml
+
+log = logging.getLogger(__name__)
+
+SHAPE_KEYS = {"shape", "x", "y", "width", "height", "cx", "cy", "radius", "inner_radius", "outer_radius", "points"}
+
+
+@dataclass
+class DashboardSettings:
+    mqtt: MqttSettings
+    listen: tuple[str, int]
+    database: Path
+    retention_s: float
+    token: str | None
+    daemon_configs: list[Path]
+
+
+def regions_from_configs(paths: list[Path]) -> dict[str, dict[str, RegionInfo]]:
+    """Region outlines and thresholds per device, read from daemon configs (the page draws them;
+    the dashboard never writes a config). Shapes the page cannot draw (text, mask) keep their
+    thresholds only."""
+    found: dict[str, dict[str, RegionInfo]] = {}
+    for path in paths:
+        data = read_toml(path)
+        device = data.get("device", {}).get("name", "camera1") if isinstance(data.get("device"), dict) else "camera1"
+        regions: dict[str, RegionInfo] = {}
+        for entry in data.get("regions", []) if isinstance(data.get("regions"), list) else []:
+            if not isinstance(entry, dict) or not isinstance(entry.get("name"), str):
+                continue
+            shape: dict[str, Any] = {key: value for key, value in entry.items() if key in SHAPE_KEYS}
+            shape.setdefault("shape", "full")
+            regions[entry["name"]] = RegionInfo(entry["name"], shape, _float(entry.get("wet_above")),
+                                                _float(entry.get("dry_below")))
+        found[str(device)] = regions
+    return found
+
+
+def _float(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+class Dashboard:
+    """``start()`` connects and serves; ``stop()`` undoes it."""
+
+    def __init__(self, settings: DashboardSettings, *, password: str | None) -> None:
+        self.settings = settings
+        settings.database.parent.mkdir(parents=True, exist_ok=True)
+        self.history = History(settings.database, settings.retention_s)
+        self.hub = EventHub()
+        self.plant = Plant(settings.mqtt.topic_prefix, self.history, self.hub.publish,
+                           regions_from_configs(settings.daemon_configs))
+        try:
+            self.subscriber = PlantSubscriber(settings.mqtt, self.plant, password=password)
+            self.server = DashboardServer(settings.listen, self.plant, self.history, self.hub, token=settings.token,
+                                          send_command=self.subscriber.send_command,
+                                          broker_connected=self.subscriber.connected.is_set)
+        except BaseException:
+            self.history.close()
+            raise
+
+    @property
+    def url(self) -> str:
+        return self.server.url
+
+    def start(self) -> Dashboard:
+        self.subscriber.start()
+        return self
+
+    def serve_forever(self) -> None:
+        self.server.serve_forever(poll_interval=0.5)
+
+    def serve_in_background(self, connect_wait_s: float = 5.0) -> Dashboard:
+        """Connect and serve from threads (the demo runs it beside the daemon); waits for the broker
+        up to ``connect_wait_s`` so that the first alerts are seen."""
+        self.start()
+        self.subscriber.connected.wait(connect_wait_s)
+        threading.Thread(target=self.serve_forever, name="dashboard-http", daemon=True).start()
+        return self
+
+    def stop(self) -> None:
+        self.server.stop()
+        self.subscriber.stop()
+        self.history.close()
