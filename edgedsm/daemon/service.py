@@ -30,6 +30,7 @@ from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
 from edgedsm.errors import ConfigError, DeviceError
+from edgedsm.estimators import ESTIMATORS
 from edgedsm.messages import Alert, AlertKind
 from edgedsm.publish.commands import Command
 from edgedsm.publish.sink import FanOut, LogSink, Sink
@@ -62,6 +63,11 @@ def make_sink(config: DaemonConfig, on_command: CommandHandler) -> Sink:
         from edgedsm.publish.json_sink import MqttSink
 
         sinks.append(MqttSink(config.mqtt, config.device.state_dir, on_command).start())
+    if config.sparkplug is not None and config.mqtt is not None:  # the config refuses one without the other
+        from edgedsm.publish.sparkplug.node import SparkplugSink
+
+        sinks.append(SparkplugSink(config.sparkplug, config.mqtt, config.device.state_dir,
+                                   regions=[region.name for region in config.regions], maps=ESTIMATORS).start())
     return FanOut(sinks) if sinks else LogSink()
 
 
