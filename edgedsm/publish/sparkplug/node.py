@@ -54,6 +54,14 @@ COUNTER_NAMES = ("connects", "disconnects", "births", "rebirth_requests", "comma
                  "ddata_sent", "state_refused")
 
 
+def _release_wakeup_sockets(client: mqtt.Client) -> None:
+    """Close the socket pair paho 2.2's ``loop_start`` opens and never closes (a second
+    ``loop_start`` after a session restart would leak the first pair)."""
+    reset = getattr(client, "_reset_sockets", None)
+    if reset is not None:
+        reset(sockpair_only=True)
+
+
 @dataclass(frozen=True)
 class SparkplugTopics:
     """The topics of one edge node and its camera device."""
@@ -167,6 +175,8 @@ class SparkplugSink:
             stopper = threading.Thread(target=self._client.loop_stop, name="edgedsm-sparkplug-stop", daemon=True)
             stopper.start()
             stopper.join(timeout=max(0.05, deadline - time.monotonic()))
+            if not stopper.is_alive():
+                _release_wakeup_sockets(self._client)
 
     # -- health, for tests and the docs -----------------------------------------------------------
 
@@ -276,6 +286,7 @@ class SparkplugSink:
         self._send_death(0.5)
         self._client.disconnect(reasoncode=self._disconnect_reason())
         self._client.loop_stop()
+        _release_wakeup_sockets(self._client)
         with self._lock:
             if self._closing:
                 return
