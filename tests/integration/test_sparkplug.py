@@ -6,6 +6,7 @@ where the broker must deliver its will after a SIGKILL, and inside `edgedsm run`
 from __future__ import annotations
 
 import itertools
+import re
 import subprocess
 import sys
 import time
@@ -312,3 +313,50 @@ def test_clean_close_publishes_ndeath_before_disconnecting(make_node, host: Spar
     node.close(2.0)
     ndeath = host.wait_for("NDEATH", "the NDEATH of a clean stop")[0]  # ...-intentional-disconnect-ndeath
     assert bdseq_of(ndeath) == bdseq_of(nbirth) and ndeath.payload.seq is None
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(150)
+def test_the_daemon_end_to_end_publishes_the_drying_plate_as_sparkplug(
+        broker: Broker, host: SparkplugHost, tmp_path: Path) -> None:
+    from test_daemon_e2e import Daemon, base_config, write_config
+
+    config = base_config(tmp_path, port=broker.port, device="spb")
+    config["sparkplug"] = {"group_id": "plant", "rebirth_min_interval_s": 0.5}  # edge node id: the device
+    daemon = Daemon(write_config(tmp_path / "daemon.toml", config))
+    try:
+        nbirth = host.wait_for("NBIRTH", "the daemon's NBIRTH", timeout=30)[0]
+        dbirth = host.wait_for("DBIRTH", "the daemon's DBIRTH", timeout=30)[0]
+        assert (nbirth.topic, dbirth.topic) == ("spBv1.0/plant/NBIRTH/spb", "spBv1.0/plant/DBIRTH/spb/camera")
+        known = {metric.name: metric for metric in dbirth.payload.metrics}
+        assert {f"regions/plate/{name}/mean" for name in ESTIMATORS} <= set(known)
+        state_alias, s2_alias = known["regions/plate/state"].alias, known["regions/plate/s2/mean"].alias
+        known_types = {metric.alias: metric.datatype for metric in dbirth.payload.metrics}
+
+        def values_of(alias: int) -> list[Any]:
+            """The metric's values in births (a new metric, e.g. a drop cause, brings one) and data."""
+            return [metric.value(known_types[alias]) for message in host.all() if message.kind in ("DBIRTH", "DDATA")
+                    for metric in message.payload.metrics if metric.alias == alias]
+
+        def states() -> list[str]:
+            return [value for value, _ in itertools.groupby(values_of(state_alias)) if value is not None]
+
+        # the demo plate dries: wet -> drying -> dry, each reported once by exception
+        wait_until(lambda: "dry" in states(), 90, f"the plate reported dry over Sparkplug (so far {states()})")
+        # every transition the daemon logged, and nothing else, in order (on a loaded machine the
+        # window may fill when the plate is already drying: warming_up -> drying is legitimate)
+        logged = re.findall(r"region plate: (\w+) -> (\w+)", daemon.log)
+        assert logged and states() == ["warming_up", *(to for _, to in logged)], (states(), logged)
+        assert states()[-1] == "dry"
+        s2 = [value for value in values_of(s2_alias) if value is not None]
+        assert s2 and all(value > 0 for value in s2) and s2[0] > s2[-1]  # activity falls as it dries
+        # a host asks for a rebirth: the same session's bdSeq
+        births_before = len(host.of("NBIRTH"))
+        host.send("spBv1.0/plant/NCMD/spb", command([{"name": REBIRTH, "boolean_value": True}]))
+        again = host.wait_for("NBIRTH", "the NBIRTH answering the rebirth", count=births_before + 1)[-1]
+        assert bdseq_of(again) == bdseq_of(nbirth)
+        daemon.process.kill()  # SIGKILL: the broker delivers the will
+        ndeath = host.wait_for("NDEATH", "the daemon's NDEATH after SIGKILL", timeout=20)[0]
+        assert bdseq_of(ndeath) == bdseq_of(nbirth)
+    finally:
+        daemon.kill()
