@@ -272,6 +272,8 @@ def _books() -> tuple[MetricBook, MetricBook]:
     (command([{"name": "Node Control/Reboot", "boolean_value": True}]), False, False, "unknown metric"),
     (command([{"datatype": 11}]), False, False, "neither name nor alias"),
     (b"\x0a", False, False, "not a Sparkplug B"),
+    (command([{"name": REBIRTH, "boolean_value": True, "string_value": "x" * 70_000}]), False, False,
+     "more than the 65536 accepted"),
 ])
 def test_commands_are_judged(payload: bytes, retained: bool, rebirth: bool, refusal: str | None) -> None:
     node, device = _books()

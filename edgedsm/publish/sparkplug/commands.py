@@ -15,6 +15,9 @@ from edgedsm.publish.sparkplug.payload import PayloadError, decode_command
 #: The rebirth request (spec: tck-id-operational-behavior-data-commands-rebirth-name).
 REBIRTH = "Node Control/Rebirth"
 
+#: Longest NCMD payload decoded (a rebirth request is a few dozen bytes).
+MAX_COMMAND_BYTES = 64 * 1024
+
 #: Refusals are logged at most this often; the ones in between are counted in the next line.
 REFUSAL_LOG_EVERY_S = 1.0
 
@@ -33,6 +36,9 @@ def judge(payload: bytes, retained: bool, node: MetricBook, device: MetricBook) 
     if retained:
         # a retained command would run again after every reconnection
         verdict.refusals.append("NCMD refused: retained (commands must be published with retain=false)")
+        return verdict
+    if len(payload) > MAX_COMMAND_BYTES:
+        verdict.refusals.append(f"NCMD refused: {len(payload)} bytes, more than the {MAX_COMMAND_BYTES} accepted")
         return verdict
     try:
         metrics = decode_command(payload)
