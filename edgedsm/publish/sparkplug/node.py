@@ -332,8 +332,11 @@ class SparkplugSink:
                 self._wake.notify_all()
 
     def _on_connect_fail(self, client: mqtt.Client, userdata: Any) -> None:
-        self._problems.report(f"Sparkplug: {diagnose(self.mqtt_settings, self._ssl_context)}; retrying",
-                              logging.WARNING)
+        with self._lock:
+            self._connected = self._subscribed = self.born = False
+        if self._problems.due():  # diagnosing costs a connection attempt: only when it will be logged
+            self._problems.report(f"Sparkplug: {diagnose(self.mqtt_settings, self._ssl_context)}; retrying",
+                                  logging.WARNING)
 
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
                        properties: Properties | None) -> None:
