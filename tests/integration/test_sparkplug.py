@@ -282,6 +282,23 @@ def test_broker_restart_gives_a_new_session_with_the_next_bdseq(make_node, host:
     assert (second.payload.seq, dbirth.payload.seq) == (0, 1)
 
 
+def test_a_node_started_with_the_broker_down_births_later_with_the_latest_values(
+        make_node, host: SparkplugHost, broker: Broker) -> None:
+    host.expect_resubscribe()
+    broker.stop()
+    node = make_node(rebirth_min_interval_s=0.0)
+    node.publish_stats(stats(42))  # measuring goes on while the broker is away
+    time.sleep(1.0)
+    assert not node.connected and not node.born
+    broker.start()
+    host.wait_subscribed()
+    wait_until(lambda: node.born, WAIT_S, "the node born once the broker is up")
+    host.send(NCMD, command([{"name": REBIRTH, "boolean_value": True}]))
+    nbirth, dbirth = births(host)
+    assert dbirth.payload.by_name()["frames"].value() == 42
+    assert bdseq_of(nbirth) == 0  # attempts that never reached a broker used no number
+
+
 def test_primary_host_state_gates_births_and_offline_restarts_the_session(make_node, host: SparkplugHost) -> None:
     node = make_node(primary_host_id="scada")
     wait_until(lambda: node.connected, WAIT_S, "connected")
