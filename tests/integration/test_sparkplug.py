@@ -370,6 +370,7 @@ def test_the_daemon_end_to_end_publishes_the_drying_plate_as_sparkplug(
         wait_until(lambda: "dry" in states(), 90, f"the plate reported dry over Sparkplug (so far {states()})")
         # every transition the daemon logged, and nothing else, in order (on a loaded machine the
         # window may fill when the plate is already drying: warming_up -> drying is legitimate)
+        daemon.wait_log(r"region plate: \w+ -> dry", 10)  # stderr is read on its own thread: it may lag
         logged = re.findall(r"region plate: (\w+) -> (\w+)", daemon.log)
         assert logged and states() == ["warming_up", *(to for _, to in logged)], (states(), logged)
         assert states()[-1] == "dry"
