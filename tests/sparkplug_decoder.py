@@ -143,11 +143,11 @@ def decode(data: bytes) -> DecodedPayload:
     return payload
 
 
-def _key(number: int, wire: int) -> bytes:
-    return _encode_varint(number << 3 | wire)
+def key(number: int, wire: int) -> bytes:
+    return encode_varint(number << 3 | wire)
 
 
-def _encode_varint(value: int) -> bytes:
+def encode_varint(value: int) -> bytes:
     out = bytearray()
     while True:
         byte = value & 0x7F
@@ -157,30 +157,30 @@ def _encode_varint(value: int) -> bytes:
             return bytes(out)
 
 
-def _length_delimited(number: int, data: bytes) -> bytes:
-    return _key(number, 2) + _encode_varint(len(data)) + data
+def length_delimited(number: int, data: bytes) -> bytes:
+    return key(number, 2) + encode_varint(len(data)) + data
 
 
 def command(metrics: list[dict[str, Any]], timestamp: int = 1) -> bytes:
     """An NCMD payload written by hand on the wire, as a host would send it: each metric a dict
     with ``name`` / ``alias`` / ``datatype`` and one of ``boolean_value``, ``int_value``,
     ``long_value``, ``string_value``."""
-    body = _key(1, 0) + _encode_varint(timestamp)
+    body = key(1, 0) + encode_varint(timestamp)
     for metric in metrics:
         part = b""
         if "name" in metric:
-            part += _length_delimited(1, metric["name"].encode("utf-8"))
+            part += length_delimited(1, metric["name"].encode("utf-8"))
         if "alias" in metric:
-            part += _key(2, 0) + _encode_varint(metric["alias"])
+            part += key(2, 0) + encode_varint(metric["alias"])
         if "datatype" in metric:
-            part += _key(4, 0) + _encode_varint(metric["datatype"])
+            part += key(4, 0) + encode_varint(metric["datatype"])
         if "boolean_value" in metric:
-            part += _key(14, 0) + _encode_varint(int(metric["boolean_value"]))
+            part += key(14, 0) + encode_varint(int(metric["boolean_value"]))
         if "int_value" in metric:
-            part += _key(10, 0) + _encode_varint(metric["int_value"])
+            part += key(10, 0) + encode_varint(metric["int_value"])
         if "long_value" in metric:
-            part += _key(11, 0) + _encode_varint(metric["long_value"])
+            part += key(11, 0) + encode_varint(metric["long_value"])
         if "string_value" in metric:
-            part += _length_delimited(15, metric["string_value"].encode("utf-8"))
-        body += _length_delimited(2, part)
+            part += length_delimited(15, metric["string_value"].encode("utf-8"))
+        body += length_delimited(2, part)
     return body

@@ -9,8 +9,10 @@ import json
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import BaseModel
-from sparkplug_decoder import command, decode
+from sparkplug_decoder import command, decode, encode_varint, key, length_delimited
 
 from edgedsm.config import load_config
 from edgedsm.errors import ConfigError
@@ -123,6 +125,22 @@ def test_commands_decode_from_hand_written_wire_bytes() -> None:
     for bad, reason in ((b"\xff\xff\xff", "not a Sparkplug B"), (b"", "no metric")):
         with pytest.raises(PayloadError, match=reason):
             decode_command(bad)
+
+
+def test_a_name_that_is_not_utf8_is_text_and_refused() -> None:
+    metric = length_delimited(1, b"\xff\xfeRebirth") + key(14, 0) + encode_varint(1)
+    (decoded,) = decode_command(length_delimited(2, metric))
+    assert decoded.name == "\ufffd\ufffdRebirth"
+    node, device = _books()
+    assert "unknown metric" in judge(length_delimited(2, metric), False, node, device).refusals[0]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=200))
+def test_random_bytes_on_ncmd_never_raise(data: bytes) -> None:
+    node, device = _books()
+    verdict = judge(data, False, node, device)
+    assert verdict.rebirth or verdict.refusals
 
 
 def test_the_generated_module_matches_the_vendored_schema() -> None:

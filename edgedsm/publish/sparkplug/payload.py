@@ -114,6 +114,11 @@ def encode(metrics: list[Metric], *, timestamp_ms: int, seq: int | None, birth: 
     return payload.SerializeToString()
 
 
+def _text(value: object) -> object:
+    # proto2 strings are not checked for UTF-8 when parsed: invalid bytes come back as bytes
+    return value.decode("utf-8", "replace") if isinstance(value, bytes) else value
+
+
 def decode_command(data: bytes) -> list[CommandMetric]:
     """The metrics of an NCMD payload; PayloadError when it is not a Sparkplug B payload."""
     try:
@@ -125,10 +130,10 @@ def decode_command(data: bytes) -> list[CommandMetric]:
     metrics = []
     for metric in payload.metrics:
         kind = metric.WhichOneof("value")
-        value: Value = None if kind is None or metric.is_null else getattr(metric, kind)
+        value: Value = None if kind is None or metric.is_null else _text(getattr(metric, kind))
         if not isinstance(value, bool | int | float | str | None):
-            value = None  # datasets, templates, bytes: nothing edgedsm accepts
-        metrics.append(CommandMetric(name=metric.name if metric.HasField("name") else None,
+            value = None  # datasets, templates: nothing edgedsm accepts
+        metrics.append(CommandMetric(name=_text(metric.name) if metric.HasField("name") else None,
                                      alias=metric.alias if metric.HasField("alias") else None,
                                      datatype=metric.datatype if metric.HasField("datatype") else None,
                                      value=value, value_kind=kind))
