@@ -373,7 +373,8 @@ class SparkplugSink:
                 self._want_birth()  # spec: stop data at once, then a complete birth sequence
 
     def _on_host_state(self, payload: bytes) -> None:
-        assert self.host is not None
+        if self.host is None:
+            return
         with self._lock:
             try:
                 event = self.host.on_state(payload)
