@@ -386,14 +386,14 @@ def test_the_daemon_end_to_end_publishes_the_drying_plate_as_sparkplug(
         assert bdseq_of(ndeath) == bdseq_of(nbirth)
     finally:
         daemon.kill()
-    # restarted: the next bdSeq; SIGTERM: its own NDEATH before 'offline', within the 2 s a stop has
+    # restarted: the next bdSeq; SIGTERM: its own NDEATH before the process exits
     host.clear()
     daemon = Daemon(write_config(tmp_path / "daemon.toml", config))
     try:
         restarted = host.wait_for("NBIRTH", "the restarted daemon's NBIRTH", timeout=30)[0]
         assert bdseq_of(restarted) == bdseq_of(nbirth) + 1
-        code, elapsed = daemon.terminate()
-        assert code == 0 and elapsed < 2.0
+        code, _ = daemon.terminate()  # the 2 s bound is test_daemon_e2e's (timing is not asserted here)
+        assert code == 0
         ndeath = host.wait_for("NDEATH", "the NDEATH of a SIGTERM", timeout=5)[0]
         assert bdseq_of(ndeath) == bdseq_of(restarted)
     finally:
