@@ -16,6 +16,7 @@ from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import ConfigDict, Discriminator, Field, PrivateAttr, Tag, field_validator, model_validator
+from pydantic_core.core_schema import ValidationInfo
 
 from edgedsm import geometry
 from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_camera_spec
@@ -23,6 +24,7 @@ from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.drying import Thresholds
 from edgedsm.errors import ConfigError
 from edgedsm.publish.settings import DEFAULT_DEVICE, TOPIC_PREFIX_PATTERN, MqttSettings
+from edgedsm.publish.sparkplug.settings import SparkplugSettings
 from edgedsm.validation import StrictModel, read_toml, validate
 
 
@@ -254,6 +256,8 @@ class DaemonConfig(StrictModel):
     regions: Annotated[list[RegionSection], Field(min_length=1, max_length=64)] = Field(
         default_factory=_default_regions, description="regions of interest, each with drying thresholds")
     mqtt: MqttSettings | None = Field(None, description="broker; absent = no publishing")
+    sparkplug: SparkplugSettings | None = Field(
+        None, description="Sparkplug B edge node on the [mqtt] broker; absent = none (docs/sparkplug.md)")
     logging: LoggingSection = Field(default_factory=LoggingSection)
     homeassistant: HomeAssistantSection | None = Field(None, description="Home Assistant discovery; absent = off")
     http: HttpSection | None = Field(None, description="metrics and health over HTTP; absent = off")
@@ -270,6 +274,14 @@ class DaemonConfig(StrictModel):
         """The config file's path as given ("" when built in code)."""
         return self._source
 
+    @field_validator("sparkplug")
+    @classmethod
+    def _sparkplug_needs_mqtt(cls, value: SparkplugSettings | None, info: ValidationInfo) -> SparkplugSettings | None:
+        # "mqtt" missing from info.data: its table failed validation and has its own error
+        if value is not None and "mqtt" in info.data and info.data["mqtt"] is None:
+            raise ValueError("needs an [mqtt] table: the Sparkplug node uses its broker, TLS and credentials")
+        return value
+
     @model_validator(mode="after")
     def _unique_regions(self) -> DaemonConfig:
         names = [r.name for r in self.regions]
@@ -282,6 +294,8 @@ class DaemonConfig(StrictModel):
             self.mqtt.device = self.device.name  # one name for the instance, its logs and its topics
         if self.homeassistant is not None and self.mqtt is None:
             raise ValueError("[homeassistant] needs [mqtt]: discovery is published on the broker")
+        if self.sparkplug is not None and self.sparkplug.edge_node_id is None:
+            self.sparkplug.edge_node_id = self.device.name
         return self
 
 

@@ -33,6 +33,7 @@ from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
 from edgedsm.errors import ConfigError, DeviceError
+from edgedsm.estimators import ESTIMATORS
 from edgedsm.messages import Alert, AlertKind
 from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.commands import Command
@@ -67,6 +68,11 @@ def make_sink(config: DaemonConfig, on_command: CommandHandler) -> tuple[Sink, P
 
         link = MqttSink(config.mqtt, config.device.state_dir, on_command).start()
         sinks.append(link)
+    if config.sparkplug is not None and config.mqtt is not None:  # the config refuses one without the other
+        from edgedsm.publish.sparkplug.node import SparkplugSink
+
+        sinks.append(SparkplugSink(config.sparkplug, config.mqtt, config.device.state_dir,
+                                   regions=[region.name for region in config.regions], maps=ESTIMATORS).start())
     if config.mqtt is not None and config.homeassistant is not None:
         from edgedsm.publish.homeassistant import HomeAssistantSink
 

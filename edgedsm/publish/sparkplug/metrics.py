@@ -1,0 +1,103 @@
+"""Which Sparkplug metrics the daemon's typed messages become (pure; see docs/sparkplug.md).
+
+The set is data-driven: every region and every map that a :class:`~edgedsm.messages.Stats`
+carries becomes metrics (``regions/<region>/<map>/mean``), so a new estimator (τc) or a new
+cause of dropped frames appears without a code change; the node announces it with a new birth.
+Metric names use '/' for folders, as Sparkplug hosts (Ignition) expect.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from edgedsm.messages import Alert, StateReport, Stats
+from edgedsm.publish.sparkplug.payload import DataType, Value
+
+#: Units of the maps' values (docs/mqtt.md); a map not listed here is published without a unit.
+MAP_UNITS = {"s1": "grey levels", "tau_c": "frames"}
+
+
+@dataclass(frozen=True)
+class Reading:
+    """A metric's current value with its datatype and engineering unit."""
+
+    datatype: DataType
+    value: Value
+    unit: str | None = None
+
+
+def _double(value: float | None, unit: str | None = None) -> Reading:
+    return Reading(DataType.DOUBLE, value, unit)
+
+
+def _count(value: int | None, unit: str | None = "frames") -> Reading:
+    return Reading(DataType.UINT64, value, unit)
+
+
+def _text(value: str | None) -> Reading:
+    return Reading(DataType.STRING, value)
+
+
+def _datetime_ms(wall_s: float | None) -> Reading:
+    return Reading(DataType.DATETIME, None if wall_s is None else round(wall_s * 1000.0))
+
+
+def region_readings(region: str, *, state: str | None = None, since: float | None = None,
+                    activity: float | None = None, time_to_dry_s: float | None = None) -> dict[str, Reading]:
+    """A region's drying metrics (all of them, null where unknown)."""
+    base = f"regions/{region}"
+    return {f"{base}/state": _text(state), f"{base}/since": _datetime_ms(since),
+            f"{base}/activity": _double(activity), f"{base}/time_to_dry_s": _double(time_to_dry_s, "s")}
+
+
+def map_reading(region: str, map_name: str, mean: float | None) -> tuple[str, Reading]:
+    """The region mean of one map (one estimator: s1, s2, s3, tau_c ...)."""
+    return f"regions/{region}/{map_name}/mean", _double(mean, MAP_UNITS.get(map_name))
+
+
+def declared_readings(regions: Iterable[str], maps: Iterable[str]) -> dict[str, Reading]:
+    """Every device metric known before the first message, null-valued, so that the first birth
+    already carries the whole set (a later birth adds what appears after)."""
+    readings: dict[str, Reading] = {
+        "frames": _count(None), "frames_dropped": _count(None), "fps": _double(None, "frames/s"),
+        "ready": Reading(DataType.BOOLEAN, None), "laser": _text(None), "estimator": _text(None),
+        "ambient_level": _double(None, "grey levels"), "warning": _text(None),
+        "alerts/count": _count(0, None), "alerts/last": _text(None), "alerts/last_type": _text(None),
+        "alerts/last_t": _datetime_ms(None),
+    }
+    map_names = list(maps)
+    for region in regions:
+        readings.update(region_readings(region))
+        readings.update(map_reading(region, name, None) for name in map_names)
+    return readings
+
+
+def stats_readings(stats: Stats) -> dict[str, Reading]:
+    """The metrics of one statistics message."""
+    readings: dict[str, Reading] = {
+        "frames": _count(stats.frames), "frames_dropped": _count(sum(stats.drops.values())),
+        "fps": _double(stats.fps, "frames/s"), "ready": Reading(DataType.BOOLEAN, stats.ready),
+        "laser": _text(stats.laser), "estimator": _text(stats.estimator),
+        "ambient_level": _double(stats.ambient_level, "grey levels"), "warning": _text(stats.warning),
+    }
+    readings.update((f"drops/{cause}", _count(count)) for cause, count in stats.drops.items())
+    for region, per_map in stats.regions.items():
+        readings.update(map_reading(region, name, map_stats.mean) for name, map_stats in per_map.items())
+    readings.update((f"regions/{region}/state", _text(state)) for region, state in stats.states.items())
+    return readings
+
+
+def state_readings(report: StateReport) -> dict[str, Reading]:
+    """The metrics of one state report: each region's state, since, activity and time to dry."""
+    readings: dict[str, Reading] = {"laser": _text(report.laser), "estimator": _text(report.estimator)}
+    for name, region in report.regions.items():
+        readings.update(region_readings(name, state=region.state, since=region.since, activity=region.activity,
+                                        time_to_dry_s=region.time_to_dry_s))
+    return readings
+
+
+def alert_readings(alert: Alert, count: int) -> dict[str, Reading]:
+    """The latest alert as metrics (Sparkplug has no events; the JSON sink delivers every alert)."""
+    return {"alerts/count": _count(count, None), "alerts/last": _text(alert.describe()),
+            "alerts/last_type": _text(str(alert.kind)), "alerts/last_t": _datetime_ms(alert.t)}
