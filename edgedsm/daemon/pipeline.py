@@ -168,6 +168,7 @@ class Pipeline:
             del self._frames_t[:-FPS_FRAMES]
         if self.probes.frame_taken is not None:
             self.probes.frame_taken(frame, self.counters["frames"])
+        self.on_alive()  # here, not only in the loop: a long dark phase must not starve the watchdog
         return frame
 
     def _device_fault(self, reason: str) -> None:

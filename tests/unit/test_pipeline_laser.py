@@ -393,3 +393,20 @@ def test_a_region_outside_the_frame_is_refused_before_the_laser_goes_on(setup, r
     with pytest.raises(ConfigError, match=r"regions\.plate: the region has no pixel inside the 64x64 frame"):
         pipeline.run(lambda: False, max_frames=300)
     assert relay.board.history and not any(s.on for s in relay.board.history)
+
+
+def test_dark_frames_keep_the_watchdog_fed(setup):
+    """A dark phase longer than WatchdogSec must not get the service killed: every frame that
+    arrives, dark or lit, counts as alive (issue 11 §8)."""
+    config, scene, relay, sink = setup
+    config.acquisition.dark_frames = 40
+    camera = SimulatedCamera(scene, time_scale=0)
+    couple_simulated_laser(camera, relay)
+    box: dict = {}
+    alive_at: list[int] = []
+    pipeline = box["p"] = Pipeline(config, camera, sink, relay=relay, cadence=Cadence(1.0, 10.0),
+                                   clock=frame_clock(box), on_alive=lambda: alive_at.append(box["p"].counters["frames"]))
+    hold_back(camera, pipeline)
+    pipeline.run(lambda: False, max_frames=60)
+    dark = [count for count in alive_at if count <= config.acquisition.dark_frames]
+    assert len(set(dark)) >= config.acquisition.dark_frames - 1  # one per dark frame, not one after the phase
