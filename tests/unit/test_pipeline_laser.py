@@ -405,7 +405,8 @@ def test_dark_frames_keep_the_watchdog_fed(setup):
     box: dict = {}
     alive_at: list[int] = []
     pipeline = box["p"] = Pipeline(config, camera, sink, relay=relay, cadence=Cadence(1.0, 10.0),
-                                   clock=frame_clock(box), on_alive=lambda: alive_at.append(box["p"].counters["frames"]))
+                                   clock=frame_clock(box),
+                                   on_alive=lambda: alive_at.append(box["p"].counters["frames"]))
     hold_back(camera, pipeline)
     pipeline.run(lambda: False, max_frames=60)
     dark = [count for count in alive_at if count <= config.acquisition.dark_frames]
