@@ -10,7 +10,7 @@ import pytest
 
 from edgedsm.cli import main
 from edgedsm.commands.cmd import parse_arguments
-from edgedsm.commands.watch import Watcher
+from edgedsm.commands.watcher import Watcher
 from edgedsm.config import DaemonConfig
 from edgedsm.errors import DataError
 from edgedsm.messages import RegionState, StateReport

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from edgedsm.commands import watch
+from edgedsm.commands.watcher import Watcher
 from edgedsm.errors import ConfigError
 from edgedsm.messages import Alert, AlertKind, RegionState, StateReport, Stats
 from edgedsm.publish import MqttSettings, encode_map
@@ -52,14 +53,14 @@ class _Message:
         self.topic, self.payload, self.retain = topic, payload, retain
 
 
-def _watcher(tmp_path: Path | None = None, count: int | None = None) -> tuple[watch.Watcher, list[str]]:
+def _watcher(tmp_path: Path | None = None, count: int | None = None) -> tuple[Watcher, list[str]]:
     lines: list[str] = []
-    watcher = watch.Watcher(MqttSettings(device="line3"), password=None, save_maps=tmp_path, count=count,
+    watcher = Watcher(MqttSettings(device="line3"), password=None, save_maps=tmp_path, count=count,
                             emit=lines.append)
     return watcher, lines
 
 
-def _feed(watcher: watch.Watcher, topic: str, payload: object, retain: bool = False) -> None:
+def _feed(watcher: Watcher, topic: str, payload: object, retain: bool = False) -> None:
     if isinstance(payload, Alert | StateReport | Stats):
         payload = payload.to_bytes()
     data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
@@ -122,7 +123,7 @@ def test_malformed_payloads_are_shown_as_such_never_raised():
 
 
 def test_stats_line_says_health_and_storage_fault():
-    watcher = watch.Watcher(MqttSettings(device="line3"), password=None, show_stats=True,
+    watcher = Watcher(MqttSettings(device="line3"), password=None, show_stats=True,
                             emit=(lines := []).append)
     stats = Stats(t=1.7e9, frames=640, ready=True, fps=29.97, laser="on", estimator="s2", states={"A": "wet"},
                   mqtt={"connected": True, "storage_error": "database or disk is full"})
