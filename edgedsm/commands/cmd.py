@@ -34,6 +34,7 @@ import paho.mqtt.client as mqtt
 from pydantic import ValidationError
 
 from edgedsm import _json
+from edgedsm.commands.broker_options import add_credential_options, host_port, mqtt_settings, seconds
 from edgedsm.errors import DataError
 from edgedsm.publish.commands import CommandReply
 from edgedsm.publish.connection import build_ssl_context, connect_in_background, describe_refusal, make_client
@@ -49,46 +50,25 @@ EXIT_NO_REPLY = 2
 CONNECT_WAIT_S = 10.0
 
 
-def _broker(text: str) -> tuple[str, int]:
-    host, _, port = text.rpartition(":")
-    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r} is not HOST:PORT (port 1..65535)")
-    return host, int(port)
-
-
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 < value <= 3600:
-        raise argparse.ArgumentTypeError("give a number above 0 and at most 3600")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name", metavar="NAME", help="command: laser, rebaseline, dark, publish_maps")
     parser.add_argument("--args", default="{}", metavar="JSON", help="the command's arguments as a JSON object")
     parser.add_argument("-c", "--config", type=Path, metavar="CONFIG",
                         help="take the broker and device from this daemon config")
-    parser.add_argument("--broker", type=_broker, metavar="HOST:PORT", help="broker (default localhost:1883)")
+    parser.add_argument("--broker", type=host_port(), metavar="HOST:PORT", help="broker (default localhost:1883)")
     parser.add_argument("--prefix", dest="topic_prefix", metavar="PREFIX", help="topic prefix (default edgedsm)")
     parser.add_argument("--device", help="device name in the topics (default: the config's, else camera1)")
-    parser.add_argument("--username", help="user name; the password is read from $EDGEDSM_MQTT_PASSWORD")
-    parser.add_argument("--timeout", type=_seconds, default=10.0, metavar="S",
+    parser.add_argument("--timeout", type=seconds, default=10.0, metavar="S",
                         help="longest wait for the reply (default 10)")
     parser.add_argument("--json", action="store_true", help="print the reply as one JSON object")
+    add_credential_options(parser.add_argument_group("credentials and TLS (as the daemon's [mqtt])"))
 
 
 def settings_of(args: argparse.Namespace) -> MqttSettings:
     """Broker settings as ``edgedsm watch`` builds them (config, then options)."""
-    from edgedsm.commands.watch import settings_from_args
-
     host, port = args.broker if args.broker is not None else (None, None)
-    watch_args = argparse.Namespace(config=args.config, host=host, port=port, topic_prefix=args.topic_prefix,
-                                    device=args.device, username=args.username, tls=False, ca_file=None,
-                                    cert_file=None, key_file=None, insecure=False)
-    return settings_from_args(watch_args)
+    return mqtt_settings(args.config, args, {"host": host, "port": port, "topic_prefix": args.topic_prefix,
+                                             "device": args.device})
 
 
 def parse_arguments(text: str) -> dict[str, Any]:

@@ -25,29 +25,16 @@ import os
 import signal
 import threading
 from pathlib import Path
-from typing import Any
 
+from edgedsm.commands import broker_options
+from edgedsm.commands.broker_options import add_credential_options, host_port
 from edgedsm.errors import ConfigError
 from edgedsm.publish.settings import MqttSettings, resolve_password
-from edgedsm.validation import read_toml, validate
 
 NAME = "dashboard"
 HELP = "serve the live plant dashboard (maps, regions, drying curves, alerts) for every daemon on a broker"
 TOKEN_ENV = "EDGEDSM_DASHBOARD_TOKEN"
 TOKEN_CREDENTIAL = "dashboard-token"
-
-
-def _host_port(text: str, default_port: int) -> tuple[str, int]:
-    host, colon, port = text.rpartition(":")
-    if not colon:
-        host, port = text, str(default_port)
-    try:
-        number = int(port)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: the port must be a number") from None
-    if not 0 <= number <= 65535 or not host:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected HOST:PORT with a port in 0..65535")
-    return host.strip("[]"), number
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,10 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "region outlines and thresholds (repeatable)")
     parser.add_argument("--config-dir", type=Path, metavar="DIR",
                         help="every *.toml in DIR as a -c config (after those given with -c), e.g. /etc/edgedsm")
-    parser.add_argument("--broker", type=lambda text: _host_port(text, 1883), metavar="HOST:PORT",
+    parser.add_argument("--broker", type=host_port(1883), metavar="HOST:PORT",
                         help="the broker (default localhost:1883)")
     parser.add_argument("--prefix", dest="topic_prefix", metavar="PREFIX", help="topic prefix (default edgedsm)")
-    parser.add_argument("--listen", type=lambda text: _host_port(text, 8080), default=("127.0.0.1", 8080),
+    parser.add_argument("--listen", type=host_port(8080), default=("127.0.0.1", 8080),
                         metavar="HOST:PORT", help="where the page is served (default 127.0.0.1:8080)")
     parser.add_argument("--database", type=Path, metavar="FILE",
                         default=Path(os.environ.get("STATE_DIRECTORY", ".")) / "dashboard.sqlite3",
@@ -67,12 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--retention-days", type=float, default=7.0, metavar="DAYS",
                         help="history kept (default 7 days)")
     tls = parser.add_argument_group("credentials and TLS (as the daemon's [mqtt])")
-    tls.add_argument("--username", help="user name; the password is read from $EDGEDSM_MQTT_PASSWORD")
-    tls.add_argument("--tls", action="store_true", help="use TLS (implied by --ca-file/--cert-file)")
-    tls.add_argument("--ca-file", type=Path, help="CA certificate(s) of the broker (PEM)")
-    tls.add_argument("--cert-file", type=Path, help="client certificate (PEM)")
-    tls.add_argument("--key-file", type=Path, help="client key (PEM)")
-    tls.add_argument("--insecure", action="store_true", help="do not check that the certificate names the host")
+    add_credential_options(tls)
 
 
 def config_files(args: argparse.Namespace) -> list[Path]:
@@ -85,30 +67,13 @@ def config_files(args: argparse.Namespace) -> list[Path]:
     return files
 
 
-def mqtt_settings(args: argparse.Namespace) -> MqttSettings:
-    data: dict[str, Any] = {}
-    source = "command line"
+def broker_settings(args: argparse.Namespace) -> MqttSettings:
+    """The first config's [mqtt] table (without its device: the dashboard watches them all), then the options."""
     configs = config_files(args)
-    if configs:
-        table = read_toml(configs[0]).get("mqtt")
-        if isinstance(table, dict):
-            data, source = dict(table), f"{configs[0]}: mqtt"
-    data.pop("client_id", None)  # a daemon's id: using it would throw the daemon off the broker
-    data.pop("device", None)
-    if args.broker is not None:
-        data["host"], data["port"] = args.broker
-    for key in ("topic_prefix", "username"):
-        if getattr(args, key) is not None:
-            data[key] = getattr(args, key)
-    if args.tls or args.ca_file or args.cert_file or args.key_file or args.insecure:
-        tls = dict(data.get("tls") or {})
-        for key in ("ca_file", "cert_file", "key_file"):
-            if getattr(args, key) is not None:
-                tls[key] = getattr(args, key)
-        if args.insecure:
-            tls["insecure"] = True
-        data["tls"] = tls
-    return validate(MqttSettings, data, source)
+    host, port = args.broker if args.broker is not None else (None, None)
+    return broker_options.mqtt_settings(configs[0] if configs else None, args,
+                                        {"host": host, "port": port, "topic_prefix": args.topic_prefix},
+                                        require_table=False, with_device=False)
 
 
 def resolve_token(environ: dict[str, str] | None = None) -> str | None:
@@ -128,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not 0 < args.retention_days <= 3650:
         raise ConfigError("--retention-days: must be in (0, 3650]")
-    settings = DashboardSettings(mqtt=mqtt_settings(args), listen=args.listen, database=args.database,
+    settings = DashboardSettings(mqtt=broker_settings(args), listen=args.listen, database=args.database,
                                  retention_s=args.retention_days * 86400.0, token=resolve_token(),
                                  daemon_configs=config_files(args))
     try:

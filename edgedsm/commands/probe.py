@@ -34,6 +34,7 @@ import time
 
 import numpy as np
 
+from edgedsm.commands.broker_options import seconds
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.uri import CameraSpec, open_camera, parse_camera_uri
 from edgedsm.errors import DeviceError
@@ -53,27 +54,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 < value <= 3600:
-        raise argparse.ArgumentTypeError("give a number above 0 and at most 3600")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("device", choices=("camera",), help="what to probe (camera)")
     parser.add_argument("uri", metavar="CAMERA_URI", help="the camera, e.g. aravis:, v4l2:/dev/video0, sim:default")
     parser.add_argument("--frames", "-n", type=_positive_int, default=30, metavar="N",
                         help="frames to grab (default 30)")
-    parser.add_argument("--timeout", type=_positive_float, default=5.0, metavar="SECONDS",
+    parser.add_argument("--timeout", type=seconds, default=5.0, metavar="SECONDS",
                         help="longest wait for one frame (default 5)")
     parser.add_argument("--pixel-format", metavar="FORMAT", help="set a pixel format first, e.g. Mono12p")
-    parser.add_argument("--exposure", type=_positive_float, metavar="MICROSECONDS",
+    parser.add_argument("--exposure", type=seconds, metavar="MICROSECONDS",
                         help="set the exposure first (µs)")
-    parser.add_argument("--frame-rate", type=_positive_float, metavar="FPS", help="set the frame rate first")
+    parser.add_argument("--frame-rate", type=seconds, metavar="FPS", help="set the frame rate first")
     parser.add_argument("--json", action="store_true",
                         help="print the measurements as one JSON object on stdout (the lines go to stderr)")
 

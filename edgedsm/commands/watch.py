@@ -34,10 +34,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from edgedsm.commands.broker_options import add_credential_options, mqtt_settings
 from edgedsm.commands.watcher import CONNECT_WAIT_S, Watcher
-from edgedsm.errors import ConfigError
 from edgedsm.publish.settings import MqttSettings, resolve_password
-from edgedsm.validation import read_toml, validate
 
 NAME = "watch"
 HELP = "print a daemon's availability, state changes and alerts live (MQTT subscriber)"
@@ -67,13 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     conn.add_argument("--port", type=int, help="broker port (default 1883)")
     conn.add_argument("--prefix", dest="topic_prefix", metavar="PREFIX", help="topic prefix (default edgedsm)")
     conn.add_argument("--device", help="device in the topics (default: the config's, else camera1 as the daemon)")
-    conn.add_argument("--username", help="user name; the password is read from $EDGEDSM_MQTT_PASSWORD")
-    conn.add_argument("--tls", action="store_true", help="use TLS (implied by --ca-file/--cert-file)")
-    conn.add_argument("--ca-file", type=Path, help="CA certificate(s) of the broker (PEM)")
-    conn.add_argument("--cert-file", type=Path, help="client certificate (PEM)")
-    conn.add_argument("--key-file", type=Path, help="client key (PEM)")
-    conn.add_argument("--insecure", action="store_true",
-                      help="do not check that the broker's certificate names the host")
+    add_credential_options(conn)
     conn.add_argument("--client-id", help="fixed client id: a persistent session, so alerts raised while "
                                           "watch is away are delivered when it returns")
     out = parser.add_argument_group("output")
@@ -88,32 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def settings_from_args(args: argparse.Namespace) -> MqttSettings:
     """Broker settings: the config's [mqtt] table (if any) overridden by the options."""
-    data: dict[str, Any] = {}
-    source = "command line"
-    if args.config is not None:
-        table = read_toml(args.config).get("mqtt")
-        if not isinstance(table, dict):
-            raise ConfigError(f"{args.config}: has no [mqtt] table")
-        data = dict(table)
-        source = f"{args.config}: mqtt"
-        if "device" not in data:  # the daemon names its topics after [device] name
-            device = read_toml(args.config).get("device", {})
-            if isinstance(device, dict) and "name" in device:
-                data["device"] = device["name"]
-    for key in ("host", "port", "topic_prefix", "device", "username"):
-        value = getattr(args, key)
-        if value is not None:
-            data[key] = value
-    data.pop("client_id", None)  # the daemon's id: using it would throw the daemon off the broker
-    if args.tls or args.ca_file or args.cert_file or args.key_file or args.insecure:
-        tls = dict(data.get("tls") or {})
-        for key in ("ca_file", "cert_file", "key_file"):
-            if getattr(args, key) is not None:
-                tls[key] = getattr(args, key)
-        if args.insecure:
-            tls["insecure"] = True
-        data["tls"] = tls
-    return validate(MqttSettings, data, source)
+    return mqtt_settings(args.config, args, {"host": args.host, "port": args.port, "topic_prefix": args.topic_prefix,
+                                             "device": args.device})
 
 
 def run(args: argparse.Namespace) -> int:
