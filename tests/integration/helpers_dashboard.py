@@ -40,9 +40,15 @@ class DashboardProcess:
 
     def _read(self) -> None:
         assert self.process.stderr is not None
+        in_traceback = False
         for line in self.process.stderr:
-            if " ERROR " in line or "Traceback" in line or " CRITICAL " in line:
+            if in_traceback:
+                # the whole traceback in one entry, up to its exception line: the failure says why
+                self.errors[-1] += "\n" + line.rstrip()
+                in_traceback = line.startswith((" ", "\t"))
+            elif " ERROR " in line or "Traceback" in line or " CRITICAL " in line:
                 self.errors.append(line.rstrip())
+                in_traceback = "Traceback" in line
 
     def stop(self) -> int:
         self.process.terminate()
