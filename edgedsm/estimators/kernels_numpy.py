@@ -172,3 +172,25 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
             np.divide(s1, sigma, out=s3, where=sigma > 0.0)
 
     return kernel
+
+
+@functools.cache
+def products_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
+    """See kernels_numba.products_kernel."""
+
+    def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags) -> None:
+        count = lag_slots.size
+        table = products.reshape(-1, count)
+        for start in range(0, new.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            x = new[part].astype(np.int64)
+            sums = table[part].astype(np.int64)
+            if remove:
+                o = ring[old_slot, part].astype(np.int64)
+                sums -= o[:, None] * ring[leave_slots, part].T.astype(np.int64)
+                sums += x[:, None] * ring[lag_slots, part].T.astype(np.int64)
+            elif lags:
+                sums[:, :lags] += x[:, None] * ring[lag_slots[:lags], part].T.astype(np.int64)
+            table[part] = sums
+
+    return kernel
