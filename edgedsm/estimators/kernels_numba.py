@@ -213,32 +213,41 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     return kernel
 
 
+PRODUCTS_BLOCK = 2048  # pixels per block of the lag-product kernel: its rows stay in L1
+
+
 @functools.cache
 def products_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
     """Lag products of τc (sliding and tumbling), all pixels: Σ I_t·I_{t+k}, k = 1..K.
 
     ``kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags)``: ``products`` is
-    pixel-major (pixel p's K sums at p·K .. p·K+K-1, int32 or int64); per pixel it adds
-    I_i·I_{i-k} for k = 1..``lags`` (frame i-k in ring row ``lag_slots[k-1]``) and, with
-    ``remove``, subtracts I_{i-N}·I_{i-N+k} for k = 1..K (frame i-N in row ``old_slot``, frame
-    i-N+k in row ``leave_slots[k-1]``). Reads the ring only: the window kernel writes frame i
-    afterwards. Integer arithmetic in int64: exact.
+    (K, P), int32 or int64; per pixel it adds I_i·I_{i-k} for k = 1..``lags`` (frame i-k in
+    ring row ``lag_slots[k-1]``) and, with ``remove``, subtracts I_{i-N}·I_{i-N+k} for
+    k = 1..K (frame i-N in row ``old_slot``, frame i-N+k in row ``leave_slots[k-1]``). Reads
+    the ring only: the window kernel writes frame i afterwards. Pixels go in blocks (one per
+    task) and, inside a block, lag by lag along contiguous rows, so the loop vectorises and
+    the block's frames stay in cache. Integer arithmetic in int64: exact.
     """
 
     @numba.njit(parallel=parallel, cache=True, nogil=True)
     def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags):  # pragma: no cover
-        count = lag_slots.size
-        for p in numba.prange(new.size):
-            x = np.int64(new[p])
-            base = p * count
-            if remove:
-                o = np.int64(ring[old_slot, p])
-                for k in range(count):
-                    # remove first: the running value stays within the window's range
-                    value = np.int64(products[base + k]) - o * np.int64(ring[leave_slots[k], p])
-                    products[base + k] = value + x * np.int64(ring[lag_slots[k], p])
-            else:
-                for k in range(lags):
-                    products[base + k] = np.int64(products[base + k]) + x * np.int64(ring[lag_slots[k], p])
+        size = new.size
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        count = lag_slots.size if remove else lags
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            for k in range(count):
+                row = products[k]
+                lagged = ring[lag_slots[k]]
+                if remove:
+                    old = ring[old_slot]
+                    leaving = ring[leave_slots[k]]
+                    for p in range(start, stop):
+                        row[p] = (np.int64(row[p]) - np.int64(old[p]) * np.int64(leaving[p])
+                                  + np.int64(new[p]) * np.int64(lagged[p]))
+                else:
+                    for p in range(start, stop):
+                        row[p] = np.int64(row[p]) + np.int64(new[p]) * np.int64(lagged[p])
 
     return kernel

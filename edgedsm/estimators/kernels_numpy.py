@@ -179,18 +179,16 @@ def products_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
     """See kernels_numba.products_kernel."""
 
     def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags) -> None:
-        count = lag_slots.size
-        table = products.reshape(-1, count)
+        count = lag_slots.size if remove else lags
         for start in range(0, new.size, CHUNK):
             part = slice(start, start + CHUNK)
             x = new[part].astype(np.int64)
-            sums = table[part].astype(np.int64)
-            if remove:
-                o = ring[old_slot, part].astype(np.int64)
-                sums -= o[:, None] * ring[leave_slots, part].T.astype(np.int64)
-                sums += x[:, None] * ring[lag_slots, part].T.astype(np.int64)
-            elif lags:
-                sums[:, :lags] += x[:, None] * ring[lag_slots[:lags], part].T.astype(np.int64)
-            table[part] = sums
+            o = ring[old_slot, part].astype(np.int64) if remove else None
+            for k in range(count):
+                value = products[k, part].astype(np.int64)
+                if o is not None:
+                    value -= o * ring[leave_slots[k], part]
+                value += x * ring[lag_slots[k], part]
+                products[k, part] = value
 
     return kernel

@@ -364,7 +364,7 @@ class SlidingWindow:
             "ratio": ((n_px if self._do_ratio else 0,), np.int64),
             "total": ((n_px if self._do_sums else 0,), _sum_dtype(n * top)),
             "total_sq": ((n_px if self._do_sums else 0,), _sum_dtype(n * top * top)),
-            "products": ((n_px * lags,), tau_stream.product_dtype(n, bits)),
+            "products": ((lags, n_px if lags else 0), tau_stream.product_dtype(n, bits)),
         }
         if self.mode == "tumbling":  # first-k sums of the block in progress, last-k added at its end
             sums["edges"] = ((lags, n_px if lags else 0), np.int64)
@@ -568,11 +568,11 @@ class SlidingWindow:
                              self._lut, float(2**self.scale_bits), self.q)
         if self._do_tau:
             wide = [frame.astype(np.int64) for frame in frames]
-            products = np.zeros((frames[0].size, self.max_lag), np.int64)
+            products = np.zeros((self.max_lag, frames[0].size), np.int64)
             for k in range(1, min(self.max_lag, len(wide) - 1) + 1):
                 for j in range(len(wide) - k):
-                    products[:, k - 1] += wide[j] * wide[j + k]
-            fresh["products"][:] = products.reshape(-1)
+                    products[k - 1] += wide[j] * wide[j + k]
+            fresh["products"][:] = products
         self._arrays.update(fresh)
 
     # ----------------------------------------------------------------- maps

@@ -1,10 +1,10 @@
 """τc in the streaming engine: the integer sums it keeps, and how they become the batch inputs.
 
 Per pixel, sliding and tumbling windows keep, besides ΣI and ΣI² (shared with S3), the K lag
-products Σ_{t=1}^{N-k} I_t·I_{t+k} (k = 1..K), pixel-major so one pixel's K sums share cache
-lines. A push adds I_i·I_{i-k} for each k and (sliding) removes I_{i-N}·I_{i-N+k}: O(K) per
-pixel per frame, exact integers. Each product sum is at most (N-1)·(2^bits - 1)², kept in int32
-while that fits (8-bit data up to N = 33 026) and in int64 otherwise, which is exact while
+products Σ_{t=1}^{N-k} I_t·I_{t+k} (k = 1..K), one row of pixels per lag. A push adds
+I_i·I_{i-k} for each k and (sliding) removes I_{i-N}·I_{i-N+k}: O(K) per pixel per frame,
+exact integers. Each product sum is at most (N-1)·(2^bits - 1)², kept in int32 while that
+fits (8-bit data up to N = 33 026) and in int64 otherwise, which is exact while
 N·(2^bits - 1)² < 2^63 (16-bit data up to N = 2.1e9, above the engine's largest window).
 The sums of the first k and last k frames of the window (the "edges" of
 :func:`edgedsm.estimators.tau_c.covariances_from_sums`) are formed when the maps are asked for
@@ -41,10 +41,9 @@ def edges_of(frames: list[np.ndarray], lags: int) -> np.ndarray:
 
 def covariances(window: int, shape: tuple[int, int], total: np.ndarray, total_sq: np.ndarray,
                 products: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """cov (K, H, W) and var (H, W) from the engine's sums (products pixel-major, (P·K,))."""
+    """cov (K, H, W) and var (H, W) from the engine's sums (products and edges (K, P))."""
     lags = edges.shape[0]
-    lag_major = np.ascontiguousarray(products.reshape(-1, lags).T)
-    cov, var = covariances_from_sums(window, total, total_sq, lag_major, edges)
+    cov, var = covariances_from_sums(window, total, total_sq, products, edges)
     return cov.reshape((lags, *shape)), var.reshape(shape)
 
 
