@@ -175,8 +175,8 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
 
 
 @functools.cache
-def products_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
-    """See kernels_numba.products_kernel."""
+def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """See kernels_numba.products_kernel (``narrow`` is ignored: int64 gives the same integers)."""
 
     def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags) -> None:
         count = lag_slots.size if remove else lags

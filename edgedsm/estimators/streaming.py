@@ -395,10 +395,11 @@ class SlidingWindow:
             self._maps_step = kernels.maps_kernel(*flags, parallel)
             # "grow": add only (tumbling, and sliding until N frames are in); "slide": add+remove
             self._step_grow = kernels.window_kernel(*sum_flags, kind, False, parallel)
-            self._products_grow = kernels.products_kernel(False, parallel)
+            narrow = np.dtype(self._layout(bits)["products"][1]) == np.dtype(np.int32)
+            self._products_grow = kernels.products_kernel(False, parallel, narrow)
             if self.mode == "sliding":
                 self._step_slide = kernels.window_kernel(*sum_flags, kind, True, parallel)
-                self._products_slide = kernels.products_kernel(True, parallel)
+                self._products_slide = kernels.products_kernel(True, parallel, narrow)
                 self._step_pairs = kernels.pairs_kernel(self._do_abs, self._do_ratio, kind,
                                                         parallel)
 
