@@ -2,8 +2,8 @@
 streaming engine."""
 
 from edgedsm.estimators.batch import all_maps, s1, s2, s3, temporal_sigma
+from edgedsm.estimators.correlation_time import TauC, tau_c, tau_c_bounds
 from edgedsm.estimators.streaming import SlidingWindow
-from edgedsm.estimators.tau_c import TauC, tau_c, tau_c_bounds
 
 ESTIMATORS = ("s1", "s2", "s3")
 

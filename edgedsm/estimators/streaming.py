@@ -120,7 +120,7 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.tau_c import TauC, _check_mask
+from edgedsm.estimators.correlation_time import TauC, _check_mask
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]

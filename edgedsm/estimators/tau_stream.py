@@ -7,7 +7,7 @@ exact integers. Each product sum is at most (N-1)·(2^bits - 1)², kept in int32
 fits (8-bit data up to N = 33 026) and in int64 otherwise, which is exact while
 N·(2^bits - 1)² < 2^63 (16-bit data up to N = 2.1e9, above the engine's largest window).
 The sums of the first k and last k frames of the window (the "edges" of
-:func:`edgedsm.estimators.tau_c.covariances_from_sums`) are formed when the maps are asked for
+:func:`edgedsm.estimators.correlation_time.covariances_from_sums`) are formed when the maps are asked for
 (sliding: from the ring, O(K) per pixel) or accumulated during the block (tumbling).
 """
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from edgedsm.estimators.tau_c import TauC, covariances_from_sums, fit_map, fit_region
+from edgedsm.estimators.correlation_time import TauC, covariances_from_sums, fit_map, fit_region
 
 _INT32_MAX = 2**31 - 1
 

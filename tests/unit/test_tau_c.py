@@ -12,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import tau_c, tau_c_bounds
-from edgedsm.estimators.tau_c import (
+from edgedsm.estimators.correlation_time import (
     ABOVE,
     BELOW,
     MEASURED,

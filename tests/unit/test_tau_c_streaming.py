@@ -10,7 +10,7 @@ import pytest
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow, tau_c_bounds
-from edgedsm.estimators.tau_c import covariances
+from edgedsm.estimators.correlation_time import covariances
 from edgedsm.sim import Simulator, scene_from_dict
 
 KERNELS = ["numpy"] + (["numba"] if importlib.util.find_spec("numba") else [])
