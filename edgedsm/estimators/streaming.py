@@ -443,7 +443,7 @@ class SlidingWindow:
         if self._do_tau:  # frames i-k and, sliding, i-N+k for k = 1..K
             frames += (2 if self.mode == "sliding" else 1) * self.max_lag * frame_bytes
         sums = sum(math.prod(shape) * np.dtype(dtype).itemsize for name, (shape, dtype)
-                   in layout.items() if name != "ring" and not name.startswith("done_"))
+                   in layout.items() if name not in ("ring", "edges") and not name.startswith("done_"))
         return frames + 2 * sums / n_px
 
     @property

@@ -7,6 +7,9 @@ import importlib.util
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow, tau_c_bounds
@@ -126,3 +129,25 @@ def test_constant_frames_give_no_signal_not_nan():
     result = engine.tau_c_bounds()
     assert np.all(result.tau == 0.0) and np.all(result.status == 2)
     assert tuple(engine.region_tau_c(np.ones((3, 3), bool))) == (0.0, 2)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.data())
+def test_streaming_equals_batch_on_degenerate_data(data):
+    """Constant, saturated and zero pixels, extreme values, every lag bound: the engine's τc
+    and status equal the batch ones on the same window, never NaN."""
+    window = data.draw(st.integers(3, 24))
+    lag = data.draw(st.integers(1, window - 1))
+    lags = data.draw(st.integers(1, window - 2))
+    mode = data.draw(st.sampled_from(["sliding", "tumbling"]))
+    count = data.draw(st.integers(window, 2 * window + 3))
+    frames = data.draw(arrays(np.uint8, (count, 2, 3), elements=st.sampled_from([0, 1, 2, 200, 254, 255])))
+    engine = SlidingWindow((2, 3), window, lag, estimators=["tau_c"], mode=mode, kernel="numpy",
+                           max_lag=lags)
+    _feed(engine, frames)
+    end = engine.blocks_completed * window if mode == "tumbling" else count
+    expected = tau_c_bounds(frames[end - window:end], lags)
+    got = engine.tau_c_bounds()
+    assert np.isfinite(got.tau).all()
+    np.testing.assert_array_equal(got.status, expected.status)
+    np.testing.assert_allclose(got.tau, expected.tau, rtol=1e-9, atol=0)
