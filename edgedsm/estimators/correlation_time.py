@@ -293,10 +293,15 @@ def fit_region(cov: np.ndarray, var: np.ndarray, mask: np.ndarray, n: int) -> Ta
     """τc of a region (cov (K, H, W), var and mask (H, W)) from its pooled correlation
     Σ_p cov_p(k) / Σ_p var_p: averaging before dividing keeps the ratio's own bias (of order
     τ/N per pixel) out; pixels with σ = 0 add nothing."""
-    pooled_var = float(var[mask].sum())
+    return fit_pooled(np.ascontiguousarray(cov[:, mask]), var[mask], n)
+
+
+def fit_pooled(cov: np.ndarray, var: np.ndarray, n: int) -> TauC:
+    """τc of the pixels given as cov (K, M) and var (M,), pooled (see fit_region)."""
+    pooled_var = float(np.ascontiguousarray(var).sum())
     if pooled_var <= 0.0:
         return TauC(0.0, NO_SIGNAL)
-    pooled = cov[:, mask].sum(axis=1)[:, None] / pooled_var
+    pooled = np.ascontiguousarray(cov).sum(axis=1)[:, None] / pooled_var  # one summation order
     tau, _, status = fit_correlations(pooled, n)
     return TauC(float(tau[0]), int(status[0]))
 

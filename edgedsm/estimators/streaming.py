@@ -597,38 +597,41 @@ class SlidingWindow:
                 for name in self.estimators}
 
     # ----------------------------------------------------------------- τc
-    def _tau_covariances(self) -> tuple[np.ndarray, np.ndarray]:
-        """cov (K, H, W) and var (H, W) of the current window from the exact sums."""
+    def _tau_covariances(self, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """cov (K, P) and var (P,) of the current window from the exact sums, for all pixels or
+        the flat indices ``pixels`` (a region costs its own size only)."""
         if not self._do_tau:
             raise EstimatorError("τc needs 'tau_c' among the estimators")
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
                                  f"{self.window} frames pushed (check .ready)")
         arrays, n, lags = self._arrays, self.window, self.max_lag
+        every = slice(None) if pixels is None else pixels
         if self.mode == "tumbling":
             prefix = "done_"
-            edges = arrays["done_edges"]
+            edges = arrays["done_edges"][:, every]
         else:
             prefix = ""
             ring, seen = arrays["ring"], self.frames_seen
-            ends = [ring[j % n] for j in range(seen - n, seen - n + lags)]
-            ends += [ring[j % n] for j in range(seen - lags, seen)]
+            ends = [ring[j % n, every] for j in range(seen - n, seen - n + lags)]
+            ends += [ring[j % n, every] for j in range(seen - lags, seen)]
             edges = tau_stream.edges_of(ends, lags)
-        return tau_stream.covariances(n, self.shape, arrays[prefix + "total"], arrays[prefix + "total_sq"],
-                                      arrays[prefix + "products"], edges)
+        return tau_stream.covariances(n, arrays[prefix + "total"][every], arrays[prefix + "total_sq"][every],
+                                      arrays[prefix + "products"][:, every], edges)
 
     def tau_c_bounds(self) -> TauC:
         """Per-pixel τc (frames) and status of the current window, equal to
         :func:`edgedsm.estimators.tau_c_bounds` on it with ``max_lag`` K."""
         cov, var = self._tau_covariances()
-        return tau_stream.tau_map(self.window, cov, var)
+        return tau_stream.tau_map(self.window, self.shape, cov, var)
 
     def region_tau_c(self, mask: np.ndarray) -> TauC:
         """A region's τc (frames) and status from its pooled correlations (boolean (H, W)
-        ``mask``), equal to ``tau_c_bounds(window, K, mask=mask)``."""
+        ``mask``), equal to ``tau_c_bounds(window, K, mask=mask)``; costs O(K) per pixel of
+        the region."""
         region = _check_mask(mask, self.shape)
-        cov, var = self._tau_covariances()
-        return tau_stream.tau_region(self.window, cov, var, region)
+        cov, var = self._tau_covariances(np.flatnonzero(region))
+        return tau_stream.tau_region(self.window, cov, var)
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:
         """S1, S2, S3 and σ from the integer sums, one fused pass (see maps_kernel)."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from edgedsm.estimators.correlation_time import TauC, covariances_from_sums, fit_map, fit_region
+from edgedsm.estimators.correlation_time import TauC, covariances_from_sums, fit_map, fit_pooled
 
 _INT32_MAX = 2**31 - 1
 
@@ -39,19 +39,18 @@ def edges_of(frames: list[np.ndarray], lags: int) -> np.ndarray:
     return edges
 
 
-def covariances(window: int, shape: tuple[int, int], total: np.ndarray, total_sq: np.ndarray,
-                products: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """cov (K, H, W) and var (H, W) from the engine's sums (products and edges (K, P))."""
-    lags = edges.shape[0]
-    cov, var = covariances_from_sums(window, total, total_sq, products, edges)
-    return cov.reshape((lags, *shape)), var.reshape(shape)
+def covariances(window: int, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
+                edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cov (K, P) and var (P,) from the engine's sums (products and edges (K, P))."""
+    return covariances_from_sums(window, total, total_sq, products, edges)
 
 
-def tau_map(window: int, cov: np.ndarray, var: np.ndarray) -> TauC:
-    """Per-pixel τc and status, as :func:`edgedsm.estimators.tau_c_bounds`."""
-    return fit_map(cov, var, window)
+def tau_map(window: int, shape: tuple[int, int], cov: np.ndarray, var: np.ndarray) -> TauC:
+    """Per-pixel τc and status (cov (K, P), var (P,)), as :func:`edgedsm.estimators.tau_c_bounds`."""
+    return fit_map(cov.reshape((cov.shape[0], *shape)), var.reshape(shape), window)
 
 
-def tau_region(window: int, cov: np.ndarray, var: np.ndarray, mask: np.ndarray) -> TauC:
-    """A region's τc from its pooled correlations, as ``tau_c_bounds(..., mask=mask)``."""
-    return fit_region(cov, var, mask, window)
+def tau_region(window: int, cov: np.ndarray, var: np.ndarray) -> TauC:
+    """τc of the pixels given (cov (K, M), var (M,)) from their pooled correlations, as
+    ``tau_c_bounds(..., mask=mask)``."""
+    return fit_pooled(cov, var, window)
