@@ -192,6 +192,19 @@ def covariances_from_sums(n: int, total: np.ndarray, total_sq: np.ndarray, produ
     batch and streaming engines, so both give bit-identical results. var is exactly 0 where
     σ = 0.
     """
+    lags_count, pixels = products.shape
+    cov = np.empty((lags_count, pixels))
+    var = np.empty(pixels)
+    step = max(1, _CHUNK // 4)  # pixels per chunk: the (K, chunk) temporaries stay in cache
+    for start in range(0, pixels, step):
+        part = slice(start, start + step)
+        cov[:, part], var[part] = _covariances_chunk(n, total[part], total_sq[part], products[:, part],
+                                                     edges[:, part])
+    return cov, var
+
+
+def _covariances_chunk(n: int, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
+                       edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     k = np.arange(1, products.shape[0] + 1, dtype=np.int64)[:, None]
     total = total.astype(np.int64)
     centre = np.floor(total / n + 0.5).astype(np.int64)  # c
