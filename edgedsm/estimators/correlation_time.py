@@ -18,9 +18,11 @@ expected value includes the finite-N bias of the mean subtraction (docs/tau_c.md
     b_k = r^k - 2·X_k/(N(N-k)) + S/N²,  d = 1 - S/N²,  r = exp(-1/τ),
     S = N(1+r)/(1-r) - 2r(1-r^N)/(1-r)²,   X_k = (N-k)(1+r)/(1-r) - r(1-r^(N-k))(1+r^k)/(1-r)²
 
-The fit minimises Σ_k (Ĉ(k)·D - N_k)² over A and τ (numerator N_k and common denominator D of
-the model: the least squares of the model times D², linear in A at fixed τ), on a log grid of
-τ (shared by all pixels, so the lag sums become one matrix product) refined by a parabola.
+The fit minimises Σ_k (Ĉ(k) - E[Ĉ(k)])² over A in [0, 1] and τ. With w = A/(c + A(d - c))
+the model is a/c + w·(b_k - a·d/c), linear in w: at each τ of a log grid (shared by all
+pixels, so the lag sums become one matrix product) w is closed form; the best grid point is
+refined by a parabola in log τ, then by one through exact residuals a quarter step apart.
+A region's τc is fitted to its pooled correlation Σ_p cov_p(k) / Σ_p var_p.
 
 Results (units: frames, i.e. Δt), with a status per value (:data:`MEASURED` ...):
 
