@@ -259,3 +259,36 @@ def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -
                     grow_rows(products[k, start:stop], x, ring[lag_slots[k], start:stop])
 
     return kernel
+
+
+@functools.cache
+def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """Lag products of several frames at once (tumbling τc): fewer passes over the sums.
+
+    ``kernel(ring, frame_slots, lag_slots, lag_counts, products)``: for each b, adds
+    I_b·I_{b-k} for k = 1..``lag_counts[b]``, frame b in ring row ``frame_slots[b]`` and frame
+    b-k in row ``lag_slots[b, k-1]``. Per block of pixels, each lag's row of sums is read and
+    written once for all the frames (it stays in L1), so the sums move once per batch instead
+    of once per frame. Exact integer arithmetic, as products_kernel.
+    """
+    wide = np.int32 if narrow else np.int64
+
+    @numba.njit(inline="always", nogil=True)
+    def add_rows(row, first, second):  # pragma: no cover - compiled
+        for p in range(row.size):
+            row[p] = wide(row[p]) + wide(first[p]) * wide(second[p])
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(ring, frame_slots, lag_slots, lag_counts, products):  # pragma: no cover
+        size = ring.shape[1]
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            for k in range(products.shape[0]):
+                row = products[k, start:stop]
+                for b in range(frame_slots.size):
+                    if k < lag_counts[b]:
+                        add_rows(row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
+
+    return kernel

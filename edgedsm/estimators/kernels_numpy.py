@@ -192,3 +192,20 @@ def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -
                 products[k, part] = value
 
     return kernel
+
+
+@functools.cache
+def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """See kernels_numba.batch_products_kernel."""
+
+    def kernel(ring, frame_slots, lag_slots, lag_counts, products) -> None:
+        for start in range(0, ring.shape[1], CHUNK):
+            part = slice(start, start + CHUNK)
+            for k in range(products.shape[0]):
+                value = products[k, part].astype(np.int64)
+                for b in range(frame_slots.size):
+                    if k < lag_counts[b]:
+                        value += ring[frame_slots[b], part].astype(np.int64) * ring[lag_slots[b, k], part]
+                products[k, part] = value
+
+    return kernel

@@ -132,6 +132,7 @@ _DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(K) per 
 _MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 _INT32_MAX = 2**31 - 1
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
+TAU_BATCH = 8  # tumbling τc: frames whose lag products are added in one pass over the sums
 
 
 _EXACT_MAX_Q = 2**40  # integer q up to this keeps a+b+q and T·(a+b+q) exact in the kernels
@@ -369,7 +370,8 @@ class SlidingWindow:
         if self.mode == "tumbling":  # first-k sums of the block in progress, last-k added at its end
             sums["edges"] = ((lags, n_px if lags else 0), np.int64)
         layout: dict[str, tuple[tuple[int, ...], Any]] = {
-            "ring": ((n if self.mode == "sliding" else max(m, lags) + 1, n_px), frame_dtype)}
+            "ring": ((n if self.mode == "sliding" else max(m, lags + TAU_BATCH if lags else 0) + 1, n_px),
+                     frame_dtype)}
         layout.update(sums)
         if self.mode == "tumbling":
             layout.update({f"done_{name}": spec for name, spec in sums.items()})
@@ -397,6 +399,7 @@ class SlidingWindow:
             self._step_grow = kernels.window_kernel(*sum_flags, kind, False, parallel)
             narrow = np.dtype(self._layout(bits)["products"][1]) == np.dtype(np.int32)
             self._products_grow = kernels.products_kernel(False, parallel, narrow)
+            self._products_batch = kernels.batch_products_kernel(parallel, narrow)
             if self.mode == "sliding":
                 self._step_slide = kernels.window_kernel(*sum_flags, kind, True, parallel)
                 self._products_slide = kernels.products_kernel(True, parallel, narrow)
@@ -409,6 +412,7 @@ class SlidingWindow:
         self.blocks_completed = 0  # tumbling mode
         self._weight_frames = 0.0  # exponential mode: Σλ^k over frames and over pairs
         self._weight_pairs = 0.0
+        self._pending = 0  # tumbling τc: frames in the ring whose lag products are not added yet
         self.bits = None
         self._arrays = {}
         if self._bits_given is not None:
@@ -504,17 +508,18 @@ class SlidingWindow:
         position = i % n
         ring = self._arrays["ring"]
         slots = ring.shape[0]
-        # max(m, K)+1 slots: frame i goes to slot i % slots, frame i-m is read from another slot
+        # max(m, K + TAU_BATCH)+1 slots (m+1 without τc): frame i goes to slot i % slots, frame i-m is
+        # read from another slot
         slot = ring[i % slots]
         lagged = ring[(i - m) % slots] if position >= m else new  # no pair across blocks
         arrays = self._arrays
-        if self._do_tau:
-            lag_slots = (i - np.arange(1, self.max_lag + 1)) % slots
-            self._products_grow(new, ring, 0, lag_slots, lag_slots, arrays["products"],
-                                min(self.max_lag, position))
-            if position < self.max_lag:  # frame i is among the first k of the block for k > position
-                arrays["edges"][position:] += new
+        if self._do_tau and position < self.max_lag:  # frame i is among the first k frames, k > position
+            arrays["edges"][position:] += new
         self._window_step(self._step_grow, new, slot, lagged, lagged)
+        if self._do_tau:
+            self._pending += 1
+            if self._pending == TAU_BATCH or position == n - 1:
+                self._flush_products(i)
         if position == n - 1:  # block complete: it becomes the one maps() reports
             if self._do_tau:  # the last k frames of the block, k = 1..K, are in the ring
                 tail = np.zeros(new.size, np.int64)
@@ -525,6 +530,18 @@ class SlidingWindow:
                 arrays[name], arrays["done_" + name] = arrays["done_" + name], arrays[name]
                 arrays[name].fill(0)
             self.blocks_completed += 1
+
+    def _flush_products(self, last: int) -> None:
+        """Tumbling τc: add the lag products of the pending frames last-pending+1..last (all in
+        the ring, which keeps K + TAU_BATCH frames) in one pass over the sums."""
+        slots, n = self._arrays["ring"].shape[0], self.window
+        frames = np.arange(last - self._pending + 1, last + 1)
+        steps = np.arange(1, self.max_lag + 1)
+        lag_slots = np.ascontiguousarray((frames[:, None] - steps[None, :]) % slots)
+        lag_counts = np.minimum(self.max_lag, frames % n)  # no pair across blocks
+        self._products_batch(self._arrays["ring"], frames % slots, lag_slots, lag_counts,
+                             self._arrays["products"])
+        self._pending = 0
 
     def _push_exponential(self, new: np.ndarray) -> None:
         i, m = self.frames_seen, self.lag
