@@ -292,3 +292,38 @@ def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callab
                         add_rows(row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
 
     return kernel
+
+
+@functools.cache
+def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """Sliding τc: the lag products of several frames at once (see batch_products_kernel).
+
+    ``kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
+    products)``: for each pending frame b and k = 1..K, adds I_b·I_{b-k} (ring rows
+    ``new_slots[b]``, ``lag_slots[b, k-1]``) and subtracts I_{b-N}·I_{b-N+k} (frame b-N in row
+    ``old_slots[b]`` of ``retired``, frame b-N+k in row ``leave_slots[b, k-1]`` of ``retired``
+    where ``leave_retired[b, k-1]``, else of ``ring``). Exact integer arithmetic.
+    """
+    wide = np.int32 if narrow else np.int64
+
+    @numba.njit(inline="always", nogil=True)
+    def slide_rows(row, old, leaving, new, lagged):  # pragma: no cover - compiled
+        for p in range(row.size):
+            row[p] = wide(row[p]) - wide(old[p]) * wide(leaving[p]) + wide(new[p]) * wide(lagged[p])
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
+               products):  # pragma: no cover - compiled
+        size = ring.shape[1]
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            for k in range(products.shape[0]):
+                row = products[k, start:stop]
+                for b in range(new_slots.size):
+                    source = retired if leave_retired[b, k] else ring
+                    slide_rows(row, retired[old_slots[b], start:stop], source[leave_slots[b, k], start:stop],
+                               ring[new_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
+
+    return kernel

@@ -209,3 +209,21 @@ def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callab
                 products[k, part] = value
 
     return kernel
+
+
+@functools.cache
+def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """See kernels_numba.batch_slide_kernel."""
+
+    def kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired, products) -> None:
+        for start in range(0, ring.shape[1], CHUNK):
+            part = slice(start, start + CHUNK)
+            for k in range(products.shape[0]):
+                value = products[k, part].astype(np.int64)
+                for b in range(new_slots.size):
+                    source = retired if leave_retired[b, k] else ring
+                    value -= retired[old_slots[b], part].astype(np.int64) * source[leave_slots[b, k], part]
+                    value += ring[new_slots[b], part].astype(np.int64) * ring[lag_slots[b, k], part]
+                products[k, part] = value
+
+    return kernel

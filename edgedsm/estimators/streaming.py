@@ -369,6 +369,9 @@ class SlidingWindow:
         }
         if self.mode == "tumbling":  # first-k sums of the block in progress, last-k added at its end
             sums["edges"] = ((lags, n_px if lags else 0), np.int64)
+        batched = self.mode == "sliding" and lags and self._sliding_batch()
+        # sliding τc: the last TAU_BATCH frames that left the ring (their pairs leave in a batch)
+        sums["retired"] = ((TAU_BATCH if batched else 0, n_px if batched else 0), frame_dtype)
         layout: dict[str, tuple[tuple[int, ...], Any]] = {
             "ring": ((n if self.mode == "sliding" else max(m, lags + TAU_BATCH if lags else 0) + 1, n_px),
                      frame_dtype)}
@@ -400,6 +403,7 @@ class SlidingWindow:
             narrow = np.dtype(self._layout(bits)["products"][1]) == np.dtype(np.int32)
             self._products_grow = kernels.products_kernel(False, parallel, narrow)
             self._products_batch = kernels.batch_products_kernel(parallel, narrow)
+            self._products_batch_slide = kernels.batch_slide_kernel(parallel, narrow)
             if self.mode == "sliding":
                 self._step_slide = kernels.window_kernel(*sum_flags, kind, True, parallel)
                 self._products_slide = kernels.products_kernel(True, parallel, narrow)
@@ -447,7 +451,7 @@ class SlidingWindow:
         if self._do_tau:  # frames i-k and, sliding, i-N+k for k = 1..K
             frames += (2 if self.mode == "sliding" else 1) * self.max_lag * frame_bytes
         sums = sum(math.prod(shape) * np.dtype(dtype).itemsize for name, (shape, dtype)
-                   in layout.items() if name not in ("ring", "edges") and not name.startswith("done_"))
+                   in layout.items() if name not in ("ring", "edges", "retired") and not name.startswith("done_"))
         return frames + 2 * sums / n_px
 
     @property
@@ -489,7 +493,10 @@ class SlidingWindow:
         slot = ring[i % n]  # slot j % N holds frame j: frame i replaces frame i-N
         # no pair before frame m: pairing the frame with itself adds |x-x| = 0 exactly
         lagged = ring[(i - m) % n] if i >= m else new
-        if self._do_tau:  # reads the ring only: before the window kernel writes frame i
+        batched = self._do_tau and i >= n and self._sliding_batch()
+        if batched:  # frame i-N leaves the ring now; its pairs leave with the next batch
+            self._arrays["retired"][(i - n) % TAU_BATCH] = ring[i % n]
+        elif self._do_tau:  # reads the ring only: before the window kernel writes frame i
             steps = np.arange(1, self.max_lag + 1)
             lag_slots = (i - steps) % n  # frames i-k
             if i >= n:  # frame i-N (in frame i's slot) and frames i-N+k leave with their pairs
@@ -502,6 +509,33 @@ class SlidingWindow:
             self._window_step(self._step_slide, new, slot, lagged, ring[(i - n + m) % n])
         else:
             self._window_step(self._step_grow, new, slot, lagged, lagged)
+        if batched:
+            self._pending += 1
+            if self._pending == TAU_BATCH:
+                self._flush_sliding(i)
+
+    def _sliding_batch(self) -> bool:
+        """Sliding τc adds lag products in batches when the ring holds every frame a batch
+        needs (N >= K + TAU_BATCH)."""
+        return self.window >= self.max_lag + TAU_BATCH
+
+    def _flush_sliding(self, last: int) -> None:
+        """Sliding τc: add and remove the pairs of the pending frames last-pending+1..last."""
+        n = self.window
+        frames = np.arange(last - self._pending + 1, last + 1)[:, None]
+        steps = np.arange(1, self.max_lag + 1)[None, :]
+        leaving = frames - n + steps  # frame j-N+k: in the ring unless it already left
+        retired = leaving <= last - n
+        leave_slots = np.ascontiguousarray(np.where(retired, leaving % TAU_BATCH, leaving % n))
+        self._products_batch_slide(self._arrays["ring"], self._arrays["retired"], frames[:, 0] % n,
+                                   (frames[:, 0] - n) % TAU_BATCH, np.ascontiguousarray((frames - steps) % n),
+                                   leave_slots, np.ascontiguousarray(retired), self._arrays["products"])
+        self._pending = 0
+
+    def _flush(self) -> None:
+        """Bring the lag products up to date (pending batched frames added)."""
+        if self._pending and self.mode == "sliding":
+            self._flush_sliding(self.frames_seen - 1)
 
     def _push_tumbling(self, new: np.ndarray) -> None:
         i, n, m = self.frames_seen, self.window, self.lag
@@ -591,6 +625,8 @@ class SlidingWindow:
                 for j in range(len(wide) - k):
                     products[k - 1] += wide[j] * wide[j + k]
             fresh["products"][:] = products
+            fresh["retired"][:] = self._arrays["retired"]
+            self._pending = 0  # the rebuilt sums hold every frame of the window
         self._arrays.update(fresh)
 
     # ----------------------------------------------------------------- maps
@@ -622,6 +658,7 @@ class SlidingWindow:
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
                                  f"{self.window} frames pushed (check .ready)")
+        self._flush()
         arrays, n, lags = self._arrays, self.window, self.max_lag
         every = slice(None) if pixels is None else pixels
         if self.mode == "tumbling":
@@ -690,7 +727,8 @@ class SlidingWindow:
         return sigma.reshape(self.shape)
 
     def _snapshot(self) -> dict[str, Any]:
-        """Copies of the whole state (for tests and debugging)."""
+        """Copies of the whole state (for tests and debugging), lag products brought up to date."""
+        self._flush()
         state: dict[str, Any] = {name: array.copy() for name, array in self._arrays.items()}
         state.update(frames_seen=self.frames_seen, bits=self.bits,
                      blocks_completed=self.blocks_completed,
