@@ -94,8 +94,13 @@ then forms the same covariances and runs the same fit as :func:`edgedsm.estimato
 on the window, so ``maps()["tau_c"]`` equals the batch reference (bit for bit: same integers,
 same float64 steps); :meth:`SlidingWindow.tau_c_bounds` adds the status map and
 :meth:`SlidingWindow.region_tau_c` gives a region's value from its pooled correlations.
-Memory: K·4 bytes per pixel (8-bit data, N <= 33 026; else K·8), tumbling twice that plus
-the block's edge sums (2·K·8 bytes).
+The lag products of TAU_BATCH (8) frames are added (and, sliding, removed) in one pass over
+the K sums, which then move once per 8 frames instead of every frame: tumbling keeps K + 8
+frames in its ring; sliding (when N >= K + 8) keeps the last 8 frames that left the ring in a
+small buffer, and brings the sums up to date before any τc result is formed, so results never
+depend on where a batch stands. Memory: K·4 bytes per pixel (8-bit data, N <= 33 026; else
+K·8) plus 8 bytes of buffer (sliding); tumbling twice the sums plus the block's edge sums
+(2·K·8 bytes) and K + 8 ring frames.
 
 Degenerate cases are those of the batch reference: a pair with a+b+q = 0 contributes 0 to
 S2; S3 = 0 where σ = 0 (constant or saturated pixel). Maps never contain NaN or inf.
