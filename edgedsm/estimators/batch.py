@@ -4,6 +4,9 @@ All take a stack of N frames, shape (N, H, W), and a time lag m (in frames, 1 <=
 and return an (H, W) float64 map. Intensities are in whatever unit the frames carry (grey
 levels for camera data); S1 then has that unit, S2 and S3 are dimensionless.
 
+Intensities must be finite and >= 0 (refused otherwise: a negative value could push S2
+above its maximum of 1).
+
 Degenerate cases (defined, never NaN or inf):
 - S2 with q = 0 and both intensities 0: the pair contributes 0 (no fluctuation).
 - S3 where σ = 0 (constant or saturated pixel): S3 = 0. σ = 0 means every intensity of the
@@ -29,9 +32,19 @@ def check_stack(frames: np.ndarray, lag: int) -> np.ndarray:
     n = stack.shape[0]
     if not 1 <= lag <= n - 1:
         raise EstimatorError(f"lag m={lag} does not fit a window of N={n} frames (need 1 <= m <= N-1)")
-    if np.issubdtype(stack.dtype, np.floating) and not np.isfinite(stack).all():
-        raise EstimatorError("frames contain NaN or inf")
+    check_intensities(stack)
     return stack
+
+
+def check_intensities(stack: np.ndarray) -> None:
+    """Refuse NaN, inf and negative intensities: a light intensity is finite and >= 0 (S2's
+    |a-b|/(a+b+q) <= 1 and every other bound rests on that)."""
+    if np.issubdtype(stack.dtype, np.floating) and not np.isfinite(stack).all():
+        raise EstimatorError("frames contain NaN or inf (intensities must be finite and >= 0)")
+    if np.issubdtype(stack.dtype, np.signedinteger) or np.issubdtype(stack.dtype, np.floating):
+        lowest = stack.min() if stack.size else 0
+        if lowest < 0:
+            raise EstimatorError(f"frames contain a negative intensity ({lowest}); intensities must be >= 0")
 
 
 def _check_q(q: float) -> float:

@@ -211,3 +211,119 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
                 s3[p] = value / deviation if deviation > 0.0 else 0.0
 
     return kernel
+
+
+PRODUCTS_BLOCK = 2048  # pixels per block of the lag-product kernel: its rows stay in L1
+
+
+@functools.cache
+def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """Lag products of τc (sliding and tumbling), all pixels: Σ I_t·I_{t+k}, k = 1..K.
+
+    ``kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags)``: ``products`` is
+    (K, P), int32 or int64; per pixel it adds I_i·I_{i-k} for k = 1..``lags`` (frame i-k in
+    ring row ``lag_slots[k-1]``) and, with ``remove``, subtracts I_{i-N}·I_{i-N+k} for
+    k = 1..K (frame i-N in row ``old_slot``, frame i-N+k in row ``leave_slots[k-1]``). Reads
+    the ring only: the window kernel writes frame i afterwards. Pixels go in blocks (one per
+    task) and, inside a block, lag by lag along contiguous rows, so the loop vectorises and
+    the block's frames stay in cache. Integer arithmetic, exact: int64, or with ``narrow``
+    (int32 sums, whose every value and partial result fits int32) int32, which vectorises
+    twice as wide.
+    """
+    wide = np.int32 if narrow else np.int64
+
+    @numba.njit(inline="always", nogil=True)
+    def slide_rows(row, old, leaving, new, lagged):  # pragma: no cover - compiled
+        for p in range(row.size):  # contiguous 1-D slices: the loop vectorises
+            row[p] = wide(row[p]) - wide(old[p]) * wide(leaving[p]) + wide(new[p]) * wide(lagged[p])
+
+    @numba.njit(inline="always", nogil=True)
+    def grow_rows(row, new, lagged):  # pragma: no cover - compiled
+        for p in range(row.size):
+            row[p] = wide(row[p]) + wide(new[p]) * wide(lagged[p])
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags):  # pragma: no cover
+        size = new.size
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        count = lag_slots.size if remove else lags
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            x = new[start:stop]
+            for k in range(count):
+                if remove:
+                    slide_rows(products[k, start:stop], ring[old_slot, start:stop],
+                               ring[leave_slots[k], start:stop], x, ring[lag_slots[k], start:stop])
+                else:
+                    grow_rows(products[k, start:stop], x, ring[lag_slots[k], start:stop])
+
+    return kernel
+
+
+@functools.cache
+def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """Lag products of several frames at once (tumbling τc): fewer passes over the sums.
+
+    ``kernel(ring, frame_slots, lag_slots, lag_counts, products)``: for each b, adds
+    I_b·I_{b-k} for k = 1..``lag_counts[b]``, frame b in ring row ``frame_slots[b]`` and frame
+    b-k in row ``lag_slots[b, k-1]``. Per block of pixels, each lag's row of sums is read and
+    written once for all the frames (it stays in L1), so the sums move once per batch instead
+    of once per frame. Exact integer arithmetic, as products_kernel.
+    """
+    wide = np.int32 if narrow else np.int64
+
+    @numba.njit(inline="always", nogil=True)
+    def add_rows(row, first, second):  # pragma: no cover - compiled
+        for p in range(row.size):
+            row[p] = wide(row[p]) + wide(first[p]) * wide(second[p])
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(ring, frame_slots, lag_slots, lag_counts, products):  # pragma: no cover
+        size = ring.shape[1]
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            for k in range(products.shape[0]):
+                row = products[k, start:stop]
+                for b in range(frame_slots.size):
+                    if k < lag_counts[b]:
+                        add_rows(row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
+
+    return kernel
+
+
+@functools.cache
+def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """Sliding τc: the lag products of several frames at once (see batch_products_kernel).
+
+    ``kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
+    products)``: for each pending frame b and k = 1..K, adds I_b·I_{b-k} (ring rows
+    ``new_slots[b]``, ``lag_slots[b, k-1]``) and subtracts I_{b-N}·I_{b-N+k} (frame b-N in row
+    ``old_slots[b]`` of ``retired``, frame b-N+k in row ``leave_slots[b, k-1]`` of ``retired``
+    where ``leave_retired[b, k-1]``, else of ``ring``). Exact integer arithmetic.
+    """
+    wide = np.int32 if narrow else np.int64
+
+    @numba.njit(inline="always", nogil=True)
+    def slide_rows(row, old, leaving, new, lagged):  # pragma: no cover - compiled
+        for p in range(row.size):
+            row[p] = wide(row[p]) - wide(old[p]) * wide(leaving[p]) + wide(new[p]) * wide(lagged[p])
+
+    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    def kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
+               products):  # pragma: no cover - compiled
+        size = ring.shape[1]
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            for k in range(products.shape[0]):
+                row = products[k, start:stop]
+                for b in range(new_slots.size):
+                    source = retired if leave_retired[b, k] else ring
+                    slide_rows(row, retired[old_slots[b], start:stop], source[leave_slots[b, k], start:stop],
+                               ring[new_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
+
+    return kernel

@@ -172,3 +172,58 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
             np.divide(s1, sigma, out=s3, where=sigma > 0.0)
 
     return kernel
+
+
+@functools.cache
+def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """See kernels_numba.products_kernel (``narrow`` is ignored: int64 gives the same integers)."""
+
+    def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags) -> None:
+        count = lag_slots.size if remove else lags
+        for start in range(0, new.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            x = new[part].astype(np.int64)
+            o = ring[old_slot, part].astype(np.int64) if remove else None
+            for k in range(count):
+                value = products[k, part].astype(np.int64)
+                if o is not None:
+                    value -= o * ring[leave_slots[k], part]
+                value += x * ring[lag_slots[k], part]
+                products[k, part] = value
+
+    return kernel
+
+
+@functools.cache
+def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """See kernels_numba.batch_products_kernel."""
+
+    def kernel(ring, frame_slots, lag_slots, lag_counts, products) -> None:
+        for start in range(0, ring.shape[1], CHUNK):
+            part = slice(start, start + CHUNK)
+            for k in range(products.shape[0]):
+                value = products[k, part].astype(np.int64)
+                for b in range(frame_slots.size):
+                    if k < lag_counts[b]:
+                        value += ring[frame_slots[b], part].astype(np.int64) * ring[lag_slots[b, k], part]
+                products[k, part] = value
+
+    return kernel
+
+
+@functools.cache
+def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
+    """See kernels_numba.batch_slide_kernel."""
+
+    def kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired, products) -> None:
+        for start in range(0, ring.shape[1], CHUNK):
+            part = slice(start, start + CHUNK)
+            for k in range(products.shape[0]):
+                value = products[k, part].astype(np.int64)
+                for b in range(new_slots.size):
+                    source = retired if leave_retired[b, k] else ring
+                    value -= retired[old_slots[b], part].astype(np.int64) * source[leave_slots[b, k], part]
+                    value += ring[new_slots[b], part].astype(np.int64) * ring[lag_slots[b, k], part]
+                products[k, part] = value
+
+    return kernel

@@ -86,6 +86,22 @@ Exactness and bounds (u = 2^-53, the unit roundoff of float64)
   (4.5e-11 grey levels for S1 with N = 200 at 8 bits); S3 = S1/σ follows. Tested on random
   and million-frame adversarial streams against a 40-digit reference.
 
+τc (``"tau_c"``, sliding and tumbling; exponential mode refuses it: its bias model is that of
+a finite window). Per pixel the K lag products Σ I_t·I_{t+k} (k = 1..K, ``max_lag``, default
+min(2m, N-2)) are exact integer sums like the others, next to ΣI and ΣI² (see
+:mod:`edgedsm.estimators.tau_stream` for their bounds); a push costs O(K) per pixel. ``maps()``
+then forms the same covariances and runs the same fit as :func:`edgedsm.estimators.tau_c`
+on the window, so ``maps()["tau_c"]`` equals the batch reference (bit for bit: same integers,
+same float64 steps); :meth:`SlidingWindow.tau_c_bounds` adds the status map and
+:meth:`SlidingWindow.region_tau_c` gives a region's value from its pooled correlations.
+The lag products of TAU_BATCH (8) frames are added (and, sliding, removed) in one pass over
+the K sums, which then move once per 8 frames instead of every frame: tumbling keeps K + 8
+frames in its ring; sliding (when N >= K + 8) keeps the last 8 frames that left the ring in a
+small buffer, and brings the sums up to date before any τc result is formed, so results never
+depend on where a batch stands. Memory: K·4 bytes per pixel (8-bit data, N <= 33 026; else
+K·8) plus 8 bytes of buffer (sliding); tumbling twice the sums plus the block's edge sums
+(2·K·8 bytes) and K + 8 ring frames.
+
 Degenerate cases are those of the batch reference: a pair with a+b+q = 0 contributes 0 to
 S2; S3 = 0 where σ = 0 (constant or saturated pixel). Maps never contain NaN or inf.
 
@@ -108,16 +124,20 @@ from typing import Any, Literal
 import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
+from edgedsm.estimators import tau_stream
+from edgedsm.estimators.correlation_time import TauC, _check_mask
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
 
 MODES: tuple[str, ...] = ("sliding", "exponential", "tumbling")
 KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
-_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")
+_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c")
+_DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(K) per pixel: only when asked
 _MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 _INT32_MAX = 2**31 - 1
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
+TAU_BATCH = 8  # tumbling τc: frames whose lag products are added in one pass over the sums
 
 
 _EXACT_MAX_Q = 2**40  # integer q up to this keeps a+b+q and T·(a+b+q) exact in the kernels
@@ -214,21 +234,25 @@ class SlidingWindow:
         q: the constant of Eq. 2 (grey levels, >= 0) that keeps 0/0 away.
         bits: bit depth of the data (1..16); None infers it from the first frame's dtype
             (uint8 -> 8, uint16 -> 16). Values above 2^bits - 1 are refused.
-        estimators: which of "s1", "s2", "s3" ``maps()`` returns; only their sums are kept.
+        estimators: which of "s1", "s2", "s3", "tau_c" ``maps()`` returns (default: the first
+            three); only their sums are kept.
         mode: "sliding", "exponential" or "tumbling" (see the module docstring).
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
         threads: numba worker threads (None: numba's default); the numpy kernel ignores it,
             and so do frames under PARALLEL_MIN_PIXELS (65 536) pixels, run on one thread.
         resync_every: sliding mode only: recompute the sums from the ring every this many
             frames (None: never; the sums are exact, this only guards against bad memory).
+        max_lag: K, the lags 1..K of "tau_c" (None: min(2m, N-2)); 1 <= K <= N-2. "tau_c"
+            needs mode "sliding" or "tumbling" (its bias model is that of a finite window).
 
     Exactness, bounds, memory per pixel and the degenerate cases: see the module docstring.
     """
 
     def __init__(self, shape: tuple[int, int], window: int, lag: int, q: float = 0.0,
-                 bits: int | None = None, estimators: Iterable[str] | str = _ESTIMATORS,
+                 bits: int | None = None, estimators: Iterable[str] | str = _DEFAULT_ESTIMATORS,
                  mode: Mode = "sliding", kernel: KernelName = "auto",
-                 threads: int | None = None, resync_every: int | None = None) -> None:
+                 threads: int | None = None, resync_every: int | None = None,
+                 max_lag: int | None = None) -> None:
         self.shape = self._check_shape(shape)
         self.window = _check_int("window N", window, 2, _MAX_WINDOW)
         self.lag = _check_int("lag m", lag, 1, self.window - 1)
@@ -262,6 +286,16 @@ class SlidingWindow:
         self._do_abs = "s1" in self.estimators or "s3" in self.estimators
         self._do_ratio = "s2" in self.estimators
         self._do_sigma = "s3" in self.estimators
+        self._do_tau = "tau_c" in self.estimators
+        self._do_sums = self._do_sigma or self._do_tau  # ΣI and ΣI² serve S3 and τc
+        if self._do_tau and mode == "exponential":
+            raise EstimatorError("estimator 'tau_c' needs mode 'sliding' or 'tumbling' (its finite-window "
+                                 "bias correction has no exponential counterpart)")
+        default_lag = max(1, min(2 * self.lag, self.window - 2))
+        self.max_lag = default_lag if max_lag is None else _check_int("max_lag K", max_lag, 1,
+                                                                      max(1, self.window - 2))
+        if self._do_tau and self.window < 3:
+            raise EstimatorError("estimator 'tau_c' needs a window of at least 3 frames (K < N-1)")
         self.bits: int | None = None
         self._arrays: dict[str, np.ndarray] = {}
         self._parallel = False
@@ -330,14 +364,22 @@ class SlidingWindow:
                 "abs": ((n_px if self._do_abs else 0,), np.float64),
                 "ratio": ((n_px if self._do_ratio else 0,), np.float64),
             }
+        lags = self.max_lag if self._do_tau else 0
         sums = {
             "abs": ((n_px if self._do_abs else 0,), _sum_dtype(self.pairs * top)),
             "ratio": ((n_px if self._do_ratio else 0,), np.int64),
-            "total": ((n_px if self._do_sigma else 0,), _sum_dtype(n * top)),
-            "total_sq": ((n_px if self._do_sigma else 0,), _sum_dtype(n * top * top)),
+            "total": ((n_px if self._do_sums else 0,), _sum_dtype(n * top)),
+            "total_sq": ((n_px if self._do_sums else 0,), _sum_dtype(n * top * top)),
+            "products": ((lags, n_px if lags else 0), tau_stream.product_dtype(n, bits)),
         }
+        if self.mode == "tumbling":  # first-k sums of the block in progress, last-k added at its end
+            sums["edges"] = ((lags, n_px if lags else 0), np.int64)
+        batched = self.mode == "sliding" and lags and self._sliding_batch()
+        # sliding τc: the last TAU_BATCH frames that left the ring (their pairs leave in a batch)
+        sums["retired"] = ((TAU_BATCH if batched else 0, n_px if batched else 0), frame_dtype)
         layout: dict[str, tuple[tuple[int, ...], Any]] = {
-            "ring": ((n if self.mode == "sliding" else m + 1, n_px), frame_dtype)}
+            "ring": ((n if self.mode == "sliding" else max(m, lags + TAU_BATCH if lags else 0) + 1, n_px),
+                     frame_dtype)}
         layout.update(sums)
         if self.mode == "tumbling":
             layout.update({f"done_{name}": spec for name, spec in sums.items()})
@@ -352,6 +394,7 @@ class SlidingWindow:
         use_lut = kind == "lut" and self._do_ratio and self.mode != "exponential"
         self._lut = ratio_lut(self.q, self.scale_bits) if use_lut else _NO_LUT
         flags = (self._do_abs, self._do_ratio, self._do_sigma)
+        sum_flags = (self._do_abs, self._do_ratio, self._do_sums)
         kernels = self._kernels
         # small frames: waking worker threads would cost more than the whole pass
         parallel = self.shape[0] * self.shape[1] >= PARALLEL_MIN_PIXELS
@@ -361,9 +404,14 @@ class SlidingWindow:
         else:
             self._maps_step = kernels.maps_kernel(*flags, parallel)
             # "grow": add only (tumbling, and sliding until N frames are in); "slide": add+remove
-            self._step_grow = kernels.window_kernel(*flags, kind, False, parallel)
+            self._step_grow = kernels.window_kernel(*sum_flags, kind, False, parallel)
+            narrow = np.dtype(self._layout(bits)["products"][1]) == np.dtype(np.int32)
+            self._products_grow = kernels.products_kernel(False, parallel, narrow)
+            self._products_batch = kernels.batch_products_kernel(parallel, narrow)
+            self._products_batch_slide = kernels.batch_slide_kernel(parallel, narrow)
             if self.mode == "sliding":
-                self._step_slide = kernels.window_kernel(*flags, kind, True, parallel)
+                self._step_slide = kernels.window_kernel(*sum_flags, kind, True, parallel)
+                self._products_slide = kernels.products_kernel(True, parallel, narrow)
                 self._step_pairs = kernels.pairs_kernel(self._do_abs, self._do_ratio, kind,
                                                         parallel)
 
@@ -373,6 +421,7 @@ class SlidingWindow:
         self.blocks_completed = 0  # tumbling mode
         self._weight_frames = 0.0  # exponential mode: Σλ^k over frames and over pairs
         self._weight_pairs = 0.0
+        self._pending = 0  # tumbling τc: frames in the ring whose lag products are not added yet
         self.bits = None
         self._arrays = {}
         if self._bits_given is not None:
@@ -404,8 +453,10 @@ class SlidingWindow:
         # new frame and frame i-m read, a ring slot written; sliding also reads frames i-N
         # (from the slot it overwrites) and i-N+m
         frames = (5 if self.mode == "sliding" else 3) * frame_bytes
+        if self._do_tau:  # frames i-k and, sliding, i-N+k for k = 1..K
+            frames += (2 if self.mode == "sliding" else 1) * self.max_lag * frame_bytes
         sums = sum(math.prod(shape) * np.dtype(dtype).itemsize for name, (shape, dtype)
-                   in layout.items() if name != "ring" and not name.startswith("done_"))
+                   in layout.items() if name not in ("ring", "edges", "retired") and not name.startswith("done_"))
         return frames + 2 * sums / n_px
 
     @property
@@ -447,25 +498,89 @@ class SlidingWindow:
         slot = ring[i % n]  # slot j % N holds frame j: frame i replaces frame i-N
         # no pair before frame m: pairing the frame with itself adds |x-x| = 0 exactly
         lagged = ring[(i - m) % n] if i >= m else new
+        batched = self._do_tau and i >= n and self._sliding_batch()
+        if batched:  # frame i-N leaves the ring now; its pairs leave with the next batch
+            self._arrays["retired"][(i - n) % TAU_BATCH] = ring[i % n]
+        elif self._do_tau:  # reads the ring only: before the window kernel writes frame i
+            steps = np.arange(1, self.max_lag + 1)
+            lag_slots = (i - steps) % n  # frames i-k
+            if i >= n:  # frame i-N (in frame i's slot) and frames i-N+k leave with their pairs
+                self._products_slide(new, ring, i % n, lag_slots, (i - n + steps) % n,
+                                     self._arrays["products"], self.max_lag)
+            else:
+                self._products_grow(new, ring, 0, lag_slots, lag_slots, self._arrays["products"],
+                                    min(self.max_lag, i))
         if i >= n:  # slot holds frame i-N: the kernel reads it, then writes frame i there
             self._window_step(self._step_slide, new, slot, lagged, ring[(i - n + m) % n])
         else:
             self._window_step(self._step_grow, new, slot, lagged, lagged)
+        if batched:
+            self._pending += 1
+            if self._pending == TAU_BATCH:
+                self._flush_sliding(i)
+
+    def _sliding_batch(self) -> bool:
+        """Sliding τc adds lag products in batches when the ring holds every frame a batch
+        needs (N >= K + TAU_BATCH)."""
+        return self.window >= self.max_lag + TAU_BATCH
+
+    def _flush_sliding(self, last: int) -> None:
+        """Sliding τc: add and remove the pairs of the pending frames last-pending+1..last."""
+        n = self.window
+        frames = np.arange(last - self._pending + 1, last + 1)[:, None]
+        steps = np.arange(1, self.max_lag + 1)[None, :]
+        leaving = frames - n + steps  # frame j-N+k: in the ring unless it already left
+        retired = leaving <= last - n
+        leave_slots = np.ascontiguousarray(np.where(retired, leaving % TAU_BATCH, leaving % n))
+        self._products_batch_slide(self._arrays["ring"], self._arrays["retired"], frames[:, 0] % n,
+                                   (frames[:, 0] - n) % TAU_BATCH, np.ascontiguousarray((frames - steps) % n),
+                                   leave_slots, np.ascontiguousarray(retired), self._arrays["products"])
+        self._pending = 0
+
+    def _flush(self) -> None:
+        """Bring the lag products up to date (pending batched frames added)."""
+        if self._pending and self.mode == "sliding":
+            self._flush_sliding(self.frames_seen - 1)
 
     def _push_tumbling(self, new: np.ndarray) -> None:
         i, n, m = self.frames_seen, self.window, self.lag
         position = i % n
         ring = self._arrays["ring"]
-        # m+1 slots: frame i goes to slot i % (m+1), frame i-m is read from another slot
-        slot = ring[i % (m + 1)]
-        lagged = ring[(i - m) % (m + 1)] if position >= m else new  # no pair across blocks
+        slots = ring.shape[0]
+        # max(m, K + TAU_BATCH)+1 slots (m+1 without τc): frame i goes to slot i % slots, frame i-m is
+        # read from another slot
+        slot = ring[i % slots]
+        lagged = ring[(i - m) % slots] if position >= m else new  # no pair across blocks
+        arrays = self._arrays
+        if self._do_tau and position < self.max_lag:  # frame i is among the first k frames, k > position
+            arrays["edges"][position:] += new
         self._window_step(self._step_grow, new, slot, lagged, lagged)
+        if self._do_tau:
+            self._pending += 1
+            if self._pending == TAU_BATCH or position == n - 1:
+                self._flush_products(i)
         if position == n - 1:  # block complete: it becomes the one maps() reports
-            arrays = self._arrays
-            for name in ("abs", "ratio", "total", "total_sq"):
+            if self._do_tau:  # the last k frames of the block, k = 1..K, are in the ring
+                tail = np.zeros(new.size, np.int64)
+                for k in range(self.max_lag):
+                    tail += ring[(i - k) % slots]
+                    arrays["edges"][k] += tail
+            for name in ("abs", "ratio", "total", "total_sq", "products", "edges"):
                 arrays[name], arrays["done_" + name] = arrays["done_" + name], arrays[name]
                 arrays[name].fill(0)
             self.blocks_completed += 1
+
+    def _flush_products(self, last: int) -> None:
+        """Tumbling τc: add the lag products of the pending frames last-pending+1..last (all in
+        the ring, which keeps K + TAU_BATCH frames) in one pass over the sums."""
+        slots, n = self._arrays["ring"].shape[0], self.window
+        frames = np.arange(last - self._pending + 1, last + 1)
+        steps = np.arange(1, self.max_lag + 1)
+        lag_slots = np.ascontiguousarray((frames[:, None] - steps[None, :]) % slots)
+        lag_counts = np.minimum(self.max_lag, frames % n)  # no pair across blocks
+        self._products_batch(self._arrays["ring"], frames % slots, lag_slots, lag_counts,
+                             self._arrays["products"])
+        self._pending = 0
 
     def _push_exponential(self, new: np.ndarray) -> None:
         i, m = self.frames_seen, self.lag
@@ -496,7 +611,7 @@ class SlidingWindow:
         frames = [ring[j % n] for j in range(first, self.frames_seen)]
         fresh = {name: np.zeros_like(array) for name, array in self._arrays.items()
                  if name != "ring"}
-        if self._do_sigma:
+        if self._do_sums:
             total = np.zeros(frames[0].size, np.int64)
             total_sq = np.zeros(frames[0].size, np.int64)
             for frame in frames:
@@ -508,6 +623,15 @@ class SlidingWindow:
         for j in range(len(frames) - m):
             self._step_pairs(frames[j], frames[j + m], fresh["abs"], fresh["ratio"],
                              self._lut, float(2**self.scale_bits), self.q)
+        if self._do_tau:
+            wide = [frame.astype(np.int64) for frame in frames]
+            products = np.zeros((self.max_lag, frames[0].size), np.int64)
+            for k in range(1, min(self.max_lag, len(wide) - 1) + 1):
+                for j in range(len(wide) - k):
+                    products[k - 1] += wide[j] * wide[j + k]
+            fresh["products"][:] = products
+            fresh["retired"][:] = self._arrays["retired"]
+            self._pending = 0  # the rebuilt sums hold every frame of the window
         self._arrays.update(fresh)
 
     # ----------------------------------------------------------------- maps
@@ -523,9 +647,50 @@ class SlidingWindow:
                                  f"{self.window} frames pushed (check .ready)")
         if self.mode == "exponential":
             flat = self._exponential_maps()
+        elif self.estimators == ("tau_c",):
+            flat = {}
         else:
             flat = self._window_maps("" if self.mode == "sliding" else "done_")
-        return {name: flat[name].reshape(self.shape) for name in self.estimators}
+        return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
+                for name in self.estimators}
+
+    # ----------------------------------------------------------------- τc
+    def _tau_covariances(self, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """cov (K, P) and var (P,) of the current window from the exact sums, for all pixels or
+        the flat indices ``pixels`` (a region costs its own size only)."""
+        if not self._do_tau:
+            raise EstimatorError("τc needs 'tau_c' among the estimators")
+        if not self.ready:
+            raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
+                                 f"{self.window} frames pushed (check .ready)")
+        self._flush()
+        arrays, n, lags = self._arrays, self.window, self.max_lag
+        every = slice(None) if pixels is None else pixels
+        if self.mode == "tumbling":
+            prefix = "done_"
+            edges = arrays["done_edges"][:, every]
+        else:
+            prefix = ""
+            ring, seen = arrays["ring"], self.frames_seen
+            ends = [ring[j % n, every] for j in range(seen - n, seen - n + lags)]
+            ends += [ring[j % n, every] for j in range(seen - lags, seen)]
+            edges = tau_stream.edges_of(ends, lags)
+        return tau_stream.covariances(n, arrays[prefix + "total"][every], arrays[prefix + "total_sq"][every],
+                                      arrays[prefix + "products"][:, every], edges)
+
+    def tau_c_bounds(self) -> TauC:
+        """Per-pixel τc (frames) and status of the current window, equal to
+        :func:`edgedsm.estimators.tau_c_bounds` on it with ``max_lag`` K."""
+        cov, var = self._tau_covariances()
+        return tau_stream.tau_map(self.window, self.shape, cov, var)
+
+    def region_tau_c(self, mask: np.ndarray) -> TauC:
+        """A region's τc (frames) and status from its pooled correlations (boolean (H, W)
+        ``mask``), equal to ``tau_c_bounds(window, K, mask=mask)``; costs O(K) per pixel of
+        the region."""
+        region = _check_mask(mask, self.shape)
+        cov, var = self._tau_covariances(np.flatnonzero(region))
+        return tau_stream.tau_region(self.window, cov, var)
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:
         """S1, S2, S3 and σ from the integer sums, one fused pass (see maps_kernel)."""
@@ -567,7 +732,8 @@ class SlidingWindow:
         return sigma.reshape(self.shape)
 
     def _snapshot(self) -> dict[str, Any]:
-        """Copies of the whole state (for tests and debugging)."""
+        """Copies of the whole state (for tests and debugging), lag products brought up to date."""
+        self._flush()
         state: dict[str, Any] = {name: array.copy() for name, array in self._arrays.items()}
         state.update(frames_seen=self.frames_seen, bits=self.bits,
                      blocks_completed=self.blocks_completed,

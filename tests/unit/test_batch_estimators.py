@@ -121,3 +121,20 @@ def test_sigma_of_very_long_sixteen_bit_windows():
     assert temporal_sigma(frames)[0, 0] == pytest.approx(65535 / 2, rel=1e-12)
     ramp = (np.arange(100_001) % 3).astype(np.uint16).reshape(-1, 1, 1) + 60000
     assert temporal_sigma(ramp)[0, 0] == pytest.approx(np.std(np.arange(100_001) % 3), rel=1e-9)
+
+
+@pytest.mark.parametrize("values", [[-1.0, 3.0, -2.0, 5.0], [1.0, np.nan, 2.0, 3.0], [1.0, np.inf, 2.0, 3.0],
+                                    [1.0, 2.0, -np.inf, 3.0], [0.0, -1e-300, 2.0, 3.0]])
+@pytest.mark.parametrize("estimator", [s1, s2, s3, all_maps])
+def test_negative_or_non_finite_float_intensities_are_refused(values, estimator):
+    """Issue 9 §6: all_maps([-1, 3, -2, 5], 1) gave S2 = 3.11, above its maximum of 1."""
+    frames = column(*values, dtype=np.float64)
+    with pytest.raises(EstimatorError, match=r"negative|NaN or inf") as info:
+        estimator(frames, 1)
+    assert "\n" not in str(info.value)
+
+
+def test_signed_integer_intensities_below_zero_are_refused():
+    with pytest.raises(EstimatorError, match="negative"):
+        all_maps(column(-1, 3, -2, 5, dtype=np.int16), 1)
+    assert all_maps(column(1, 3, 2, 5, dtype=np.int16), 1)["s2"][0, 0] <= 1.0
