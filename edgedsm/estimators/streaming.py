@@ -108,6 +108,7 @@ from typing import Any, Literal
 import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
+from edgedsm.estimators.snapshot import EngineSnapshot
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
@@ -526,6 +527,21 @@ class SlidingWindow:
         else:
             flat = self._window_maps("" if self.mode == "sliding" else "done_")
         return {name: flat[name].reshape(self.shape) for name in self.estimators}
+
+    def snapshot(self) -> EngineSnapshot:
+        """Copies of the sums ``maps()`` reads (about one push of memory traffic); turn them into
+        the same maps with :func:`edgedsm.estimators.snapshot.maps_from`, on any thread."""
+        if not self.ready:
+            raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
+                                 f"{self.window} frames pushed (check .ready)")
+        prefix = "done_" if self.mode == "tumbling" else ""
+        names = ("abs", "ratio", "m2") if self.mode == "exponential" else ("abs", "ratio", "total", "total_sq")
+        flags = (self._do_abs, self._do_ratio, self._do_sigma)
+        return EngineSnapshot(
+            shape=self.shape, mode=self.mode, estimators=self.estimators, window=self.window,
+            pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
+            sums={name: self._arrays[prefix + name].copy() for name in names},
+            weight_frames=self._weight_frames, maps_step=self._kernels.maps_kernel(*flags, False))
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:
         """S1, S2, S3 and σ from the integer sums, one fused pass (see maps_kernel)."""
