@@ -1,10 +1,20 @@
 """Evaluation: the streaming engine and, beside it, region statistics, drying states and messages.
 
-The pipeline thread pushes frames into the engine and, on the stats cadence, takes a
-:class:`Snapshot` (the maps, ``engine.maps()``: fresh arrays, the only cost it pays). One
-evaluator thread turns a snapshot into region statistics, drying states and typed messages for
-the sink, beside the next pushes. The drying monitor is shared by both threads (a reset comes
-from a command on the pipeline thread, a step from the evaluator): a lock guards it.
+The pipeline thread pushes frames into the engine and, on the states and stats cadence, takes a
+:class:`Snapshot`: a copy of the engine's sums (``engine.snapshot()``, about the cost of one
+push; the only evaluation work it does). One evaluator thread turns a snapshot into float maps
+(``maps_from``: the engine's maps kernel, GIL released), region statistics (numpy, over each
+region's bounding box), drying states and typed messages for the sink, beside the next pushes,
+so an evaluation never stalls capture or the engine. States are evaluated on their own, faster
+cadence from the activity map only (one sum copied, region means only); the full statistics
+and maps go out on theirs.
+
+With ``estimator.area = "regions"`` the engine sees only the bounding box of all regions (frames
+are cropped before the push): the cost follows the regions, and the published maps cover that
+box (their ``origin`` gives its top-left corner in camera pixels).
+
+The drying monitor is shared by both threads (a reset comes from a command on the pipeline
+thread, a step from the evaluator): a lock guards it.
 """
 
 from __future__ import annotations
@@ -15,16 +25,17 @@ import time
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FuturesTimeout
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from edgedsm.analysis import region_stats
+from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
 from edgedsm.frames import Frame
 from edgedsm.messages import Alert, AlertKind, Clock, LaserState, MapFrame, MapStats, RegionState, StateReport, Stats
 from edgedsm.publish.sink import Sink
@@ -49,11 +60,12 @@ def available_memory() -> int | None:
     return None
 
 
-def check_engine_memory(frame: Frame, window: int, mode: str) -> None:
-    """Refuse, with the config key to change, a window whose ring cannot fit in memory."""
+def check_engine_memory(frame: Frame, window: int, mode: str, pixels: int | None = None) -> None:
+    """Refuse, with the config key to change, a window whose ring cannot fit in memory
+    (``pixels``: what the engine sees, when not the whole frame)."""
     if mode != "sliding":
         return  # tumbling and exponential keep m frames only
-    needed = frame.pixels.size * (window * frame.pixels.itemsize + 40)
+    needed = (pixels or frame.pixels.size) * (window * frame.pixels.itemsize + 40)
     free = available_memory()
     if free is not None and needed > 0.8 * free:
         raise ConfigError(f"estimator.window: a sliding window of {window} frames of {frame.shape[1]}x{frame.shape[0]} "
@@ -82,8 +94,9 @@ class Snapshot:
 
     status: Status
     ready: bool
-    maps: dict[str, np.ndarray] = field(default_factory=dict)  # fresh arrays, not modified later
+    engine: EngineSnapshot | None = None  # the sums, copied; None before the window is full
     publish_maps: bool = False
+    publish_stats: bool = True  # False: the drying states only (activity means, no stats message)
 
 
 class Evaluation:
@@ -97,7 +110,8 @@ class Evaluation:
         self.counters = counters
         self.probes = probes or PipelineProbes()
         self.engine: SlidingWindow | None = None
-        self.masks: dict[str, np.ndarray] = {}
+        self.regions: dict[str, RegionBox] = {}  # in the engine's coordinates
+        self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
         self._state_published = False
@@ -112,6 +126,9 @@ class Evaluation:
             self._make_engine(frame)
         assert self.engine is not None
         pixels = frame.pixels
+        if self.crop is not None and pixels.shape == frame.shape:
+            pixels = np.ascontiguousarray(pixels[self.crop])
+            dark = dark[self.crop] if dark is not None and dark.shape == frame.shape else None
         if self.config.estimator.ambient_correction and dark is not None and dark.shape == pixels.shape:
             # ambient-corrected S2: the dark level is subtracted before normalising (saturating at 0)
             pixels = np.subtract(pixels, np.minimum(pixels, dark))
@@ -136,10 +153,21 @@ class Evaluation:
             # a parallel pass over a small frame costs more in thread wake-ups than it saves, and
             # stalls badly when the capture thread competes for the cores
             threads = 1
-        check_engine_memory(frame, est.window, est.mode)
-        self.engine = SlidingWindow(frame.shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
+        masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
+        for index, (name, mask) in enumerate(masks.items()):
+            if not mask.any():
+                raise ConfigError(f"regions.{index}: region {name!r} covers no pixel of the "
+                                  f"{frame.shape[1]}x{frame.shape[0]} frame")
+        regions = {name: RegionBox.of(mask) for name, mask in masks.items()}
+        shape = frame.shape
+        if est.area == "regions" and masks:
+            rows, cols = self.crop = bounding_box(list(masks.values()))
+            regions = {name: box.shifted(rows, cols) for name, box in regions.items()}
+            shape = (rows.stop - rows.start, cols.stop - cols.start)
+        check_engine_memory(frame, est.window, est.mode, pixels=shape[0] * shape[1])
+        self.engine = SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
                                     estimators=ESTIMATORS, mode=est.mode, threads=threads)
-        self.masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
+        self.regions = regions
 
     def reset(self, why: str, states: bool = True) -> None:
         """Empty the estimator window; with ``states``, every region goes back to warming up."""
@@ -163,22 +191,26 @@ class Evaluation:
         except Exception as exc:  # logged here: nobody waits for this one's result
             log.error("alert %r could not be handed over: %s", alert.describe(), exc)
 
-    def evaluate(self, status: Status, maps_due: bool, wait: bool = False) -> Snapshot | None:
-        """Snapshot now, analyse and publish on the evaluator thread; None if skipped.
+    def evaluate(self, status: Status, maps_due: bool, wait: bool = False, stats_due: bool = True) -> Snapshot | None:
+        """Snapshot the sums now, analyse and publish on the evaluator thread; None if skipped.
 
-        An evaluation that is due while the previous one still runs is skipped (counted);
-        ``wait`` makes this one run to its end (and re-raises its error here).
+        An evaluation that is due while the previous one still runs is skipped (the caller
+        retries);
+        ``wait`` makes this one run to its end (and re-raises its error here). Without
+        ``stats_due`` only the drying states are evaluated (no stats message, no maps).
         """
         if self._pending is not None:
             if not self._pending.done() and not wait:
-                self.counters["evaluations_skipped"] += 1
-                return None
+                return None  # the pipeline tries again at its next loop
             pending, self._pending = self._pending, None
             pending.result()  # re-raises an error of the evaluator thread here
         started = time.perf_counter()
         ready = self.ready
-        maps = self.engine.maps() if ready and self.engine is not None else {}
-        snapshot = Snapshot(status, ready, maps, publish_maps=bool(maps) and maps_due)
+        engine = None
+        if ready and self.engine is not None:
+            engine = self.engine.snapshot(None if stats_due else [self.config.estimator.activity])
+        snapshot = Snapshot(status, ready, engine, publish_maps=engine is not None and maps_due and stats_due,
+                            publish_stats=stats_due)
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
         self._pending = self._last = self._executor.submit(self._analyse, snapshot)
@@ -208,14 +240,18 @@ class Evaluation:
 
     # -- evaluator thread ---------------------------------------------------------------------------
     def _analyse(self, snapshot: Snapshot) -> None:
-        """Region statistics, drying states, messages to the sink."""
+        """Maps from the sums, region statistics, drying states, messages to the sink."""
         started = time.perf_counter()
         status = snapshot.status
         estimator = self.config.estimator.activity
+        maps = maps_from(snapshot.engine) if snapshot.engine is not None else {}
         regions: dict[str, dict[str, MapStats]] = {}
         activities: dict[str, float] = {}
-        for name, mask in self.masks.items() if snapshot.maps else ():
-            per_map = {key: MapStats(**region_stats(values, mask).as_dict()) for key, values in snapshot.maps.items()}
+        for name, box in self.regions.items() if maps else ():
+            if not snapshot.publish_stats:  # states only: the activity means
+                activities[name] = box.mean(maps[estimator])
+                continue
+            per_map = {key: MapStats(**box.stats(values).as_dict()) for key, values in maps.items()}
             regions[name] = per_map
             mean = per_map[estimator].mean
             if mean is not None:
@@ -226,6 +262,12 @@ class Evaluation:
             report = self._report(status, estimator)
         for transition in transitions:
             self.sink.publish_alert(self._alert(transition))
+        if self.probes.states_evaluated is not None:
+            self.probes.states_evaluated(status.frames, time.monotonic())
+        if not snapshot.publish_stats:
+            if transitions:
+                self.sink.publish_state(report)
+            return
         t = self.clock.to_wall(status.now)
         stats = Stats(t=t, frames=status.frames, ready=snapshot.ready, fps=status.fps, laser=status.laser,
                       estimator=estimator, drops=status.drops, camera=status.camera,
@@ -238,10 +280,11 @@ class Evaluation:
             self._state_published = True
         if snapshot.publish_maps:
             est = self.config.estimator
-            for name, values in snapshot.maps.items():
+            origin = {} if self.crop is None else {"origin": [self.crop[1].start, self.crop[0].start]}
+            for name, values in maps.items():
                 self.counters["maps_published"] += 1
                 self.sink.publish_map(MapFrame(name, values, seq=status.frames, t=t, window=est.window, lag=est.lag,
-                                               extra={"estimator": name, "frames": status.frames}))
+                                               extra={"estimator": name, "frames": status.frames, **origin}))
         if self.probes.evaluated is not None:
             self.probes.evaluated(stats, time.perf_counter() - started)
 

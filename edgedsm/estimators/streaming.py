@@ -528,19 +528,25 @@ class SlidingWindow:
             flat = self._window_maps("" if self.mode == "sliding" else "done_")
         return {name: flat[name].reshape(self.shape) for name in self.estimators}
 
-    def snapshot(self) -> EngineSnapshot:
-        """Copies of the sums ``maps()`` reads (about one push of memory traffic); turn them into
-        the same maps with :func:`edgedsm.estimators.snapshot.maps_from`, on any thread."""
+    def snapshot(self, estimators: Iterable[str] | None = None) -> EngineSnapshot:
+        """Copies of the sums ``maps()`` reads for ``estimators`` (default: the engine's own),
+        about one push of memory traffic; :func:`edgedsm.estimators.snapshot.maps_from` turns
+        them into the same maps, on any thread."""
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
                                  f"{self.window} frames pushed (check .ready)")
+        wanted = self.estimators if estimators is None else self._check_estimators(estimators)
+        if not set(wanted) <= set(self.estimators):
+            raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
+        flags = ("s1" in wanted or "s3" in wanted, "s2" in wanted, "s3" in wanted)
+        needed = {"abs": flags[0], "ratio": flags[1], "total": flags[2], "total_sq": flags[2], "m2": flags[2]}
         prefix = "done_" if self.mode == "tumbling" else ""
         names = ("abs", "ratio", "m2") if self.mode == "exponential" else ("abs", "ratio", "total", "total_sq")
-        flags = (self._do_abs, self._do_ratio, self._do_sigma)
+        empty = np.zeros(0, np.int64)
         return EngineSnapshot(
-            shape=self.shape, mode=self.mode, estimators=self.estimators, window=self.window,
+            shape=self.shape, mode=self.mode, estimators=wanted, window=self.window,
             pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
-            sums={name: self._arrays[prefix + name].copy() for name in names},
+            sums={name: self._arrays[prefix + name].copy() if needed[name] else empty for name in names},
             weight_frames=self._weight_frames, maps_step=self._kernels.maps_kernel(*flags, False))
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:

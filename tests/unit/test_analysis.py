@@ -51,3 +51,26 @@ def test_percentiles_of_large_regions_from_a_stride():
     exact = np.percentile(values, [5, 50, 95])
     assert stats.pixels == 1024 * 1024 and stats.mean == pytest.approx(values.mean(), rel=1e-12)
     assert [stats.p05, stats.median, stats.p95] == pytest.approx(exact, rel=0.02)
+
+
+def test_region_box_reads_the_box_only_with_the_same_statistics() -> None:
+    from edgedsm.analysis import RegionBox, bounding_box
+
+    rng = np.random.default_rng(5)
+    values = rng.random((60, 80))
+    mask = np.zeros((60, 80), bool)
+    mask[10:20, 30:35] = True
+    mask[25, 60] = True
+    box = RegionBox.of(mask)
+    assert (box.rows, box.cols) == (slice(10, 26), slice(30, 61))
+    assert box.mask.shape == (16, 31) and box.pixels == 51
+    assert box.stats(values) == region_stats(values, mask)
+    assert box.mean(values) == region_mean(values, mask)
+    # in a map of the union box only (estimator.area = "regions")
+    other = np.zeros((60, 80), bool)
+    other[5, 40] = True
+    rows, cols = bounding_box([mask, other])
+    assert (rows, cols) == (slice(5, 26), slice(30, 61))
+    assert box.shifted(rows, cols).stats(values[rows, cols]) == region_stats(values, mask)
+    with pytest.raises(EstimatorError, match="empty"):
+        RegionBox.of(np.zeros((3, 3), bool))

@@ -52,3 +52,17 @@ def test_snapshot_before_the_window_is_full_is_refused() -> None:
     engine.push(np.zeros((4, 4), np.uint8))
     with pytest.raises(EstimatorError, match="not full yet: 1 of 10"):
         engine.snapshot()
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_snapshot_of_one_estimator_copies_only_its_sums(mode: str) -> None:
+    frames = np.random.default_rng(2).integers(0, 256, size=(14, 9, 7), dtype=np.uint8)
+    engine = feed(SlidingWindow((9, 7), window=10, lag=2, q=1.0, mode=mode, kernel="numpy"), frames)
+    full = engine.maps()
+    for name in ("s1", "s2", "s3"):
+        maps = maps_from(engine.snapshot([name]))
+        assert sorted(maps) == [name]
+        assert np.array_equal(maps[name], full[name])
+    assert engine.snapshot(["s2"]).nbytes == 63 * 8  # one int64 or float64 sum
+    with pytest.raises(EstimatorError, match="s4"):
+        engine.snapshot(["s4"])
