@@ -143,6 +143,11 @@ class Evaluation:
         return True
 
     @property
+    def busy(self) -> bool:
+        """An evaluation handed over is still running."""
+        return self._pending is not None and not self._pending.done()
+
+    @property
     def ready(self) -> bool:
         return self.engine is not None and self.engine.ready
 
@@ -154,10 +159,6 @@ class Evaluation:
             # stalls badly when the capture thread competes for the cores
             threads = 1
         masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
-        for index, (name, mask) in enumerate(masks.items()):
-            if not mask.any():
-                raise ConfigError(f"regions.{index}: region {name!r} covers no pixel of the "
-                                  f"{frame.shape[1]}x{frame.shape[0]} frame")
         regions = {name: RegionBox.of(mask) for name, mask in masks.items()}
         shape = frame.shape
         if est.area == "regions" and masks:
