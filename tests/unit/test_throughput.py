@@ -107,3 +107,26 @@ def test_area_regions_gives_the_same_region_statistics_on_the_box_only(tmp_path:
     assert box_maps and box_maps[-1].values.shape == (25, 26) and box_maps[-1].extra["origin"] == [10, 5]
     assert np.array_equal(box_maps[-1].values, full_maps[-1].values[5:30, 10:36])
     assert "origin" not in full_maps[-1].extra
+
+
+def test_check_config_shows_the_queue_memory(tmp_path: Path, capsys) -> None:
+    from edgedsm.cli import main
+
+    frames = tmp_path / "frames.npy"
+    np.save(frames, np.zeros((3, 2048, 2048), np.uint8))
+    path = tmp_path / "c.toml"
+    path.write_text(f'''[camera]
+uri = "replay:{frames}"
+frame_interval_s = 0.01
+[[regions]]
+name = "all"
+wet_above = 0.9
+dry_below = 0.5
+''')
+    assert main(["check-config", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "queue: 50 frames of 4.0 MiB = 200 MiB (0.5 s at 100 frames/s, at most 512 MiB)" in out
+    path.write_text(path.read_text().replace("frame_interval_s = 0.01\n", ""))
+    assert main(["check-config", str(path)]) == 0
+    assert "queue: 0.5 s of frames at the measured rate, at most 512 MiB (128 frames of 4.0 MiB)" in (
+        capsys.readouterr().out)
