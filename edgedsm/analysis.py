@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edgedsm.analysis_kernels import masked_moments
 from edgedsm.errors import EstimatorError
 
 
@@ -57,16 +58,17 @@ def region_stats(values: np.ndarray, mask: np.ndarray) -> RegionStats:
     Percentiles of regions larger than ``PERCENTILE_SAMPLES`` pixels come from an even stride
     through the region, which keeps a 2048² map's statistics at a few ms (a full partition per
     percentile costs ~50 ms); activity maps vary on the speckle scale, far below the stride.
+    Mean and deviation come from compensated sums without copying the region
+    (:mod:`edgedsm.analysis_kernels`; with numba, the GIL is released meanwhile).
     """
     values, mask = _check(values, mask)
-    selected = values[mask]
-    if selected.size == 0:
+    if values.ndim != 2:
+        values, mask = values.reshape(1, -1), mask.reshape(1, -1)
+    count, mean, std, sample = masked_moments(values, mask, PERCENTILE_SAMPLES)
+    if count == 0:
         raise EstimatorError("region is empty")
-    mean = float(selected.mean(dtype=np.float64))
-    std = float(selected.std(dtype=np.float64))
-    stride = -(-selected.size // PERCENTILE_SAMPLES)
-    p05, median, p95 = np.percentile(selected[::stride], [5, 50, 95])
-    return RegionStats(int(selected.size), mean, std, float(p05), float(median), float(p95))
+    p05, median, p95 = np.percentile(sample, [5, 50, 95])
+    return RegionStats(count, mean, std, float(p05), float(median), float(p95))
 
 
 @dataclass(frozen=True)
