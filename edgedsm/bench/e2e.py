@@ -10,7 +10,8 @@ at 256², τc = 20 frames) tiled to ``--size``, each tile shifted in time, in ``
 (Mono12p and Mono16 are replayed unpacked, as uint16: the unpacking a real camera's frames need
 is timed on its own), played in a loop. The default configuration is the issue's: stats every
 1 s, maps every 10 s, drying states every 0.5 s, two large regions, the default queue
-(``acquisition.queue_seconds`` = 0.5 s).
+(``acquisition.queue_seconds`` = 0.5 s). Every trial measures for its seconds after the
+window filled (when evaluations start); drops are counted over the whole trial.
 
 Measured, in one run, per size:
 
@@ -64,6 +65,7 @@ TILE = 256
 WINDOW, LAG = 200, 10
 STATS_S, MAPS_S = 1.0, 10.0
 RECORDED_FRAMES = 240
+FILL_LIMIT_S = 120.0  # a trial gives up when the window has not filled in this (plus its seconds)
 PIXEL_FORMATS = {"Mono8": 8, "Mono12p": 12, "Mono16": 16}
 COVERED = (1.0, 0.25, 0.0625, 0.01)  # fractions of the sensor the one region covers (area trials)
 SCENE = data_file("config/scenes/constant.toml")
@@ -150,6 +152,7 @@ class Instruments:
         self.states: list[tuple[int, float]] = []  # (frames included, monotonic) per evaluation
         self.stats: list[tuple[int, float]] = []  # the same, stats messages only
         self.ready_at: int | None = None  # frames counted when the window filled
+        self.ready_t: float | None = None  # and when (monotonic)
 
     def probes(self) -> PipelineProbes:
         return PipelineProbes(frame_queued=lambda frame, t: self.enqueued.__setitem__(frame.seq, t),
@@ -160,7 +163,7 @@ class Instruments:
     def _pushed(self, frame: Frame, t: float, cost: float) -> None:
         self.push_s.append(cost)
         if len(self.push_s) == WINDOW:
-            self.ready_at = len(self.dequeued)
+            self.ready_at, self.ready_t = len(self.dequeued), t
 
     def _snapshot(self, snapshot: Snapshot, cost: float) -> None:
         if snapshot.ready:
@@ -264,7 +267,8 @@ def anon_mib() -> float:
 
 
 def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: float, covered: float = 1.0) -> Trial:
-    """Run the pipeline on ``config`` for ``seconds`` and measure (see the module docstring)."""
+    """Run the pipeline on ``config`` for ``seconds`` after its window filled (evaluations run
+    from then on) and measure over those seconds (see the module docstring)."""
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
@@ -274,15 +278,26 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         mqtt.wait_connected(10)
         camera = open_camera_for(config)
         pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S), probes=instruments.probes())
-        started, cpu0 = time.monotonic(), time.process_time()
-        pipeline.run(lambda: time.monotonic() - started >= seconds)
-        wall, cpu = time.monotonic() - started, time.process_time() - cpu0
+        cpu: list[float] = []
+        started = time.monotonic()
+
+        def should_stop() -> bool:
+            now, ready_t = time.monotonic(), instruments.ready_t
+            if ready_t is not None and not cpu:
+                cpu.append(time.process_time())
+            return (ready_t is not None and now - ready_t >= seconds) or now - started >= seconds + FILL_LIMIT_S
+
+        pipeline.run(should_stop)
+        cpu_s = time.process_time() - (cpu[0] if cpu else 0.0)
         rss = anon_mib()
     finally:
         mqtt.close(1.0)
-    trial = Trial(label, rate, pipeline.capture.capacity, STATS_S, wall,
-                  int(camera.stats.get("delivered", 0)) or len(instruments.enqueued), pipeline.counters["frames"],
-                  pipeline.counters["dropped_queue"], cpu, rss, covered=covered)
+    ready_t, ready_at = instruments.ready_t or started, instruments.ready_at or 0
+    wall = time.monotonic() - ready_t
+    delivered = sum(1 for t in instruments.enqueued.values() if t >= ready_t)
+    trial = Trial(label, rate, pipeline.capture.capacity, STATS_S, wall, delivered,
+                  pipeline.counters["frames"] - ready_at, pipeline.counters["dropped_queue"], cpu_s, rss,
+                  covered=covered)
     trial.latency = {"alert": latency(instruments, instruments.states),
                      "stats": latency(instruments, instruments.stats)}
     if instruments.push_s:
