@@ -146,6 +146,7 @@ class Instruments:
     def __init__(self) -> None:
         self.enqueued: dict[int, float] = {}
         self.dequeued: list[int] = []  # seq in dequeue order: index i-1 is the i-th frame counted
+        self.taken_t: list[float] = []  # when each was taken (monotonic)
         self.push_s: list[float] = []
         self.snapshot_s: list[float] = []
         self.evaluate_s: list[float] = []
@@ -156,9 +157,19 @@ class Instruments:
 
     def probes(self) -> PipelineProbes:
         return PipelineProbes(frame_queued=lambda frame, t: self.enqueued.__setitem__(frame.seq, t),
-                              frame_taken=lambda frame, count: self.dequeued.append(frame.seq),
+                              frame_taken=self._taken,
                               frame_pushed=self._pushed, snapshot_taken=self._snapshot,
                               evaluated=self._evaluated, states_evaluated=lambda n, t: self.states.append((n, t)))
+
+    def _taken(self, frame: Frame, count: int) -> None:
+        self.dequeued.append(frame.seq)
+        self.taken_t.append(time.monotonic())
+
+    def stall_s(self, since: float) -> float:
+        """The longest gap between two frames taken off the queue after ``since``: the
+        pipeline thread's worst stall when frames were waiting (what the queue must cover)."""
+        times = np.asarray([t for t in self.taken_t if t >= since])
+        return float(np.diff(times).max()) if times.size > 1 else float("nan")
 
     def _pushed(self, frame: Frame, t: float, cost: float) -> None:
         self.push_s.append(cost)
@@ -212,6 +223,7 @@ class Trial:
     snapshot_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the pipeline thread
     evaluate_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the evaluator thread
     covered: float = 1.0  # fraction of the sensor the engine sees
+    stall_s: float = float("nan")  # the pipeline thread's longest gap between two frames taken
 
     @property
     def fps(self) -> float:
@@ -297,7 +309,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
     delivered = sum(1 for t in instruments.enqueued.values() if t >= ready_t)
     trial = Trial(label, rate, pipeline.capture.capacity, STATS_S, wall, delivered,
                   pipeline.counters["frames"] - ready_at, pipeline.counters["dropped_queue"], cpu_s, rss,
-                  covered=covered)
+                  covered=covered, stall_s=instruments.stall_s(ready_t))
     trial.latency = {"alert": latency(instruments, instruments.states),
                      "stats": latency(instruments, instruments.stats)}
     if instruments.push_s:

@@ -40,7 +40,7 @@ def summary_row(result: SizeResult) -> list[str]:
 def paced_row(result: SizeResult, trial: Trial) -> list[str]:
     return [_size(result), f"{trial.rate:g}", f"{(trial.rate or 0) / result.bare_fps:.0%}",
             f"{trial.delivered_fps:.1f}", f"{trial.fps:.1f}", f"**{trial.drops}**", str(trial.queue_frames),
-            f"{trial.rss:.0f}", "yes" if trial.sustained else "no"]
+            f"{1e3 * trial.stall_s:.0f}", f"{trial.rss:.0f}", "yes" if trial.sustained else "no"]
 
 
 def area_row(result: SizeResult, trial: Trial, full: Trial) -> list[str]:
@@ -90,7 +90,8 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     report.line("## Paced trials")
     report.line()
     report.table(["size", "requested frames/s", "÷ bare", "delivered frames/s", "processed frames/s",
-                  "queue drops", "queue frames", "RSS anon MiB", "sustained"],
+                  "queue drops", "queue frames", "longest gap between frames taken (ms)", "RSS anon MiB",
+                  "sustained"],
                  [paced_row(result, trial) for result in results for trial in result.paced])
     report.line()
     if any(result.areas for result in results):

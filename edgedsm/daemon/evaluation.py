@@ -20,6 +20,7 @@ thread, a step from the evaluator): a lock guards it.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections import Counter
@@ -46,6 +47,20 @@ log = logging.getLogger(__name__)
 EVALUATION_TIMEOUT_S = 1.0
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
 SMALL_FRAME_PIXELS = 1 << 18
+
+
+#: Niceness of the evaluator thread (Linux: per thread): on a machine with few cores the engine's
+#: kernel threads must not wait for a core the evaluator holds (a parallel pass waits for its
+#: slowest thread); the evaluator still gets its share when they idle.
+EVALUATOR_NICE = 10
+
+
+def yield_cores() -> None:
+    """Lower the calling thread's priority to EVALUATOR_NICE (where the system allows)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EVALUATOR_NICE)
+    except (OSError, AttributeError):  # not Linux, or not allowed: the default priority
+        log.debug("the evaluator thread keeps the default priority")
 
 
 def available_memory() -> int | None:
@@ -94,7 +109,8 @@ class Snapshot:
 
     status: Status
     ready: bool
-    engine: EngineSnapshot | None = None  # the sums, copied; None before the window is full
+    engine: EngineSnapshot | None = None  # the sums (None before the window is full); valid until
+    # the next snapshot, which reuses its buffers
     publish_maps: bool = False
     publish_stats: bool = True  # False: the drying states only (activity means, no stats message)
 
@@ -115,8 +131,10 @@ class Evaluation:
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
         self._state_published = False
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate")
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate",
+                                            initializer=yield_cores)
         self._pending: Future[None] | None = None  # the latest analysis
+        self._buffers: EngineSnapshot | None = None  # the latest snapshot, overwritten by the next
         self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
 
     # -- pipeline thread --------------------------------------------------------------------------
@@ -209,7 +227,10 @@ class Evaluation:
         ready = self.ready
         engine = None
         if ready and self.engine is not None:
-            engine = self.engine.snapshot(None if stats_due else [self.config.estimator.activity])
+            # the previous snapshot's analysis has ended (checked above): its buffers are reused
+            engine = self.engine.snapshot(None if stats_due else [self.config.estimator.activity],
+                                          into=self._buffers)
+            self._buffers = engine
         snapshot = Snapshot(status, ready, engine, publish_maps=engine is not None and maps_due and stats_due,
                             publish_stats=stats_due)
         if self.probes.snapshot_taken is not None:
@@ -233,7 +254,7 @@ class Evaluation:
         self._executor.shutdown(wait=False)
         # the window's ring is the bulk of the daemon's memory (N frames): released now, not
         # when the garbage collector gets to the pipeline (a reload builds a new one at once)
-        self.engine = None
+        self.engine = self._buffers = None
 
     def states_line(self) -> str:
         with self.monitor_lock:

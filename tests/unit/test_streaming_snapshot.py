@@ -66,3 +66,20 @@ def test_snapshot_of_one_estimator_copies_only_its_sums(mode: str) -> None:
     assert engine.snapshot(["s2"]).nbytes == 63 * 8  # one int64 or float64 sum
     with pytest.raises(EstimatorError, match="s4"):
         engine.snapshot(["s4"])
+
+
+def test_a_snapshot_into_an_older_one_reuses_its_buffers() -> None:
+    frames = np.random.default_rng(4).integers(0, 256, size=(30, 20, 20), dtype=np.uint8)
+    engine = feed(SlidingWindow((20, 20), window=10, lag=2, q=1.0, kernel="numpy"), frames[:12])
+    first = engine.snapshot()
+    feed(engine, frames[12:])
+    expected = engine.maps()
+    second = engine.snapshot(into=first)
+    assert all(second.sums[name] is first.sums[name] for name in ("abs", "ratio", "total", "total_sq"))
+    assert all(np.array_equal(maps_from(second)[name], expected[name]) for name in expected)
+    # a states-only snapshot reuses what fits and leaves out the rest
+    third = engine.snapshot(["s2"], into=second)
+    assert third.sums["ratio"] is second.sums["ratio"] and third.sums["abs"].size == 0
+    assert np.array_equal(maps_from(third)["s2"], expected["s2"])
+    fourth = engine.snapshot(into=third)  # the others are fresh again
+    assert fourth.sums["ratio"] is third.sums["ratio"] and np.array_equal(maps_from(fourth)["s1"], expected["s1"])
