@@ -103,7 +103,7 @@ class AcquisitionSection(StrictModel):
     dark_frames: int = Field(10, ge=0, le=10_000, description="laser-off frames for the ambient level (0 = none)")
     dark_every_min: float = Field(30.0, ge=0, le=10080,
                                   description="repeat the dark frames every K minutes (0 = only at start)")
-    queue_seconds: float = Field(0.5, gt=0, le=60, description="queue camera→estimator sized to hold this many "
+    queue_seconds: float = Field(1.0, gt=0, le=60, description="queue camera→estimator sized to hold this many "
                                  "seconds of frames at the measured rate (oldest dropped when full)")
     queue_max_mib: int = Field(512, ge=1, le=1_048_576, description="memory bound of that queue (MiB)")
     queue_frames: int | None = Field(None, ge=1, le=10_000,

@@ -10,7 +10,7 @@ at 256², τc = 20 frames) tiled to ``--size``, each tile shifted in time, in ``
 (Mono12p and Mono16 are replayed unpacked, as uint16: the unpacking a real camera's frames need
 is timed on its own), played in a loop. The default configuration is the issue's: stats every
 1 s, maps every 10 s, drying states every 0.5 s, two large regions, the default queue
-(``acquisition.queue_seconds`` = 0.5 s). Every trial measures for its seconds after the
+(``acquisition.queue_seconds`` = 1 s). Every trial measures for its seconds after the
 window filled (when evaluations start); drops are counted over the whole trial.
 
 Measured, in one run, per size:

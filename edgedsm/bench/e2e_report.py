@@ -60,7 +60,7 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     report.line(f"Replay of {RECORDED_FRAMES} recorded frames (looped) → the daemon's `Pipeline` (N = {WINDOW}, "
                 f"m = {LAG}, S1 + S2 + S3, two regions: the whole sensor and its centre quarter) → `MqttSink` → "
                 f"mosquitto on loopback; stats every {STATS_S:g} s, maps every {MAPS_S:g} s, drying states every "
-                f"0.5 s, the default queue (`acquisition.queue_seconds` = 0.5 s); {seconds:g} s per trial. "
+                f"0.5 s, the default queue (`acquisition.queue_seconds` = 1 s); {seconds:g} s per trial. "
                 "How each figure is measured: `edgedsm bench e2e --help`.")
     report.line()
     report.line("## Bare engine, daemon capacity, zero-drop rate")

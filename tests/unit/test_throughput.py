@@ -21,11 +21,12 @@ from edgedsm.publish.sink import RecordingSink
 
 def test_queue_capacity_by_time_bounded_by_memory() -> None:
     default = AcquisitionSection()
-    assert default.queue_frames is None and default.queue_seconds == 0.5 and default.queue_max_mib == 512
+    assert default.queue_frames is None and default.queue_seconds == 1.0 and default.queue_max_mib == 512
     assert queue_capacity(default, None, None) == INITIAL_QUEUE_FRAMES
-    assert queue_capacity(default, 150.0, 2048 * 2048) == 75  # 0.5 s at 150 frames/s, 300 MiB
-    assert queue_capacity(default, 57.0, 4096 * 2168 * 2) == 29  # Mono16 at the paper's size: 491 MiB
-    assert queue_capacity(default, 500.0, 4096 * 2168 * 2) == 30  # 512 MiB / 17 MiB: memory wins
+    assert queue_capacity(default, 60.0, 2048 * 2048) == 60  # 1 s at 60 frames/s, 240 MiB
+    assert queue_capacity(default, 150.0, 2048 * 2048) == 128  # 150 frames would be 600 MiB: 512 MiB wins
+    assert queue_capacity(default, 57.0, 4096 * 2168) == 57  # Mono8 at the paper's camera: 484 MiB
+    assert queue_capacity(default, 57.0, 4096 * 2168 * 2) == 30  # Mono16: 512 MiB / 17 MiB
     assert queue_capacity(default, 1.0, 64 * 64) == 2  # never fewer than 2
     assert queue_capacity(AcquisitionSection(queue_frames=7), 150.0, 2048 * 2048) == 7
 
@@ -125,8 +126,8 @@ dry_below = 0.5
 ''')
     assert main(["check-config", str(path)]) == 0
     out = capsys.readouterr().out
-    assert "queue: 50 frames of 4.0 MiB = 200 MiB (0.5 s at 100 frames/s, at most 512 MiB)" in out
+    assert "queue: 100 frames of 4.0 MiB = 400 MiB (1 s at 100 frames/s, at most 512 MiB)" in out
     path.write_text(path.read_text().replace("frame_interval_s = 0.01\n", ""))
     assert main(["check-config", str(path)]) == 0
-    assert "queue: 0.5 s of frames at the measured rate, at most 512 MiB (128 frames of 4.0 MiB)" in (
+    assert "queue: 1 s of frames at the measured rate, at most 512 MiB (128 frames of 4.0 MiB)" in (
         capsys.readouterr().out)
