@@ -154,6 +154,7 @@ class Instruments:
         self.stats: list[tuple[int, float]] = []  # the same, stats messages only
         self.ready_at: int | None = None  # frames counted when the window filled
         self.ready_t: float | None = None  # and when (monotonic)
+        self.rss_mib = 0.0  # the largest anonymous resident memory seen at an evaluation
 
     def probes(self) -> PipelineProbes:
         return PipelineProbes(frame_queued=lambda frame, t: self.enqueued.__setitem__(frame.seq, t),
@@ -182,6 +183,7 @@ class Instruments:
 
     def _evaluated(self, stats: Stats, seconds: float) -> None:
         self.stats.append((stats.frames, time.monotonic()))
+        self.rss_mib = max(self.rss_mib, anon_mib())  # while the engine's window is allocated
         if stats.ready:
             self.evaluate_s.append(seconds)
 
@@ -217,7 +219,7 @@ class Trial:
     processed: int
     drops: int
     cpu_s: float
-    rss: float  # anonymous resident MiB at the end
+    rss: float  # anonymous resident MiB, the most seen at an evaluation
     latency: dict[str, tuple[float, float]] = field(default_factory=dict)  # "alert"/"stats" -> (p50, p99) s
     push_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, p99
     snapshot_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the pipeline thread
@@ -301,7 +303,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
 
         pipeline.run(should_stop)
         cpu_s = time.process_time() - (cpu[0] if cpu else 0.0)
-        rss = anon_mib()
+        rss = instruments.rss_mib or anon_mib()
     finally:
         mqtt.close(1.0)
     ready_t, ready_at = instruments.ready_t or started, instruments.ready_at or 0

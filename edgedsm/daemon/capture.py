@@ -40,13 +40,15 @@ MIN_QUEUE_FRAMES = 2
 
 def queue_capacity(settings: AcquisitionSection, rate: float | None, frame_bytes: int | None) -> int:
     """Frames the queue holds: ``queue_frames`` if set, else ``queue_seconds`` at ``rate``
-    frames/s bounded by ``queue_max_mib``; unknown rate or size: ``INITIAL_QUEUE_FRAMES``."""
+    frames/s bounded by ``queue_max_mib``; before the rate is known, the memory bound (the
+    start, when kernels load, is when a pipeline stalls longest); before the frame size is
+    known, ``INITIAL_QUEUE_FRAMES``."""
     if settings.queue_frames is not None:
         return settings.queue_frames
-    if not rate or not frame_bytes:
+    if not frame_bytes:
         return INITIAL_QUEUE_FRAMES
-    by_time = math.ceil(settings.queue_seconds * rate)
     by_memory = settings.queue_max_mib * 2**20 // frame_bytes
+    by_time = by_memory if not rate else math.ceil(settings.queue_seconds * rate)
     return max(MIN_QUEUE_FRAMES, min(by_time, by_memory))
 
 
@@ -62,6 +64,7 @@ class Capture:
         self.probes = probes or PipelineProbes()
         self.frames: queue.Queue[Frame] = queue.Queue(maxsize=queue_capacity(sizing, None, None))
         self._arrivals: list[float] = []  # monotonic times of the last RATE_FRAMES frames
+        self._rate_known = False
         self.lost = threading.Event()  # set while the camera is away
         self.error: BaseException | None = None  # what ended the thread, for the pipeline thread to raise
         self.loss_reason = ""  # the latest loss, in words
@@ -155,12 +158,16 @@ class Capture:
         """Every RATE_FRAMES frames: the queue's length from the measured rate and frame size."""
         arrivals = self._arrivals
         arrivals.append(now)
-        if len(arrivals) < RATE_FRAMES:
+        if len(arrivals) == 1 and not self._rate_known:  # the first frame: its size is known
+            size = queue_capacity(self.sizing, None, frame.pixels.nbytes)
+        elif len(arrivals) < RATE_FRAMES:
             return
-        span = arrivals[-1] - arrivals[0]
-        rate = (len(arrivals) - 1) / span if span > 0 else None
-        arrivals.clear()
-        size = queue_capacity(self.sizing, rate, frame.pixels.nbytes)
+        else:
+            span = arrivals[-1] - arrivals[0]
+            rate = (len(arrivals) - 1) / span if span > 0 else None
+            arrivals.clear()
+            self._rate_known = rate is not None
+            size = queue_capacity(self.sizing, rate, frame.pixels.nbytes)
         with self.frames.mutex:  # a longer queue wakes a held-back source at once
             if size != self.frames.maxsize:
                 self.frames.maxsize = size

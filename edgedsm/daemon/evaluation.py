@@ -136,7 +136,27 @@ class Evaluation:
                                             initializer=yield_cores)
         self._pending: Future[None] | None = None  # the latest analysis
         self._buffers: EngineSnapshot | None = None  # the latest snapshot, overwritten by the next
+        self.warm_up()
         self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
+
+    def warm_up(self) -> None:
+        """Load every compiled kernel an evaluation uses, on a small engine, before frames flow:
+        loading them later (hundreds of ms, holding the GIL) would stall the pipeline thread and
+        overflow the queue at the first push and the first evaluation."""
+        est = self.config.estimator
+        deep = self.config.camera.pixel_format not in (None, "Mono8")
+        side = 256  # at least PARALLEL_MIN_PIXELS: the parallel kernels real frames use
+        engine = SlidingWindow((side, side), window=est.lag + 2, lag=est.lag, q=est.q, bits=16 if deep else 8,
+                               estimators=ESTIMATORS, mode=est.mode, threads=est.threads)
+        frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
+        for _ in range(est.lag + 3):
+            engine.push(frame)
+        mask = np.zeros((side, side), bool)
+        mask[1:-1, 1:-1] = True
+        for snapshot in (engine.snapshot(), engine.snapshot([est.activity])):
+            for values in maps_from(snapshot).values():
+                RegionBox.of(np.ones_like(mask)).stats(values)
+                RegionBox.of(mask).stats(values)
 
     # -- pipeline thread --------------------------------------------------------------------------
     def push(self, frame: Frame, dark: np.ndarray | None) -> bool:

@@ -23,6 +23,7 @@ def test_queue_capacity_by_time_bounded_by_memory() -> None:
     default = AcquisitionSection()
     assert default.queue_frames is None and default.queue_seconds == 1.0 and default.queue_max_mib == 512
     assert queue_capacity(default, None, None) == INITIAL_QUEUE_FRAMES
+    assert queue_capacity(default, None, 2048 * 2048) == 128  # rate not known yet: the memory bound
     assert queue_capacity(default, 60.0, 2048 * 2048) == 60  # 1 s at 60 frames/s, 240 MiB
     assert queue_capacity(default, 150.0, 2048 * 2048) == 128  # 150 frames would be 600 MiB: 512 MiB wins
     assert queue_capacity(default, 57.0, 4096 * 2168) == 57  # Mono8 at the paper's camera: 484 MiB
@@ -51,8 +52,8 @@ def test_the_queue_follows_the_measured_rate() -> None:
     finally:
         module.time.monotonic = real  # type: ignore[assignment]
     assert capture.capacity == 50  # 0.25 s at 200 frames/s
-    # 16 frames held until the rate was known at the 32nd frame (15 oldest dropped), then room for all
-    assert capture.counters["dropped_queue"] == 15 and capture.frames.qsize() == 25
+    # the memory bound until the rate is known (512 MiB of 256-byte frames), then 0.25 s of frames
+    assert capture.counters["dropped_queue"] == 0 and capture.frames.qsize() == 40
 
 
 def _replay_config(tmp_path: Path, area: str) -> DaemonConfig:
