@@ -156,6 +156,8 @@ class Capture:
 
     def _resize(self, frame: Frame, now: float) -> None:
         """Every RATE_FRAMES frames: the queue's length from the measured rate and frame size."""
+        if self.sizing.queue_frames is not None:
+            return  # a fixed length
         arrivals = self._arrivals
         arrivals.append(now)
         if len(arrivals) == 1 and not self._rate_known:  # the first frame: its size is known
