@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import itertools
 import logging
 import statistics
@@ -286,6 +287,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
+    gc.collect()  # the previous trial's pipeline and camera (with its mapping of the recording) gone
     mqtt = MqttSink(config.mqtt, config.device.state_dir).start()
     instruments = Instruments()
     try:

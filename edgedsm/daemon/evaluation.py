@@ -127,6 +127,7 @@ class Evaluation:
         self.counters = counters
         self.probes = probes or PipelineProbes()
         self.engine: SlidingWindow | None = None
+        self.frame_shape: tuple[int, int] | None = None  # fixed by the first frame
         self.regions: dict[str, RegionBox] = {}  # in the engine's coordinates
         self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
@@ -208,6 +209,7 @@ class Evaluation:
         self.engine = SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
                                     estimators=ESTIMATORS, mode=est.mode, threads=threads)
         self.regions = regions
+        self.frame_shape = frame.shape
 
     def reset(self, why: str, states: bool = True) -> None:
         """Empty the estimator window; with ``states``, every region goes back to warming up."""
