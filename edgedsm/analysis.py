@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edgedsm.analysis_kernels import masked_moments
 from edgedsm.errors import EstimatorError
 
 
@@ -57,16 +58,58 @@ def region_stats(values: np.ndarray, mask: np.ndarray) -> RegionStats:
     Percentiles of regions larger than ``PERCENTILE_SAMPLES`` pixels come from an even stride
     through the region, which keeps a 2048² map's statistics at a few ms (a full partition per
     percentile costs ~50 ms); activity maps vary on the speckle scale, far below the stride.
+    Mean and deviation come from compensated sums without copying the region
+    (:mod:`edgedsm.analysis_kernels`; with numba, the GIL is released meanwhile).
     """
     values, mask = _check(values, mask)
-    selected = values[mask]
-    if selected.size == 0:
+    if values.ndim != 2:
+        values, mask = values.reshape(1, -1), mask.reshape(1, -1)
+    count, mean, std, sample = masked_moments(values, mask, PERCENTILE_SAMPLES)
+    if count == 0:
         raise EstimatorError("region is empty")
-    mean = float(selected.mean(dtype=np.float64))
-    std = float(selected.std(dtype=np.float64))
-    stride = -(-selected.size // PERCENTILE_SAMPLES)
-    p05, median, p95 = np.percentile(selected[::stride], [5, 50, 95])
-    return RegionStats(int(selected.size), mean, std, float(p05), float(median), float(p95))
+    p05, median, p95 = np.percentile(sample, [5, 50, 95])
+    return RegionStats(count, mean, std, float(p05), float(median), float(p95))
+
+
+@dataclass(frozen=True)
+class RegionBox:
+    """A region as its bounding box and the mask inside it: statistics read the box only, so
+    their cost follows the region's size, not the frame's (same values, same order)."""
+
+    rows: slice
+    cols: slice
+    mask: np.ndarray  # boolean, the box's shape
+
+    @classmethod
+    def of(cls, mask: np.ndarray) -> RegionBox:
+        """The smallest box around ``mask`` (an empty mask is an error)."""
+        rows, cols = bounding_box([mask])
+        return cls(rows, cols, np.ascontiguousarray(mask[rows, cols]))
+
+    def shifted(self, rows: slice, cols: slice) -> RegionBox:
+        """The same region in a map that covers only ``rows`` x ``cols`` of the frame (a box
+        containing this one)."""
+        return RegionBox(slice(self.rows.start - rows.start, self.rows.stop - rows.start),
+                         slice(self.cols.start - cols.start, self.cols.stop - cols.start), self.mask)
+
+    @property
+    def pixels(self) -> int:
+        return int(self.mask.sum())
+
+    def stats(self, values: np.ndarray) -> RegionStats:
+        return region_stats(values[self.rows, self.cols], self.mask)
+
+    def mean(self, values: np.ndarray) -> float:
+        return region_mean(values[self.rows, self.cols], self.mask)
+
+
+def bounding_box(masks: list[np.ndarray]) -> tuple[slice, slice]:
+    """Rows and columns of the smallest box holding every True pixel of ``masks``."""
+    covered = np.logical_or.reduce([np.asarray(mask, bool) for mask in masks]) if masks else np.zeros((0, 0), bool)
+    rows, cols = np.flatnonzero(covered.any(axis=1)), np.flatnonzero(covered.any(axis=0))
+    if rows.size == 0:
+        raise EstimatorError("region is empty")
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 def region_means(values: np.ndarray, masks: dict[str, np.ndarray]) -> dict[str, float]:

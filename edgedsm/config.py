@@ -105,8 +105,11 @@ class AcquisitionSection(StrictModel):
     dark_frames: int = Field(10, ge=0, le=10_000, description="laser-off frames for the ambient level (0 = none)")
     dark_every_min: float = Field(30.0, ge=0, le=10080,
                                   description="repeat the dark frames every K minutes (0 = only at start)")
-    queue_frames: int = Field(16, ge=1, le=10_000,
-                              description="bounded queue camera→estimator; oldest dropped when full")
+    queue_seconds: float = Field(1.0, gt=0, le=60, description="queue camera→estimator sized to hold this many "
+                                 "seconds of frames at the measured rate (oldest dropped when full)")
+    queue_max_mib: int = Field(512, ge=1, le=1_048_576, description="memory bound of that queue (MiB)")
+    queue_frames: int | None = Field(None, ge=1, le=10_000,
+                                     description="fixed queue length in frames instead (overrides queue_seconds)")
 
 
 class EstimatorSection(StrictModel):
@@ -118,6 +121,9 @@ class EstimatorSection(StrictModel):
     mode: Literal["sliding", "exponential", "tumbling"] = Field("sliding", description="window mode of the engine")
     ambient_correction: bool = Field(True, description="S2 with the measured dark level subtracted")
     threads: int | None = Field(None, ge=1, le=256, description="kernel threads (default: all cores)")
+    area: Literal["frame", "regions"] = Field(
+        "frame", description="frame: maps of the whole sensor; regions: only the bounding box of all regions "
+                             "(the cost follows the regions; the published maps cover that box)")
 
     @model_validator(mode="after")
     def _lag_fits(self) -> EstimatorSection:

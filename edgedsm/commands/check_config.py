@@ -16,6 +16,10 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from edgedsm.config import DaemonConfig
 
 NAME = "check-config"
 HELP = "validate a daemon configuration file (exit 78 when bad)"
@@ -62,4 +66,30 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.config}: OK — camera {config.camera.uri}, laser {config.laser.uri if config.laser else 'none'}, "
           f"{config.estimator.activity.upper()} N={config.estimator.window} m={config.estimator.lag} "
           f"({config.estimator.mode}), {regions}, MQTT {mqtt}")
+    print(queue_memory(config, frame_shape))
     return 0
+
+
+def queue_memory(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> str:
+    """One line: how many frames the camera→estimator queue holds and the memory that takes."""
+    from edgedsm.daemon.capture import queue_capacity
+
+    acq, cam = config.acquisition, config.camera
+    bound = f"at most {acq.queue_max_mib} MiB"
+    if frame_shape is None:
+        return f"queue: {acq.queue_seconds:g} s of frames at the measured rate, {bound} (frame size known at start)"
+    # 8-bit data takes one byte a pixel, deeper data two (unpacked on arrival)
+    deep = cam.pixel_format is not None and cam.pixel_format != "Mono8"
+    frame_bytes = frame_shape[0] * frame_shape[1] * (2 if deep else 1)
+    rate = 1.0 / cam.frame_interval_s if cam.frame_interval_s else None
+    if acq.queue_frames is not None:
+        frames = acq.queue_frames
+        how = "queue_frames"
+    elif rate is None:
+        most = max(1, acq.queue_max_mib * 2**20 // frame_bytes)
+        return (f"queue: {acq.queue_seconds:g} s of frames at the measured rate, {bound} "
+                f"({most} frames of {frame_bytes / 2**20:.1f} MiB)")
+    else:
+        frames = queue_capacity(acq, rate, frame_bytes)
+        how = f"{acq.queue_seconds:g} s at {rate:g} frames/s, {bound}"
+    return f"queue: {frames} frames of {frame_bytes / 2**20:.1f} MiB = {frames * frame_bytes / 2**20:.0f} MiB ({how})"

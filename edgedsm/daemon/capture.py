@@ -2,6 +2,12 @@
 
 A slow consumer never stalls a camera (it cannot wait: frames would be lost in the driver
 instead, uncounted); a source that can wait (a replay as fast as possible) is held back instead.
+The queue is sized by time, not by count: it holds ``acquisition.queue_seconds`` of frames at
+the rate measured on the camera's frames (re-measured every ``RATE_FRAMES``), and never more
+than ``acquisition.queue_max_mib`` of them; ``acquisition.queue_frames`` fixes a count instead.
+What it must absorb is the pipeline thread's longest stall (an evaluation costs it one snapshot
+of the engine's sums, about one push; the scheduler of a loaded machine adds more).
+
 Reconnection is the camera's own (``Camera.frames(reconnect=...)``): this thread is told when
 the device is lost and when it is back, and reports both to the pipeline thread.
 """
@@ -9,12 +15,13 @@ the device is lost and when it is back, and reports both to the pipeline thread.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
 from collections import Counter
 
-from edgedsm.config import CameraSection
+from edgedsm.config import AcquisitionSection, CameraSection
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.devices.camera.base import Backoff, Camera, ReconnectWatch
 from edgedsm.errors import DeviceError
@@ -24,18 +31,40 @@ log = logging.getLogger(__name__)
 
 #: How long a held-back source waits per try for room in the queue (s); bounds its reaction to stop.
 HOLD_BACK_POLL_S = 0.1
+#: The queue's length is recomputed from the rate of this many frames.
+RATE_FRAMES = 32
+#: Length of the queue before the rate and the frame size are known (and its least length).
+INITIAL_QUEUE_FRAMES = 16
+MIN_QUEUE_FRAMES = 2
+
+
+def queue_capacity(settings: AcquisitionSection, rate: float | None, frame_bytes: int | None) -> int:
+    """Frames the queue holds: ``queue_frames`` if set, else ``queue_seconds`` at ``rate``
+    frames/s bounded by ``queue_max_mib``; before the rate is known, the memory bound (the
+    start, when kernels load, is when a pipeline stalls longest); before the frame size is
+    known, ``INITIAL_QUEUE_FRAMES``."""
+    if settings.queue_frames is not None:
+        return settings.queue_frames
+    if not frame_bytes:
+        return INITIAL_QUEUE_FRAMES
+    by_memory = settings.queue_max_mib * 2**20 // frame_bytes
+    by_time = by_memory if not rate else math.ceil(settings.queue_seconds * rate)
+    return max(MIN_QUEUE_FRAMES, min(by_time, by_memory))
 
 
 class Capture:
     """Owns the capture thread and its queue (see the module docstring)."""
 
-    def __init__(self, camera: Camera, settings: CameraSection, queue_frames: int, counters: Counter[str],
+    def __init__(self, camera: Camera, settings: CameraSection, sizing: AcquisitionSection, counters: Counter[str],
                  probes: PipelineProbes | None = None) -> None:
         self.camera = camera
         self.settings = settings
+        self.sizing = sizing
         self.counters = counters
         self.probes = probes or PipelineProbes()
-        self.frames: queue.Queue[Frame] = queue.Queue(maxsize=queue_frames)
+        self.frames: queue.Queue[Frame] = queue.Queue(maxsize=queue_capacity(sizing, None, None))
+        self._arrivals: list[float] = []  # monotonic times of the last RATE_FRAMES frames
+        self._rate_known = False
         self.lost = threading.Event()  # set while the camera is away
         self.error: BaseException | None = None  # what ended the thread, for the pipeline thread to raise
         self.loss_reason = ""  # the latest loss, in words
@@ -120,10 +149,38 @@ class Capture:
         self.counters["camera_reconnects"] += 1
         log.warning("camera reconnected")
 
+    @property
+    def capacity(self) -> int:
+        """Frames the queue holds now."""
+        return self.frames.maxsize
+
+    def _resize(self, frame: Frame, now: float) -> None:
+        """Every RATE_FRAMES frames: the queue's length from the measured rate and frame size."""
+        if self.sizing.queue_frames is not None:
+            return  # a fixed length
+        arrivals = self._arrivals
+        arrivals.append(now)
+        if len(arrivals) == 1 and not self._rate_known:  # the first frame: its size is known
+            size = queue_capacity(self.sizing, None, frame.pixels.nbytes)
+        elif len(arrivals) < RATE_FRAMES:
+            return
+        else:
+            span = arrivals[-1] - arrivals[0]
+            rate = (len(arrivals) - 1) / span if span > 0 else None
+            arrivals.clear()
+            self._rate_known = rate is not None
+            size = queue_capacity(self.sizing, rate, frame.pixels.nbytes)
+        with self.frames.mutex:  # a longer queue wakes a held-back source at once
+            if size != self.frames.maxsize:
+                self.frames.maxsize = size
+                self.frames.not_full.notify_all()
+
     def enqueue(self, frame: Frame) -> None:
         """Queue one frame: held back for a source that can wait, else dropping the oldest."""
+        now = time.monotonic()
         if self.probes.frame_queued is not None:
-            self.probes.frame_queued(frame, time.monotonic())
+            self.probes.frame_queued(frame, now)
+        self._resize(frame, now)
         if not self.camera.paced:
             while not self._stop.is_set():
                 try:

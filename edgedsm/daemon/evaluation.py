@@ -1,30 +1,42 @@
 """Evaluation: the streaming engine and, beside it, region statistics, drying states and messages.
 
-The pipeline thread pushes frames into the engine and, on the stats cadence, takes a
-:class:`Snapshot` (the maps, ``engine.maps()``: fresh arrays, the only cost it pays). One
-evaluator thread turns a snapshot into region statistics, drying states and typed messages for
-the sink, beside the next pushes. The drying monitor is shared by both threads (a reset comes
-from a command on the pipeline thread, a step from the evaluator): a lock guards it.
+The pipeline thread pushes frames into the engine and, on the states and stats cadence, takes a
+:class:`Snapshot`: a copy of the engine's sums (``engine.snapshot()``, about the cost of one
+push; the only evaluation work it does). One evaluator thread turns a snapshot into float maps
+(``maps_from``: the engine's maps kernel, GIL released), region statistics (numpy, over each
+region's bounding box), drying states and typed messages for the sink, beside the next pushes,
+so an evaluation never stalls capture or the engine. States are evaluated on their own, faster
+cadence from the activity map only (one sum copied, region means only); the full statistics
+and maps go out on theirs.
+
+With ``estimator.area = "regions"`` the engine sees only the bounding box of all regions (frames
+are cropped before the push): the cost follows the regions, and the published maps cover that
+box (their ``origin`` gives its top-left corner in camera pixels).
+
+The drying monitor is shared by both threads (a reset comes from a command on the pipeline
+thread, a step from the evaluator): a lock guards it.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FuturesTimeout
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from edgedsm.analysis import region_stats
+from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
 from edgedsm.frames import Frame
 from edgedsm.messages import Alert, AlertKind, Clock, LaserState, MapFrame, MapStats, RegionState, StateReport, Stats
 from edgedsm.publish.sink import Sink
@@ -35,6 +47,21 @@ log = logging.getLogger(__name__)
 EVALUATION_TIMEOUT_S = 1.0
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
 SMALL_FRAME_PIXELS = 1 << 18
+
+
+#: Niceness of the evaluator thread (Linux: per thread): on a machine with few cores the engine's
+#: kernel threads should not wait for a core the evaluator holds (a parallel pass waits for its
+#: slowest thread). 5 weighs it at a third of a normal thread when all contend, which still
+#: covers an evaluation's ~15 % of a core at 2048²; it runs at full speed when they idle.
+EVALUATOR_NICE = 5
+
+
+def yield_cores() -> None:
+    """Lower the calling thread's priority to EVALUATOR_NICE (where the system allows)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EVALUATOR_NICE)
+    except (OSError, AttributeError):  # not Linux, or not allowed: the default priority
+        log.debug("the evaluator thread keeps the default priority")
 
 
 def available_memory() -> int | None:
@@ -49,11 +76,12 @@ def available_memory() -> int | None:
     return None
 
 
-def check_engine_memory(frame: Frame, window: int, mode: str) -> None:
-    """Refuse, with the config key to change, a window whose ring cannot fit in memory."""
+def check_engine_memory(frame: Frame, window: int, mode: str, pixels: int | None = None) -> None:
+    """Refuse, with the config key to change, a window whose ring cannot fit in memory
+    (``pixels``: what the engine sees, when not the whole frame)."""
     if mode != "sliding":
         return  # tumbling and exponential keep m frames only
-    needed = frame.pixels.size * (window * frame.pixels.itemsize + 40)
+    needed = (pixels or frame.pixels.size) * (window * frame.pixels.itemsize + 40)
     free = available_memory()
     if free is not None and needed > 0.8 * free:
         raise ConfigError(f"estimator.window: a sliding window of {window} frames of {frame.shape[1]}x{frame.shape[0]} "
@@ -82,8 +110,10 @@ class Snapshot:
 
     status: Status
     ready: bool
-    maps: dict[str, np.ndarray] = field(default_factory=dict)  # fresh arrays, not modified later
+    engine: EngineSnapshot | None = None  # the sums (None before the window is full); valid until
+    # the next snapshot, which reuses its buffers
     publish_maps: bool = False
+    publish_stats: bool = True  # False: the drying states only (activity means, no stats message)
 
 
 class Evaluation:
@@ -98,13 +128,36 @@ class Evaluation:
         self.probes = probes or PipelineProbes()
         self.engine: SlidingWindow | None = None
         self.frame_shape: tuple[int, int] | None = None  # fixed by the first frame
-        self.masks: dict[str, np.ndarray] = {}
+        self.regions: dict[str, RegionBox] = {}  # in the engine's coordinates
+        self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
         self._state_published = False
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate")
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate",
+                                            initializer=yield_cores)
         self._pending: Future[None] | None = None  # the latest analysis
+        self._buffers: EngineSnapshot | None = None  # the latest snapshot, overwritten by the next
+        self.warm_up()
         self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
+
+    def warm_up(self) -> None:
+        """Load every compiled kernel an evaluation uses, on a small engine, before frames flow:
+        loading them later (hundreds of ms, holding the GIL) would stall the pipeline thread and
+        overflow the queue at the first push and the first evaluation."""
+        est = self.config.estimator
+        deep = self.config.camera.pixel_format not in (None, "Mono8")
+        side = 256  # at least PARALLEL_MIN_PIXELS: the parallel kernels real frames use
+        engine = SlidingWindow((side, side), window=est.lag + 2, lag=est.lag, q=est.q, bits=16 if deep else 8,
+                               estimators=ESTIMATORS, mode=est.mode, threads=est.threads)
+        frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
+        for _ in range(est.lag + 3):
+            engine.push(frame)
+        mask = np.zeros((side, side), bool)
+        mask[1:-1, 1:-1] = True
+        for snapshot in (engine.snapshot(), engine.snapshot([est.activity])):
+            for values in maps_from(snapshot).values():
+                RegionBox.of(np.ones_like(mask)).stats(values)
+                RegionBox.of(mask).stats(values)
 
     # -- pipeline thread --------------------------------------------------------------------------
     def prepare(self, frame: Frame) -> None:
@@ -119,6 +172,9 @@ class Evaluation:
             self._make_engine(frame)
         assert self.engine is not None
         pixels = frame.pixels
+        if self.crop is not None and pixels.shape == frame.shape:
+            pixels = np.ascontiguousarray(pixels[self.crop])
+            dark = dark[self.crop] if dark is not None and dark.shape == frame.shape else None
         if self.config.estimator.ambient_correction and dark is not None and dark.shape == pixels.shape:
             # ambient-corrected S2: the dark level is subtracted before normalising (saturating at 0)
             pixels = np.subtract(pixels, np.minimum(pixels, dark))
@@ -133,6 +189,11 @@ class Evaluation:
         return True
 
     @property
+    def busy(self) -> bool:
+        """An evaluation handed over is still running."""
+        return self._pending is not None and not self._pending.done()
+
+    @property
     def ready(self) -> bool:
         return self.engine is not None and self.engine.ready
 
@@ -143,10 +204,17 @@ class Evaluation:
             # a parallel pass over a small frame costs more in thread wake-ups than it saves, and
             # stalls badly when the capture thread competes for the cores
             threads = 1
-        check_engine_memory(frame, est.window, est.mode)
-        self.masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
-        self.engine = SlidingWindow(frame.shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
+        masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
+        regions = {name: RegionBox.of(mask) for name, mask in masks.items()}
+        shape = frame.shape
+        if est.area == "regions" and masks:
+            rows, cols = self.crop = bounding_box(list(masks.values()))
+            regions = {name: box.shifted(rows, cols) for name, box in regions.items()}
+            shape = (rows.stop - rows.start, cols.stop - cols.start)
+        check_engine_memory(frame, est.window, est.mode, pixels=shape[0] * shape[1])
+        self.engine = SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
                                     estimators=ESTIMATORS, mode=est.mode, threads=threads)
+        self.regions = regions
         self.frame_shape = frame.shape
 
     def reset(self, why: str, states: bool = True) -> None:
@@ -171,22 +239,29 @@ class Evaluation:
         except Exception as exc:  # logged here: nobody waits for this one's result
             log.error("alert %r could not be handed over: %s", alert.describe(), exc)
 
-    def evaluate(self, status: Status, maps_due: bool, wait: bool = False) -> Snapshot | None:
-        """Snapshot now, analyse and publish on the evaluator thread; None if skipped.
+    def evaluate(self, status: Status, maps_due: bool, wait: bool = False, stats_due: bool = True) -> Snapshot | None:
+        """Snapshot the sums now, analyse and publish on the evaluator thread; None if skipped.
 
-        An evaluation that is due while the previous one still runs is skipped (counted);
-        ``wait`` makes this one run to its end (and re-raises its error here).
+        An evaluation that is due while the previous one still runs is skipped (the caller
+        retries);
+        ``wait`` makes this one run to its end (and re-raises its error here). Without
+        ``stats_due`` only the drying states are evaluated (no stats message, no maps).
         """
         if self._pending is not None:
             if not self._pending.done() and not wait:
-                self.counters["evaluations_skipped"] += 1
-                return None
+                return None  # the pipeline tries again at its next loop
             pending, self._pending = self._pending, None
             pending.result()  # re-raises an error of the evaluator thread here
         started = time.perf_counter()
         ready = self.ready
-        maps = self.engine.maps() if ready and self.engine is not None else {}
-        snapshot = Snapshot(status, ready, maps, publish_maps=bool(maps) and maps_due)
+        engine = None
+        if ready and self.engine is not None:
+            # the previous snapshot's analysis has ended (checked above): its buffers are reused
+            engine = self.engine.snapshot(None if stats_due else [self.config.estimator.activity],
+                                          into=self._buffers)
+            self._buffers = engine
+        snapshot = Snapshot(status, ready, engine, publish_maps=engine is not None and maps_due and stats_due,
+                            publish_stats=stats_due)
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
         self._pending = self._last = self._executor.submit(self._analyse, snapshot)
@@ -208,7 +283,7 @@ class Evaluation:
         self._executor.shutdown(wait=False)
         # the window's ring is the bulk of the daemon's memory (N frames): released now, not
         # when the garbage collector gets to the pipeline (a reload builds a new one at once)
-        self.engine = None
+        self.engine = self._buffers = None
 
     def states_line(self) -> str:
         with self.monitor_lock:
@@ -216,14 +291,18 @@ class Evaluation:
 
     # -- evaluator thread ---------------------------------------------------------------------------
     def _analyse(self, snapshot: Snapshot) -> None:
-        """Region statistics, drying states, messages to the sink."""
+        """Maps from the sums, region statistics, drying states, messages to the sink."""
         started = time.perf_counter()
         status = snapshot.status
         estimator = self.config.estimator.activity
+        maps = maps_from(snapshot.engine) if snapshot.engine is not None else {}
         regions: dict[str, dict[str, MapStats]] = {}
         activities: dict[str, float] = {}
-        for name, mask in self.masks.items() if snapshot.maps else ():
-            per_map = {key: MapStats(**region_stats(values, mask).as_dict()) for key, values in snapshot.maps.items()}
+        for name, box in self.regions.items() if maps else ():
+            if not snapshot.publish_stats:  # states only: the activity means
+                activities[name] = box.mean(maps[estimator])
+                continue
+            per_map = {key: MapStats(**box.stats(values).as_dict()) for key, values in maps.items()}
             regions[name] = per_map
             mean = per_map[estimator].mean
             if mean is not None:
@@ -234,6 +313,12 @@ class Evaluation:
             report = self._report(status, estimator)
         for transition in transitions:
             self.sink.publish_alert(self._alert(transition))
+        if self.probes.states_evaluated is not None:
+            self.probes.states_evaluated(status.frames, time.monotonic())
+        if not snapshot.publish_stats:
+            if transitions:
+                self.sink.publish_state(report)
+            return
         t = self.clock.to_wall(status.now)
         stats = Stats(t=t, frames=status.frames, ready=snapshot.ready, fps=status.fps, laser=status.laser,
                       estimator=estimator, drops=status.drops, camera=status.camera,
@@ -246,10 +331,11 @@ class Evaluation:
             self._state_published = True
         if snapshot.publish_maps:
             est = self.config.estimator
-            for name, values in snapshot.maps.items():
+            origin = {} if self.crop is None else {"origin": [self.crop[1].start, self.crop[0].start]}
+            for name, values in maps.items():
                 self.counters["maps_published"] += 1
                 self.sink.publish_map(MapFrame(name, values, seq=status.frames, t=t, window=est.window, lag=est.lag,
-                                               extra={"estimator": name, "frames": status.frames}))
+                                               extra={"estimator": name, "frames": status.frames, **origin}))
         if self.probes.evaluated is not None:
             self.probes.evaluated(stats, time.perf_counter() - started)
 

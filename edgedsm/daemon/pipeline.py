@@ -59,10 +59,12 @@ CAMERA_STABLE_S = 1.0
 
 @dataclass
 class Cadence:
-    """How often the pipeline evaluates and publishes (seconds of the monotonic clock)."""
+    """How often the pipeline evaluates and publishes (seconds of the monotonic clock); the
+    drying states are judged every ``states_every_s`` whatever the stats interval."""
 
     stats_every_s: float = 1.0
     maps_every_s: float = 10.0
+    states_every_s: float = 0.5
 
 
 class Pipeline:
@@ -79,7 +81,7 @@ class Pipeline:
         self.on_alive = on_alive or (lambda: None)
         self.probes = probes or PipelineProbes()
         self.counters: Counter[str] = Counter()
-        self.capture = Capture(camera, config.camera, config.acquisition.queue_frames, self.counters, self.probes)
+        self.capture = Capture(camera, config.camera, config.acquisition, self.counters, self.probes)
         self.evaluation = Evaluation(config, sink, self.clock, self.counters, self.probes)
         self.acquisition = Acquisition(config.acquisition, relay, self.counters, self.clock.monotonic,
                                        on_fault=self._device_fault,
@@ -89,6 +91,8 @@ class Pipeline:
         self._commands: queue.Queue[tuple[str, dict[str, Any], Future[dict[str, Any]]]] = queue.Queue()
         self._last_frame_t: float | None = None  # None until the first frame
         self._last_stats_t = float("-inf")
+        self._last_states_t = float("-inf")
+        self._stats_owed = False  # stats were due but the evaluator was busy
         self._last_maps_t = float("-inf")
         self._frames_t: list[float] = []
         self._losses_seen = 0
@@ -192,7 +196,7 @@ class Pipeline:
         return (len(times) - 1) / (times[-1] - times[0])
 
     # -- evaluation ---------------------------------------------------------------------------------
-    def _evaluate(self, now: float, wait: bool = False) -> bool:
+    def _evaluate(self, now: float, wait: bool = False, stats_due: bool = True) -> bool:
         """Hand a snapshot to the evaluator; False if skipped (the previous one still runs)."""
         fault = self._outage or self._fault
         self._fault = None
@@ -201,7 +205,7 @@ class Pipeline:
                         camera=dict(self.camera.stats), ambient_level=self.acquisition.ambient_level,
                         warning=self._ambient_warning(), fault=fault)
         maps_due = now - self._last_maps_t >= self.cadence.maps_every_s
-        snapshot = self.evaluation.evaluate(status, maps_due, wait=wait)
+        snapshot = self.evaluation.evaluate(status, maps_due, wait=wait, stats_due=stats_due)
         if snapshot is not None and snapshot.publish_maps:
             self._last_maps_t = now
         return snapshot is not None
@@ -248,12 +252,13 @@ class Pipeline:
                     self._push(frame)
                 if self._last_frame_t is not None and self.clock.monotonic() - self._last_frame_t < grab_timeout_s:
                     self.on_alive()
-                due = now - self._last_stats_t >= self.cadence.stats_every_s
-                if due or self._urgent:
-                    if due:
-                        self._last_stats_t = now
-                    if self._evaluate(now):
-                        self._urgent = False
+                if now - self._last_stats_t >= self.cadence.stats_every_s:
+                    self._last_stats_t, self._stats_owed = now, True
+                stats = self._stats_owed or self._urgent
+                # skipped (the evaluator is busy): tried again at the next loop, nothing lost
+                if (stats or now - self._last_states_t >= self.cadence.states_every_s) \
+                        and self._evaluate(now, stats_due=stats):
+                    self._last_states_t, self._urgent, self._stats_owed = now, False, False
                 if max_frames is not None and self.counters["frames"] >= max_frames:
                     break
                 if capture.ended:

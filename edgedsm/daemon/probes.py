@@ -35,3 +35,7 @@ class PipelineProbes:
     #: evaluator thread: an evaluation finished (statistics, states, messages handed to the sink),
     #: the stats message it published, and how long the evaluation took
     evaluated: Callable[[Stats, float], None] | None = None
+    #: evaluator thread: the drying states of an evaluation judged and its alerts handed to the
+    #: sink (every evaluation, states-only ones too): the frames it includes, and when (the end
+    #: of a frame → alert latency)
+    states_evaluated: Callable[[int, float], None] | None = None

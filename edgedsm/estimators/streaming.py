@@ -126,6 +126,7 @@ import numpy as np
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import TauC, _check_mask
+from edgedsm.estimators.snapshot import EngineSnapshot
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
@@ -691,6 +692,40 @@ class SlidingWindow:
         region = _check_mask(mask, self.shape)
         cov, var = self._tau_covariances(np.flatnonzero(region))
         return tau_stream.tau_region(self.window, cov, var)
+
+    def snapshot(self, estimators: Iterable[str] | None = None, into: EngineSnapshot | None = None) -> EngineSnapshot:
+        """Copies of the sums ``maps()`` reads for ``estimators`` (default: the engine's own),
+        about half a push of memory traffic; :func:`edgedsm.estimators.snapshot.maps_from` turns
+        them into the same maps, on any thread. ``into``: an older snapshot nobody reads any
+        more, whose arrays are overwritten (no fresh pages to fault in: about half the cost)."""
+        if not self.ready:
+            raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
+                                 f"{self.window} frames pushed (check .ready)")
+        wanted = self.estimators if estimators is None else self._check_estimators(estimators)
+        if not set(wanted) <= set(self.estimators):
+            raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
+        flags = ("s1" in wanted or "s3" in wanted, "s2" in wanted, "s3" in wanted)
+        needed = {"abs": flags[0], "ratio": flags[1], "total": flags[2], "total_sq": flags[2], "m2": flags[2]}
+        prefix = "done_" if self.mode == "tumbling" else ""
+        names = ("abs", "ratio", "m2") if self.mode == "exponential" else ("abs", "ratio", "total", "total_sq")
+        empty = np.zeros(0, np.int64)
+        old = into.sums if into is not None else {}
+        sums = {}
+        for name in names:
+            source = self._arrays[prefix + name]
+            target = old.get(name)
+            if not needed[name]:
+                sums[name] = empty
+            elif target is not None and target.shape == source.shape and target.dtype == source.dtype:
+                np.copyto(target, source)
+                sums[name] = target
+            else:
+                sums[name] = source.copy()
+        return EngineSnapshot(
+            shape=self.shape, mode=self.mode, estimators=wanted, window=self.window,
+            pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
+            sums=sums,
+            weight_frames=self._weight_frames, maps_step=self._kernels.maps_kernel(*flags, False))
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:
         """S1, S2, S3 and σ from the integer sums, one fused pass (see maps_kernel)."""

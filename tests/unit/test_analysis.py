@@ -51,3 +51,45 @@ def test_percentiles_of_large_regions_from_a_stride():
     exact = np.percentile(values, [5, 50, 95])
     assert stats.pixels == 1024 * 1024 and stats.mean == pytest.approx(values.mean(), rel=1e-12)
     assert [stats.p05, stats.median, stats.p95] == pytest.approx(exact, rel=0.02)
+
+
+def test_region_box_reads_the_box_only_with_the_same_statistics() -> None:
+    from edgedsm.analysis import RegionBox, bounding_box
+
+    rng = np.random.default_rng(5)
+    values = rng.random((60, 80))
+    mask = np.zeros((60, 80), bool)
+    mask[10:20, 30:35] = True
+    mask[25, 60] = True
+    box = RegionBox.of(mask)
+    assert (box.rows, box.cols) == (slice(10, 26), slice(30, 61))
+    assert box.mask.shape == (16, 31) and box.pixels == 51
+    assert box.stats(values) == region_stats(values, mask)
+    assert box.mean(values) == region_mean(values, mask)
+    # in a map of the union box only (estimator.area = "regions")
+    other = np.zeros((60, 80), bool)
+    other[5, 40] = True
+    rows, cols = bounding_box([mask, other])
+    assert (rows, cols) == (slice(5, 26), slice(30, 61))
+    assert box.shifted(rows, cols).stats(values[rows, cols]) == region_stats(values, mask)
+    with pytest.raises(EstimatorError, match="empty"):
+        RegionBox.of(np.zeros((3, 3), bool))
+
+
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_region_moments_match_numpy_on_views_without_copies(kernel: str) -> None:
+    from edgedsm import analysis_kernels
+
+    moments = analysis_kernels._moments_numpy if kernel == "numpy" else analysis_kernels.masked_moments
+    rng = np.random.default_rng(9)
+    values = rng.exponential(size=(700, 900)) * 1e3 + 1e6  # a large offset: naive sums would lose digits
+    mask = rng.random((700, 900)) < 0.7
+    rows, cols = slice(50, 650), slice(100, 800)
+    count, mean, std, sample = moments(values[rows, cols], mask[rows, cols], 1000)
+    selected = values[rows, cols][mask[rows, cols]]
+    assert count == selected.size
+    assert mean == pytest.approx(float(np.mean(selected.astype(np.longdouble))), rel=1e-15)
+    exact_std = float(np.sqrt(np.mean((selected.astype(np.longdouble) - selected.astype(np.longdouble).mean()) ** 2)))
+    assert std == pytest.approx(exact_std, rel=1e-12)
+    stride = -(-selected.size // 1000)
+    assert np.array_equal(sample, selected[::stride]) and sample.size <= 1000

@@ -1,13 +1,16 @@
-"""The end-to-end benchmark's bookkeeping: the zero-drop rate search and the latency split
-(pure parts only; the benchmark itself prints tables and is not run here)."""
+"""The end-to-end benchmark's bookkeeping: the zero-drop rate search, the latency, the frame
+sizes and recordings (the benchmark itself prints tables and is not run here)."""
 
 from __future__ import annotations
 
+import argparse
+from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
-from edgedsm.bench.e2e import Trial, best_zero_drop, latency_parts, search_rate
+from edgedsm.bench.e2e import Trial, best_zero_drop, latency, make_recording, parse_size, search_rate
 
 
 def _trial(rate: float, drops: int) -> Trial:
@@ -46,21 +49,30 @@ def test_search_rate_respects_the_trial_budget() -> None:
     assert [t.rate for t in trials] == [60, 180]
 
 
-def test_latency_parts_attributes_each_frame_to_the_first_stats_message_that_counts_it() -> None:
-    # 10 frames, one every 0.1 s; each waits 0.01 s in the queue and 0.02 s in the push; the
-    # window fills at frame 2; stats counting 3, 6 and 9 frames are published at 0.35, 0.65,
-    # 0.95 s and arrive 5 ms later.
+def test_latency_runs_from_the_queue_to_the_first_hand_over_that_includes_the_frame() -> None:
+    # 10 frames, one every 0.1 s entering the queue; the window fills at frame 2; evaluations
+    # including 3, 6 and 9 frames are handed over at 0.35, 0.65 and 0.95 s
     seqs = list(range(100, 110))
-    enqueued = {seq: 0.1 * i for i, seq in enumerate(seqs)}
-    pushed = {seq: t + 0.03 for seq, t in enqueued.items()}
-    pipeline = SimpleNamespace(ready_at=2, dequeued=seqs, enqueued=enqueued, pushed=pushed)
-    sent = [(0.35, 3), (0.65, 6), (0.95, 9)]
-    arrivals = [(t + 0.005, frames) for t, frames in sent]
-    parts = latency_parts(pipeline, sent, arrivals)  # type: ignore[arg-type]
-    # frames 4..9 count (those after the first stats message following the window's filling)
-    totals = sorted(arrivals[1 + (i - 3) // 3][0] - enqueued[seqs[i]] for i in range(3, 9))
-    assert parts["total"][0] == pytest.approx(sorted(totals)[2] + (sorted(totals)[3] - sorted(totals)[2]) / 2)
-    assert parts["queue+push"] == pytest.approx((0.03, 0.03))
-    assert parts["broker"] == pytest.approx((0.005, 0.005))
-    assert parts["total"][1] == pytest.approx(max(totals), abs=0.01)
-    assert parts["total"][1] <= max(totals)
+    instruments = SimpleNamespace(ready_at=2, dequeued=seqs, enqueued={seq: 0.1 * i for i, seq in enumerate(seqs)})
+    p50, p99 = latency(instruments, [(3, 0.35), (6, 0.65), (9, 0.95)])  # type: ignore[arg-type]
+    # the 3rd to the 9th frame (queued at 0.2 .. 0.8 s) wait 0.15 | 0.35, 0.25, 0.15 | 0.35, 0.25, 0.15 s
+    waits = [0.15, 0.35, 0.25, 0.15, 0.35, 0.25, 0.15]
+    assert p50 == pytest.approx(float(np.percentile(waits, 50)))
+    assert p99 == pytest.approx(float(np.percentile(waits, 99)))
+    assert np.isnan(latency(instruments, [])[0])  # type: ignore[arg-type]
+
+
+def test_sizes_parse_as_width_by_height() -> None:
+    assert parse_size("4096x2168") == (2168, 4096)
+    for bad in ("4096", "4096x", "10x10", "axb"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse_size(bad)
+
+
+@pytest.mark.parametrize(("bits", "dtype", "top"), [(8, np.uint8, 255), (12, np.uint16, 4095), (16, np.uint16, 65535)])
+def test_recordings_tile_any_size_in_the_pixel_format(tmp_path: Path, bits: int, dtype: type, top: int) -> None:
+    stack = np.load(make_recording(tmp_path / "r.npy", (300, 520), bits, frames=4))
+    assert stack.shape == (4, 300, 520) and stack.dtype == dtype
+    assert 0 < stack.max() <= top and stack.std() > 0
+    # tiles are shifted in time: two neighbouring tiles differ in the same frame
+    assert not np.array_equal(stack[0, :256, :256], stack[0, :256, 256:512])

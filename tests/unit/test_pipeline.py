@@ -49,8 +49,14 @@ def hold_back(camera, pipeline, depth=8):
 
 def make_pipeline(config, camera, relay, publisher, dt=0.05):
     box = {}
-    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0),
-                        clock=Clock(monotonic=lambda: box["p"].counters["frames"] * dt if "p" in box else 0.0))
+
+    def frame_clock() -> float:
+        return box["p"].counters["frames"] * dt if "p" in box else 0.0
+
+    # the wall clock follows the simulated one: with the real one beside it, to_wall() would
+    # depend on how far the evaluator thread lags behind, in frames
+    clock = Clock(monotonic=frame_clock, wall=lambda: 1.7e9 + frame_clock())
+    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), clock=clock)
     box["p"] = pipeline
     return pipeline
 
@@ -235,12 +241,13 @@ def test_probes_see_every_frame_and_every_evaluation(setup):
     from edgedsm.daemon.probes import PipelineProbes
 
     config, camera, relay, publisher, _ = setup
-    seen: dict[str, list] = {"queued": [], "taken": [], "pushed": [], "snapshots": [], "evaluated": []}
+    seen: dict[str, list] = {"queued": [], "taken": [], "pushed": [], "snapshots": [], "evaluated": [], "states": []}
     probes = PipelineProbes(frame_queued=lambda frame, t: seen["queued"].append(frame.seq),
                             frame_taken=lambda frame, count: seen["taken"].append(count),
                             frame_pushed=lambda frame, t, cost: seen["pushed"].append(cost),
-                            snapshot_taken=lambda snapshot, cost: seen["snapshots"].append(snapshot.ready),
-                            evaluated=lambda stats, seconds: seen["evaluated"].append(stats.frames))
+                            snapshot_taken=lambda snapshot, cost: seen["snapshots"].append(snapshot),
+                            evaluated=lambda stats, seconds: seen["evaluated"].append(stats.frames),
+                            states_evaluated=lambda frames, t: seen["states"].append(frames))
     box = {}
     pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), probes=probes,
                         clock=Clock(monotonic=lambda: box["p"].counters["frames"] * 0.05 if "p" in box else 0.0))
@@ -253,4 +260,8 @@ def test_probes_see_every_frame_and_every_evaluation(setup):
     assert len(seen["pushed"]) == 400 - dark - 1 and all(cost >= 0 for cost in seen["pushed"])
     assert len(seen["queued"]) >= 400
     assert seen["evaluated"] == [s.frames for s in publisher.stats]
-    assert len(seen["snapshots"]) == len(publisher.stats) >= 15 and seen["snapshots"][-1] is True
+    with_stats = [snapshot for snapshot in seen["snapshots"] if snapshot.publish_stats]
+    assert len(with_stats) == len(publisher.stats) >= 15 and with_stats[-1].ready
+    # the drying states are judged every 0.5 s (10 frames here) whatever the stats cadence (1 s)
+    assert seen["states"] == [snapshot.status.frames for snapshot in seen["snapshots"]]
+    assert len(seen["snapshots"]) >= 2 * len(publisher.stats) - 1

@@ -116,7 +116,8 @@ def test_a_relay_gone_silent_while_on_makes_the_laser_unknown_and_stops_measurin
     said: list[tuple[str, bool]] = []  # (laser in the stats, the contact really closed) at each snapshot
     pipeline.probes.frame_taken = on_taken
     pipeline.probes.frame_pushed = on_pushed
-    pipeline.probes.snapshot_taken = lambda snapshot, cost: said.append((snapshot.status.laser, relay.board.is_on))
+    pipeline.probes.snapshot_taken = lambda snapshot, cost: snapshot.publish_stats and said.append(
+        (snapshot.status.laser, relay.board.is_on))
     pipeline.run(lambda: False, max_frames=1500)
     lasers = [s.laser for s in sink.stats]
     assert lasers == [laser for laser, _ in said]

@@ -1,0 +1,62 @@
+"""A frozen copy of a streaming engine's sums, and the maps computed from it on another thread.
+
+:meth:`SlidingWindow.snapshot` copies the state the maps depend on (sliding and tumbling: the
+integer sums; exponential: the float64 means) — a memory copy, about the cost of one push.
+:func:`maps_from` turns that copy into float maps with the engine's own maps kernel compiled
+for the calling thread alone (``parallel=False``; the numba kernels release the GIL), so an
+evaluator thread computes maps beside the next pushes without touching the engine. The maps
+are bit-identical to :meth:`SlidingWindow.maps` at the moment of the snapshot (tested): the
+same kernel arithmetic runs on the same integers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class EngineSnapshot:
+    """The sums of one window at one moment (arrays owned by the snapshot, flat)."""
+
+    shape: tuple[int, int]
+    mode: str
+    estimators: tuple[str, ...]
+    window: int
+    pairs: int
+    ratio_unit: float  # 2^-K, the S2 fixed-point unit (window modes)
+    frames_seen: int
+    sums: dict[str, np.ndarray]  # window modes: abs, ratio, total, total_sq; exponential: abs, ratio, m2
+    weight_frames: float  # exponential mode: Σλ^k over the frames
+    maps_step: Callable[..., None]  # the engine's maps kernel for one thread (window modes)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(array.nbytes for array in self.sums.values())
+
+
+def maps_from(snapshot: EngineSnapshot) -> dict[str, np.ndarray]:
+    """The requested maps of a snapshot as new float64 (H, W) arrays (pure; any thread)."""
+    sums = snapshot.sums
+    n_px = snapshot.shape[0] * snapshot.shape[1]
+    wanted = set(snapshot.estimators)
+    if snapshot.mode == "exponential":
+        flat: dict[str, np.ndarray] = {}
+        if "s1" in wanted or "s3" in wanted:
+            flat["s1"] = sums["abs"]
+        if "s2" in wanted:
+            flat["s2"] = sums["ratio"]
+        if "s3" in wanted:
+            sigma = np.sqrt(sums["m2"] / snapshot.weight_frames)
+            flat["s3"] = np.zeros_like(flat["s1"])
+            np.divide(flat["s1"], sigma, out=flat["s3"], where=sigma > 0)
+    else:
+        do_abs = "s1" in wanted or "s3" in wanted
+        do_ratio, do_sigma = "s2" in wanted, "s3" in wanted
+        flat = {name: np.empty(n_px if on else 0) for name, on in
+                (("s1", do_abs), ("s2", do_ratio), ("s3", do_sigma), ("sigma", do_sigma))}
+        snapshot.maps_step(sums["abs"], sums["ratio"], sums["total"], sums["total_sq"], snapshot.pairs,
+                           snapshot.ratio_unit, snapshot.window, flat["s1"], flat["s2"], flat["s3"], flat["sigma"])
+    return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}
