@@ -101,7 +101,7 @@ class Evaluation:
         self.masks: dict[str, np.ndarray] = {}
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
-        self._state_published = False
+        self._last_report: StateReport | None = None  # the last one published
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate")
         self._pending: Future[None] | None = None  # the latest analysis
         self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
@@ -241,9 +241,10 @@ class Evaluation:
                       states={name: region.state for name, region in report.regions.items()},
                       warning=status.warning)
         self.sink.publish_stats(stats)
-        if transitions or not self._state_published:
+        # at most once per evaluation: on a transition, and when time to dry or activity moved
+        if transitions or self._last_report is None or report.moved_from(self._last_report):
             self.sink.publish_state(report)
-            self._state_published = True
+            self._last_report = report
         if snapshot.publish_maps:
             est = self.config.estimator
             for name, values in snapshot.maps.items():
