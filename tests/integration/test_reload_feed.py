@@ -59,7 +59,7 @@ def _feed(tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber]
           daemons: Callable[..., Daemon], **extra: Any) -> tuple[dict[str, Any], Path, Topics, Subscriber, Daemon]:
     config = base_config(tmp_path, port=broker.port, camera=SLOW_CAMERA)
     for section, values in extra.items():
-        config[section].update(values)
+        config.setdefault(section, {}).update(values)
     path = write_config(tmp_path / "daemon.toml", config)
     topics = Topics.of("edgedsm", "e2e")
     scada = subscribers(broker.port, [f"{topics.base}/#"], client_id=f"scada-{uuid.uuid4().hex[:6]}")
@@ -173,3 +173,43 @@ def test_a_removed_region_has_its_retained_topic_cleared_and_laser_command_can_b
     time.sleep(0.5)
     assert late.on(f"{topics.state}/plate") == []
     assert frames_published(scada, topics) > 0
+
+
+@pytest.mark.timeout(150)
+def test_only_the_sink_whose_settings_changed_starts_a_new_session(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon]) -> None:
+    from helpers_sparkplug import SparkplugHost
+
+    host = SparkplugHost(broker.port).start()
+    try:
+        config, path, topics, scada, daemon = _feed(
+            tmp_path, broker, subscribers, daemons, sparkplug={"group_id": "plant", "rebirth_min_interval_s": 0.5},
+            homeassistant={})
+        born = host.wait_for("NBIRTH", "the first NBIRTH")[0].payload.by_name()["bdSeq"].value()
+        frames = frames_published(scada, topics)
+
+        # thresholds and cadence: nothing reconnects
+        config["regions"][0]["min_dwell_s"] = 1.5
+        config["mqtt"]["stats_interval_s"] = 0.4
+        write_config(path, config)
+        daemon.signal(signal.SIGHUP)
+        daemon.wait_log(r"configuration reloaded", WAIT_S)
+        wait_frames_beyond(scada, topics, frames + 60)
+        assert len(host.of("NBIRTH")) == 1 and host.of("NDEATH") == []
+
+        # the Sparkplug node's own settings: that node alone is born again, with the next bdSeq
+        config["sparkplug"]["deadband_rel"] = 0.02
+        write_config(path, config)
+        daemon.signal(signal.SIGHUP)
+        wait_until(lambda: daemon.log.count("configuration reloaded") == 2, WAIT_S, "the second reload")
+        births = host.wait_for("NBIRTH", "the node born again", count=2)
+        assert births[1].payload.by_name()["bdSeq"].value() == (born + 1) % 256
+        # the old session's death (the node's own NDEATH; the broker may deliver its will too)
+        deaths = {m.payload.by_name()["bdSeq"].value() for m in host.of("NDEATH")}
+        assert deaths == {born}, (deaths, born)
+        assert _availability(scada, topics) == [b"online"], "the JSON session was dropped with the Sparkplug one"
+        assert "sinks built: sparkplug; closed: sparkplug" in daemon.log
+        assert not [a for a in distinct_alerts(scada, topics) if a["type"] == "reset"]
+    finally:
+        host.stop()
