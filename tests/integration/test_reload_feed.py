@@ -107,6 +107,12 @@ def test_a_publishing_and_thresholds_reload_keeps_session_window_and_states(
     stats_frames = [m.json()["frames"] for m in scada.on(topics.stats)]
     assert stats_frames == sorted(stats_frames) and after > frames_before + 60
     assert "measurement kept" in daemon.log
+    # between transitions the report is republished as activity and time to dry move
+    reports = [m.json()["regions"]["plate"] for m in scada.on(topics.state)]
+    within_a_state = [r for r in reports if r["since"] == reports[-1]["since"]]
+    assert len({(r["activity"], r["time_to_dry_s"]) for r in within_a_state}) >= 2, reports
+    per_region = [m.json() for m in scada.on(f"{topics.state}/plate")]
+    assert per_region[-1] == reports[-1]
 
 
 @pytest.mark.timeout(150)
