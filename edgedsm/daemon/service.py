@@ -125,8 +125,8 @@ class Service:
         restart = restart_reasons(new, self.config)
         try:
             self.sinks.apply(new)  # sinks whose settings did not change keep their sessions
-        except ConfigError as exc:  # e.g. the new [http] port is taken
-            self.sinks.apply(self.config)
+        except ConfigError as exc:  # e.g. the new [http] port is taken: back to the running sinks
+            self.sinks.apply(self.config)  # raises only if the running ones cannot start again either
             self._refuse_reload(f"the new configuration cannot run: {exc}")
             return False
         if "logging" in changed:

@@ -219,3 +219,43 @@ def test_only_the_sink_whose_settings_changed_starts_a_new_session(
         assert not [a for a in distinct_alerts(scada, topics) if a["type"] == "reset"]
     finally:
         host.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_reload_whose_sink_cannot_start_is_refused_and_the_running_sinks_serve_on(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    import socket
+    import urllib.request
+
+    from helpers_mqtt import free_port
+    from test_daemon_e2e import service_thread
+
+    config = base_config(tmp_path)
+    port = free_port()
+    config["http"] = {"listen": f"127.0.0.1:{port}"}
+    path = write_config(tmp_path / "daemon.toml", config)
+    with socket.socket() as taken, service_thread(path) as (service, result):
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        url = f"http://127.0.0.1:{port}/metrics"
+        wait_until(lambda: b"edgedsm_frames_total" in _get(urllib.request, url), WAIT_S, "metrics served")
+        pipeline = service.pipeline
+        config["http"] = {"listen": f"127.0.0.1:{taken.getsockname()[1]}"}
+        config["regions"][0]["min_dwell_s"] = 2.0
+        write_config(path, config)
+        service.request_reload()
+        wait_until(lambda: "reload refused" in caplog.text, WAIT_S, "the reload refused")
+        assert "http.listen" in caplog.text
+        assert service.config.regions[0].min_dwell_s == 1.0 and service.pipeline is pipeline
+        # the running [http] settings serve again (rebuilt: the counters start again from 0)
+        wait_until(lambda: b"edgedsm_frames_total" in _get(urllib.request, url), WAIT_S, "metrics served again")
+        assert result["thread"].is_alive() and "Traceback" not in caplog.text
+
+
+def _get(request: Any, url: str) -> bytes:
+    try:
+        with request.urlopen(url, timeout=2) as response:
+            return bytes(response.read())
+    except OSError:
+        return b""
+
