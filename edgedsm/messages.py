@@ -67,6 +67,25 @@ class RegionState(Message):
     time_to_dry_s: float | None = Field(None, ge=0, description="extrapolated seconds until dry; 0 when dry")
 
 
+#: Relative change of a region's activity worth republishing the state report for.
+ACTIVITY_MOVE = 0.05
+#: Relative and absolute (s) change of a time to dry worth republishing the state report for.
+TIME_TO_DRY_MOVE = 0.1
+TIME_TO_DRY_MOVE_S = 30.0
+
+
+def _moved(new: float | None, old: float | None, relative: float, absolute: float = 0.0) -> bool:
+    if new is None or old is None:
+        return (new is None) != (old is None)
+    return abs(new - old) > max(relative * abs(old), absolute)
+
+
+def _region_moved(new: RegionState, old: RegionState) -> bool:
+    return (new.state != old.state or new.since != old.since
+            or _moved(new.activity, old.activity, ACTIVITY_MOVE)
+            or _moved(new.time_to_dry_s, old.time_to_dry_s, TIME_TO_DRY_MOVE, TIME_TO_DRY_MOVE_S))
+
+
 class StateReport(Message):
     """Every region's state at once (retained on ``<base>/state``)."""
 
@@ -74,6 +93,14 @@ class StateReport(Message):
     estimator: str = Field(description="estimator the states are judged on (s1, s2, s3, tau_c)")
     laser: LaserState = Field("off", description="the laser relay as last confirmed")
     regions: dict[str, RegionState] = Field(default_factory=dict, description="by region name")
+
+    def moved_from(self, previous: StateReport) -> bool:
+        """Whether this report says something ``previous`` did not: a state, the laser, a region,
+        an activity (by more than ``ACTIVITY_MOVE``) or a time to dry (by more than
+        ``TIME_TO_DRY_MOVE`` of itself, or ``TIME_TO_DRY_MOVE_S``) changed — worth republishing."""
+        if self.laser != previous.laser or self.regions.keys() != previous.regions.keys():
+            return True
+        return any(_region_moved(region, previous.regions[name]) for name, region in self.regions.items())
 
 
 class AlertKind(StrEnum):

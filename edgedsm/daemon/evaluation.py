@@ -132,7 +132,7 @@ class Evaluation:
         self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
-        self._state_published = False
+        self._last_report: StateReport | None = None  # the last one published
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate",
                                             initializer=yield_cores)
         self._pending: Future[None] | None = None  # the latest analysis
@@ -316,8 +316,9 @@ class Evaluation:
         if self.probes.states_evaluated is not None:
             self.probes.states_evaluated(status.frames, time.monotonic())
         if not snapshot.publish_stats:
-            if transitions:
+            if transitions:  # a transition is published at once; moves of activity wait for the stats cadence
                 self.sink.publish_state(report)
+                self._last_report = report
             return
         t = self.clock.to_wall(status.now)
         stats = Stats(t=t, frames=status.frames, ready=snapshot.ready, fps=status.fps, laser=status.laser,
@@ -326,9 +327,10 @@ class Evaluation:
                       states={name: region.state for name, region in report.regions.items()},
                       warning=status.warning)
         self.sink.publish_stats(stats)
-        if transitions or not self._state_published:
+        # on a transition, and at most once per stats interval when time to dry or activity moved
+        if transitions or self._last_report is None or report.moved_from(self._last_report):
             self.sink.publish_state(report)
-            self._state_published = True
+            self._last_report = report
         if snapshot.publish_maps:
             est = self.config.estimator
             origin = {} if self.crop is None else {"origin": [self.crop[1].start, self.crop[0].start]}

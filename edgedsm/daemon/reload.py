@@ -74,3 +74,52 @@ def check_reload(path: Path, running: DaemonConfig, running_shape: tuple[int, in
     except EdgedsmError as exc:
         raise ReloadRefused(f"the new configuration cannot run: {exc}") from exc
     return new
+
+
+# -- what a reload changes ----------------------------------------------------------------------
+
+#: A change applied to the running measurement: the MQTT session(s), the estimator window and
+#: the drying states are kept.
+KEEP = "keep"
+#: A change that needs new measurement: the pipeline restarts after a ``reset`` alert.
+RESTART = "restart"
+
+#: Each config section, what a change of it needs (``docs/architecture.md``, "Reload"). A region
+#: is split further: its drying thresholds are applied to the running state machine (KEEP), its
+#: name and geometry need new masks (RESTART). Sinks whose settings changed are rebuilt either way.
+SECTION_CHANGE: dict[str, str] = {
+    "device": KEEP,         # topics and alert queue: the publishing sinks are rebuilt
+    "camera": RESTART,
+    "laser": RESTART,
+    "acquisition": RESTART,
+    "estimator": RESTART,
+    "regions": RESTART,     # names and geometry; thresholds only: KEEP (see region_change)
+    "mqtt": KEEP,
+    "sparkplug": KEEP,
+    "logging": KEEP,
+    "homeassistant": KEEP,
+    "http": KEEP,
+}
+
+#: The region fields that are drying thresholds (applied in place); every other one is geometry.
+THRESHOLD_FIELDS = frozenset({"wet_above", "dry_below", "hysteresis", "min_dwell_s", "trend_window_s"})
+
+
+def changed_sections(new: DaemonConfig, running: DaemonConfig) -> list[str]:
+    """The config sections that differ, in the table's order."""
+    return [name for name in SECTION_CHANGE if getattr(new, name) != getattr(running, name)]
+
+
+def _geometry(config: DaemonConfig) -> list[tuple[str, dict[str, object]]]:
+    return [(type(r).__name__, r.model_dump(exclude=THRESHOLD_FIELDS)) for r in config.regions]
+
+
+def restart_reasons(new: DaemonConfig, running: DaemonConfig) -> list[str]:
+    """Why the measurement must restart (empty: the reload is applied to it while it runs)."""
+    reasons = [name for name in changed_sections(new, running) if SECTION_CHANGE[name] == RESTART
+               and name != "regions"]
+    if new.base_dir != running.base_dir:
+        reasons.append("configuration directory")
+    if _geometry(new) != _geometry(running):
+        reasons.append("regions")
+    return reasons

@@ -7,7 +7,10 @@ systemd notification and watchdog, configuration reload.
 - SIGHUP: reload the config file, transactionally (``edgedsm.daemon.reload``): the new one is
   checked completely first (file, camera, regions inside its frame, relay); if anything is
   wrong the reason is logged and published as a warning alert and the daemon keeps running
-  with the old one; a good one restarts the pipeline with it.
+  with the old one. A good one that changes only publishing, logging or thresholds is applied
+  to the running measurement (sessions, window and states kept; changed sinks rebuilt); one
+  that changes measurement publishes a ``reset`` alert naming what changed and restarts the
+  pipeline (``reload.SECTION_CHANGE``; docs/architecture.md, "Reload").
 - ``Type=notify``: READY once measuring, STATUS lines, WATCHDOG pings only while frames keep
   arriving (a stalled camera lets systemd's watchdog restart the service).
 """
@@ -26,18 +29,16 @@ from typing import Any
 from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.notify import Notifier
 from edgedsm.daemon.pipeline import Cadence, Pipeline
-from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.reload import ReloadRefused, check_reload
+from edgedsm.daemon.reload import ReloadRefused, changed_sections, check_reload, restart_reasons
+from edgedsm.daemon.sinks import SinkSet, make_sink  # noqa: F401 (make_sink: the daemon's sinks, for tests)
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import open_camera
 from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
 from edgedsm.errors import ConfigError, DeviceError
-from edgedsm.estimators import ESTIMATORS
 from edgedsm.messages import Alert, AlertKind
-from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.commands import Command
-from edgedsm.publish.sink import FanOut, LogSink, Sink
+from edgedsm.publish.sink import Sink
 
 log = logging.getLogger(__name__)
 
@@ -54,45 +55,6 @@ EXIT_LASER_NOT_OFF = 69
 def open_camera_for(config: DaemonConfig) -> Camera:
     """The configured camera, built from the spec the config parsed (paths already resolved)."""
     return open_camera(config.camera.spec)
-
-
-def make_sink(config: DaemonConfig, on_command: CommandHandler) -> tuple[Sink, PipelineProbes]:
-    """Where the pipeline's messages go — every configured sink (MQTT JSON when ``[mqtt]`` is set,
-    Home Assistant, Prometheus), the log when no broker is — and the probes those sinks measure
-    the pipeline with. A new sink is added here; the pipeline does not change."""
-    sinks: list[Sink] = []
-    probes = PipelineProbes()
-    link = None
-    if config.mqtt is not None:
-        from edgedsm.publish.json_sink import MqttSink
-
-        link = MqttSink(config.mqtt, config.device.state_dir, on_command).start()
-        sinks.append(link)
-    if config.sparkplug is not None and config.mqtt is not None:  # the config refuses one without the other
-        from edgedsm.publish.sparkplug.node import SparkplugSink
-
-        sinks.append(SparkplugSink(config.sparkplug, config.mqtt, config.device.state_dir,
-                                   regions=[region.name for region in config.regions], maps=ESTIMATORS).start())
-    if config.mqtt is not None and config.homeassistant is not None:
-        from edgedsm.publish.homeassistant import HomeAssistantSink
-
-        ha = config.homeassistant
-        sinks.append(HomeAssistantSink(config.mqtt, ha.discovery_prefix, [r.name for r in config.regions],
-                                       config.device.state_dir, colormap=ha.colormap if ha.color_maps else None
-                                       ).start())
-    if config.http is not None:
-        from edgedsm.publish.prometheus import MetricsSink
-
-        try:
-            metrics = MetricsSink(config.http.stale_after_s, link=link).serve(config.http.address)
-        except ConfigError:
-            FanOut(sinks).close(1.0)  # the port is taken: release what was started
-            raise
-        sinks.append(metrics)
-        probes = PipelineProbes(frame_taken=metrics.frame_taken, frame_pushed=metrics.frame_pushed)
-    if link is None:
-        sinks.insert(0, LogSink())
-    return FanOut(sinks), probes
 
 
 def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
@@ -116,6 +78,8 @@ class Service:
         self.pipeline: Pipeline | None = None
         self.exit_reason = ""
         self._reloaded = False
+        self._restart_reasons: list[str] = []
+        self.sinks = SinkSet(self._on_command)
         self.laser_not_off: str | None = None  # why the laser could not be confirmed off at stop
 
     # -- signals ----------------------------------------------------------------------------
@@ -146,6 +110,7 @@ class Service:
         return False
 
     def _try_reload(self) -> bool:
+        """Check the config file and apply it; True if the pipeline must restart for it."""
         if self.config_path is None:
             log.warning("reload requested but the daemon was not started from a file")
             return False
@@ -154,22 +119,56 @@ class Service:
         try:
             new = check_reload(self.config_path, self.config, pipeline.frame_shape if pipeline else None)
         except ReloadRefused as exc:
-            log.error("reload refused, keeping the running configuration: %s", exc)
-            summary = str(exc).splitlines()[0].rstrip(":")
-            if pipeline is not None:
-                pipeline.evaluation.publish_alert(Alert(kind=AlertKind.WARNING, t=time.time(),
-                                                        reason=f"reload refused, running configuration kept: {exc}"))
-            self.notifier.ready(status=f"reload refused: {summary} (see the log)")
+            self._refuse_reload(str(exc))
             return False
-        log.warning("configuration reloaded from %s", self.config_path)
+        changed = changed_sections(new, self.config)
+        restart = restart_reasons(new, self.config)
+        try:
+            self.sinks.apply(new)  # sinks whose settings did not change keep their sessions
+        except ConfigError as exc:  # e.g. the new [http] port is taken: back to the running sinks
+            self.sinks.apply(self.config)  # raises only if the running ones cannot start again either
+            self._refuse_reload(f"the new configuration cannot run: {exc}")
+            return False
+        if "logging" in changed:
+            from edgedsm.logs import configure_logging
+
+            configure_logging(new.logging.level, new.logging.json_lines)
+        what = ", ".join(changed) or "nothing"
+        if restart:
+            log.warning("configuration reloaded from %s (changed: %s); measurement restarts for: %s",
+                        self.config_path, what, ", ".join(restart))
+            self._restart_reasons = restart
+            self.config = new
+            self._reloaded = True
+            return True
+        if pipeline is not None:
+            apply_in_place(pipeline, new, self._cadence(new))
         self.config = new
-        self._reloaded = True
-        return True
+        log.warning("configuration reloaded from %s (changed: %s); measurement kept", self.config_path, what)
+        self.notifier.ready(status=f"measuring with {new.camera.uri} (reloaded)")
+        return False
+
+    def _refuse_reload(self, reason: str) -> None:
+        log.error("reload refused, keeping the running configuration: %s", reason)
+        summary = reason.splitlines()[0].rstrip(":")
+        if self.pipeline is not None:
+            why = f"reload refused, running configuration kept: {reason}"
+            self.pipeline.evaluation.publish_alert(Alert(kind=AlertKind.WARNING, t=time.time(), reason=why))
+        self.notifier.ready(status=f"reload refused: {summary} (see the log)")
 
     # -- running ----------------------------------------------------------------------------
     def run(self) -> int:
         """Measure until stopped; returns the process exit code."""
+        self.sinks.apply(self.config)
+        try:
+            return self._run_pipelines()
+        finally:
+            self.sinks.close(1.0)  # 'offline' out within the 2 s a SIGTERM allows
+
+    def _run_pipelines(self) -> int:
         while True:
+            if self._reloaded:
+                self._announce_reset()
             self._reloaded = False
             try:
                 self._run_once()
@@ -186,16 +185,24 @@ class Service:
                 log.info("camera stream ended")
                 return 0
 
+    def _announce_reset(self) -> None:
+        """Before the states start again: one ``reset`` alert naming what changed."""
+        reason = f"configuration reloaded, measurement restarted: {', '.join(self._restart_reasons)} changed"
+        try:
+            self.sinks.fanout.publish_alert(Alert(kind=AlertKind.RESET, t=time.time(), reason=reason))
+        except Exception as exc:  # logged by the fan-out; the log line below stands
+            log.error("the reset alert could not be handed over: %s", exc)
+        log.warning("%s; every region warms up again", reason)
+
+    def _on_command(self, name: str, command: Command) -> dict[str, Any]:
+        # called on the MQTT sink's command thread with a validated command
+        pipeline = self.pipeline
+        return pipeline.submit(name, command.model_dump()) if pipeline else {"ok": False, "error": "not running"}
+
     def _run_once(self) -> None:
         config = self.config
         camera = open_camera_for(config)  # touches no device until the pipeline opens it
         holder: dict[str, Pipeline] = {}
-
-        def on_command(name: str, command: Command) -> dict[str, Any]:
-            # called on the MQTT sink's command thread with a validated command
-            pipeline = holder.get("pipeline")
-            return pipeline.submit(name, command.model_dump()) if pipeline else {"ok": False, "error": "not running"}
-
         last_ping = [0.0, 0.0]  # watchdog, status
 
         def alive() -> None:
@@ -210,31 +217,28 @@ class Service:
                 last_ping[1] = now
                 self.notifier.status(pipeline.summary())
 
-        sink, probes = make_sink(config, on_command)
+        sink = self.sinks.fanout
+        self.pipeline = None
+        # opened last and closed by LaserSafety (switched off) whatever happens after
+        relay = open_relay(config.laser.spec) if config.laser is not None else None
+        couple_simulated_laser(camera, relay)
+        pipeline = Pipeline(config, camera, sink, relay=relay, cadence=self.cadence or self._cadence(config),
+                            on_alive=alive, probes=self.sinks.probes)
+        holder["pipeline"] = self.pipeline = pipeline
+        safety = LaserSafety(relay) if relay is not None else None
         try:
-            # opened last and closed by LaserSafety (switched off) whatever happens after
-            relay = open_relay(config.laser.spec) if config.laser is not None else None
-            couple_simulated_laser(camera, relay)
-            pipeline = Pipeline(config, camera, sink, relay=relay,
-                                cadence=self.cadence or self._cadence(config), on_alive=alive,
-                                probes=probes)
-            holder["pipeline"] = self.pipeline = pipeline
-            safety = LaserSafety(relay) if relay is not None else None
-            try:
-                with safety or contextlib.nullcontext():
-                    self._measure(pipeline)
-            except DeviceError as exc:
-                if safety is None or exc is not safety.off_error:
-                    raise
-            finally:
-                if safety is not None and safety.off_error is not None:
-                    self._laser_left_on(sink, safety.off_error)
-            # a finite stream (replay) ended: its final maps must leave before the sink closes,
-            # which abandons maps still waiting to be sent
-            if not self._stop.is_set() and not self._reloaded and not sink.flush(FINAL_MAPS_TIMEOUT_S):
-                log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
+            with safety or contextlib.nullcontext():
+                self._measure(pipeline)
+        except DeviceError as exc:
+            if safety is None or exc is not safety.off_error:
+                raise
         finally:
-            sink.close(1.0)  # 'offline' out within the 2 s a SIGTERM allows
+            if safety is not None and safety.off_error is not None:
+                self._laser_left_on(sink, safety.off_error)
+        # a finite stream (replay) ended: its final maps must leave before the sink closes,
+        # which abandons maps still waiting to be sent
+        if not self._stop.is_set() and not self._reloaded and not sink.flush(FINAL_MAPS_TIMEOUT_S):
+            log.warning("the final maps were not all published within %.1f s", FINAL_MAPS_TIMEOUT_S)
 
     def _laser_left_on(self, sink: Sink, error: DeviceError) -> None:
         """The laser may still be on: say so everywhere before 'offline' goes out."""
@@ -255,6 +259,20 @@ class Service:
 
     @staticmethod
     def _cadence(config: DaemonConfig) -> Cadence:
+        """How often stats and maps are evaluated and published."""
         if config.mqtt is None:
             return Cadence()
         return Cadence(stats_every_s=config.mqtt.stats_interval_s, maps_every_s=config.mqtt.maps_interval_s)
+
+
+def apply_in_place(pipeline: Pipeline, config: DaemonConfig, cadence: Cadence) -> None:
+    """A reload that keeps the measurement: the new thresholds go to the running state machines
+    (their states, dwell and trend history kept), the new cadence to the running loop."""
+    thresholds = {region.name: region.thresholds() for region in config.regions}
+    evaluation = pipeline.evaluation
+    with evaluation.monitor_lock:
+        for name, machine in evaluation.monitor.regions.items():
+            machine.thresholds = thresholds[name]
+    pipeline.cadence.stats_every_s = cadence.stats_every_s
+    pipeline.cadence.maps_every_s = cadence.maps_every_s
+    pipeline.config = evaluation.config = config

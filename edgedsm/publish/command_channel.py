@@ -93,8 +93,9 @@ class CommandChannel:
     """Receives commands (paho's thread), runs them (its own thread), replies (QoS 1)."""
 
     def __init__(self, topics: Topics, publish: Publish, on_command: CommandHandler | None,
-                 counters: Counters, *, mqtt5: bool) -> None:
+                 counters: Counters, *, mqtt5: bool, disabled: Mapping[str, str] | None = None) -> None:
         self.topics = topics
+        self._disabled = dict(disabled or {})  # command name -> why it is refused
         self._publish = publish
         self._on_command = on_command
         self._counters = counters
@@ -178,6 +179,9 @@ class CommandChannel:
             refuse("; ".join(f"{'.'.join(str(p) for p in err['loc']) or 'payload'}: "
                              f"{'unknown key' if err['type'] == 'extra_forbidden' else err['msg']}"
                              for err in exc.errors()))
+            return
+        if name in self._disabled:
+            refuse(self._disabled[name])
             return
         if self._on_command is None:
             refuse("this process does not carry out commands (no handler)")

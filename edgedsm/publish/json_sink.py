@@ -7,6 +7,9 @@ alert store and sender, map sender, command channel); topics and payloads are do
 
 from __future__ import annotations
 
+import json
+import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +18,12 @@ from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.mqtt import MqttPublisher
 from edgedsm.publish.settings import MqttSettings
 from edgedsm.publish.topics import Topics
+
+log = logging.getLogger(__name__)
+
+#: In ``device.state_dir``: the per-region state topics this device left retained, so a region
+#: removed while the daemon was stopped is cleared at the next start.
+RETAINED_REGIONS_FILE = "retained-region-topics.json"
 
 
 class MqttSink:
@@ -28,6 +37,8 @@ class MqttSink:
     def __init__(self, settings: MqttSettings, state_dir: str | Path, on_command: CommandHandler | None = None,
                  *, password: str | None = None) -> None:
         self.publisher = MqttPublisher(settings, state_dir, on_command, password=password)
+        self._regions_file = Path(state_dir) / RETAINED_REGIONS_FILE
+        self._region_topics: set[str] | None = None  # None: not read yet
 
     @property
     def topics(self) -> Topics:
@@ -41,7 +52,38 @@ class MqttSink:
     # -- the Sink protocol ------------------------------------------------------------------------
 
     def publish_state(self, report: StateReport) -> None:
+        """The combined state, then each region's on ``state/<region>`` (all retained); a region
+        published before (by this or an earlier run) and absent now has its topic cleared."""
         self.publisher.publish_state(report.to_json())
+        topics = {self.topics.region_state(name): region for name, region in report.regions.items()}
+        for topic, region in topics.items():
+            self.publisher.publish_retained(topic, region.to_bytes())
+        previous = self._remembered_region_topics()
+        for gone in sorted(previous - topics.keys()):
+            log.info("region topic %s cleared: the region is no longer configured", gone)
+            self.publisher.publish_retained(gone, b"")
+        if previous != topics.keys():
+            self._remember_region_topics(set(topics))
+
+    def _remembered_region_topics(self) -> set[str]:
+        if self._region_topics is None:
+            try:
+                self._region_topics = set(json.loads(self._regions_file.read_text(encoding="utf-8"))["topics"])
+            except FileNotFoundError:
+                self._region_topics = set()
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                log.warning("%s unreadable (%s): removed regions' topics are not cleared", self._regions_file, exc)
+                self._region_topics = set()
+        return self._region_topics
+
+    def _remember_region_topics(self, topics: set[str]) -> None:
+        self._region_topics = topics
+        partial = self._regions_file.with_name(self._regions_file.name + ".partial")
+        try:
+            partial.write_text(json.dumps({"topics": sorted(topics)}), encoding="utf-8")
+            os.replace(partial, self._regions_file)
+        except OSError as exc:  # measuring goes on; only the clearing after a restart is lost
+            log.warning("cannot write %s: %s", self._regions_file, exc)
 
     def publish_alert(self, alert: Alert) -> int:
         """Store and send the alert; returns the ``seq`` it was given (``stream`` and ``seq`` of

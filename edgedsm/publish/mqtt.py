@@ -118,7 +118,7 @@ class MqttPublisher:
         # Held around QoS 0 state publishes only: paho's QoS 0 path takes none of its own locks
         # in threaded mode, so this cannot deadlock with the network thread.
         self._state_lock = threading.Lock()
-        self._state_payload: bytes | None = None
+        self._retained: dict[str, bytes] = {}  # topic -> the newest retained payload, resent on reconnection
         self._refusal: str | None = None
         self._last_error: str | None = None
         self._problems = ProblemLog(log)
@@ -129,8 +129,10 @@ class MqttPublisher:
         self._alerts = AlertSender(self._store, self._client, self.topics.alerts, self._connected, self._counters,
                                    in_flight=settings.alerts_in_flight)
         self._maps = MapSender(settings, self.topics, self._client, self._connected, self._counters)
+        disabled = {} if settings.laser_command else {
+            "laser": "cmd/laser is disabled by configuration ([mqtt] laser_command = false)"}
         self._commands = CommandChannel(self.topics, self._client.publish, on_command, self._counters,
-                                        mqtt5=settings.protocol == "5")
+                                        mqtt5=settings.protocol == "5", disabled=disabled)
         self._client.on_connect = self._on_connect
         self._client.on_connect_fail = self._on_connect_fail
         self._client.on_disconnect = self._on_disconnect
@@ -215,11 +217,18 @@ class MqttPublisher:
 
     def publish_state(self, state: Mapping[str, Any]) -> None:
         """Retained state; kept and republished on every (re)connection."""
-        payload = _json.dumps(state)
-        with self._state_lock:  # vs. _on_connect: the newest state must be the last one sent
-            self._state_payload = payload
+        self.publish_retained(self.topics.state, _json.dumps(state))
+
+    def publish_retained(self, topic: str, payload: bytes) -> None:
+        """A retained message (QoS 0), kept and republished on every (re)connection; an empty
+        payload clears the topic on the broker (once, if connected) and is not kept."""
+        with self._state_lock:  # vs. _on_connect: the newest payload must be the last one sent
+            if payload:
+                self._retained[topic] = payload
+            else:
+                self._retained.pop(topic, None)
             if self._connected.is_set():
-                self._client.publish(self.topics.state, payload, qos=0, retain=True)
+                self._client.publish(topic, payload, qos=0, retain=True)
 
     def publish_alert(self, alert: Mapping[str, Any]) -> int:
         """Store the alert and send it (QoS 1) as soon as possible; returns its ``seq``.
@@ -288,8 +297,8 @@ class MqttPublisher:
         _, self._subscribe_mid = client.subscribe(self.topics.command_filter, qos=1)
         with self._state_lock:
             self._connected.set()
-            if self._state_payload is not None:
-                client.publish(self.topics.state, self._state_payload, qos=0, retain=True)
+            for topic, payload in self._retained.items():
+                client.publish(topic, payload, qos=0, retain=True)
         self._alerts.wake()
 
     def _on_subscribe(self, client: mqtt.Client, userdata: Any, mid: int, reasons: list[ReasonCode],

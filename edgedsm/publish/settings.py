@@ -100,6 +100,9 @@ class MqttSettings(StrictModel):
     maps_interval_s: float = Field(60.0, ge=0.1, le=86_400.0,
                                    description="seconds between map messages (cmd/publish_maps asks "
                                                "for one at once)")
+    laser_command: bool = Field(
+        True, description="accept cmd/laser (on/off/auto); false = refused, saying so, for sites whose laser-safety "
+                          "sign-off does not cover switching the laser remotely (docs/laser-safety.md)")
     map_max_size: int = Field(512, ge=8, le=8192,
                               description="longest side in pixels of a published map; larger maps are "
                                           "downsampled by area averaging (stated in the map's meta)")

@@ -34,6 +34,15 @@ class Topics:
     def state(self) -> str:
         return f"{self.base}/state"
 
+    def region_state(self, region: str) -> str:
+        """One region's retained ``RegionState``, beside the combined ``state``."""
+        return f"{self.base}/state/{region}"
+
+    @property
+    def region_states_filter(self) -> str:
+        """Subscription for every region's state."""
+        return f"{self.base}/state/+"
+
     @property
     def alerts(self) -> str:
         return f"{self.base}/alerts"

@@ -1,0 +1,139 @@
+"""The daemon's sinks, kept across reloads: a sink whose settings did not change keeps its
+session (no ``offline``/``online``, no new Sparkplug ``bdSeq``); one whose settings changed is
+closed and built again. The one place sinks are registered (``docs/architecture.md``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from typing import Any
+
+from edgedsm.config import DaemonConfig
+from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.errors import ConfigError
+from edgedsm.estimators import ESTIMATORS
+from edgedsm.publish.command_channel import CommandHandler
+from edgedsm.publish.sink import FanOut, LogSink, Sink
+
+log = logging.getLogger(__name__)
+
+
+def _fingerprint(*parts: Any) -> str:
+    """What a sink is built from, comparable across configs."""
+    return json.dumps([part.model_dump(mode="json") if hasattr(part, "model_dump") else part for part in parts],
+                      sort_keys=True, default=str)
+
+
+#: ``[mqtt]`` keys the pipeline's cadence reads (applied to the running loop): no new session.
+CADENCE_FIELDS = frozenset({"stats_interval_s", "maps_interval_s"})
+
+
+def wanted_sinks(config: DaemonConfig) -> dict[str, str]:
+    """Each sink the config asks for, in fan-out order, with the fingerprint of its settings."""
+    regions = [region.name for region in config.regions]
+    state_dir = str(config.device.state_dir)
+    wanted: dict[str, str] = {}
+    if config.mqtt is None:
+        wanted["log"] = ""
+        if config.http is not None:
+            wanted["http"] = _fingerprint(config.http)
+        return wanted
+    broker = config.mqtt.model_dump(mode="json", exclude=set(CADENCE_FIELDS))
+    wanted["mqtt"] = _fingerprint(broker, state_dir)
+    if config.sparkplug is not None:
+        wanted["sparkplug"] = _fingerprint(config.sparkplug, broker, state_dir, regions)
+    if config.homeassistant is not None:
+        wanted["homeassistant"] = _fingerprint(config.homeassistant, broker, state_dir, regions)
+    if config.http is not None:
+        wanted["http"] = _fingerprint(config.http)
+    return wanted
+
+
+class SinkSet:
+    """Every configured sink behind one :class:`FanOut` and one :class:`PipelineProbes`, both
+    kept for the daemon's life (a restarted pipeline is handed the same ones)."""
+
+    def __init__(self, on_command: CommandHandler) -> None:
+        self.on_command = on_command
+        self.fanout = FanOut([])
+        self.probes = PipelineProbes()
+        self._built: dict[str, tuple[str, Sink]] = {}
+
+    def apply(self, config: DaemonConfig) -> list[str]:
+        """Build, keep or rebuild each sink for ``config``; returns the names (re)built or closed.
+        A sink that cannot start (a taken port) is a ConfigError; those already built stay."""
+        wanted = wanted_sinks(config)
+        changed = [name for name in self._built if self._built[name][0] != wanted.get(name)]
+        for name in changed:  # closed first: a new client with the same id would be thrown off
+            _, sink = self._built.pop(name)
+            self.fanout.sinks = [s for s in self.fanout.sinks if s is not sink]
+            try:
+                sink.close(1.0)
+            except Exception as exc:
+                log.error("%s: close failed: %s", name, exc)
+        built = [name for name in wanted if name not in self._built]
+        for name in built:
+            self._built[name] = (wanted[name], self._build(name, config))
+        self.fanout.sinks = [self._built[name][1] for name in wanted]
+        self._wire(config)
+        if changed or built:
+            log.info("sinks built: %s; closed: %s", ", ".join(built) or "none", ", ".join(changed) or "none")
+        return sorted(set(changed) | set(built))
+
+    def _build(self, name: str, config: DaemonConfig) -> Sink:
+        mqtt = config.mqtt
+        state_dir = config.device.state_dir
+        regions = [region.name for region in config.regions]
+        if name == "log":
+            return LogSink()
+        if name == "mqtt" and mqtt is not None:
+            from edgedsm.publish.json_sink import MqttSink
+
+            return MqttSink(mqtt, state_dir, self.on_command).start()
+        if name == "sparkplug" and mqtt is not None and config.sparkplug is not None:
+            from edgedsm.publish.sparkplug.node import SparkplugSink
+
+            return SparkplugSink(config.sparkplug, mqtt, state_dir, regions=regions, maps=ESTIMATORS).start()
+        if name == "homeassistant" and mqtt is not None and config.homeassistant is not None:
+            from edgedsm.publish.homeassistant import HomeAssistantSink
+
+            ha = config.homeassistant
+            return HomeAssistantSink(mqtt, ha.discovery_prefix, regions, state_dir,
+                                     colormap=ha.colormap if ha.color_maps else None).start()
+        if name == "http" and config.http is not None:
+            from edgedsm.publish.prometheus import MetricsSink
+
+            return MetricsSink(config.http.stale_after_s).serve(config.http.address)
+        raise AssertionError(f"no sink {name!r}")  # wanted_sinks and _build list the same names
+
+    def _wire(self, config: DaemonConfig) -> None:
+        """The metrics sink reads the MQTT link's health and is the pipeline's frame probes."""
+        link = self.get("mqtt")
+        metrics = self.get("http")
+        self.probes.frame_taken = getattr(metrics, "frame_taken", None)
+        self.probes.frame_pushed = getattr(metrics, "frame_pushed", None)
+        if metrics is not None:
+            metrics.link = link  # type: ignore[attr-defined]
+
+    def get(self, name: str) -> Sink | None:
+        built = self._built.get(name)
+        return built[1] if built else None
+
+    def close(self, timeout_s: float) -> None:
+        self._built.clear()
+        self.fanout.close(timeout_s)
+        self.fanout.sinks = []
+
+
+def make_sink(config: DaemonConfig, on_command: CommandHandler) -> tuple[Sink, PipelineProbes]:
+    """Every configured sink for ``config`` behind one FanOut, and the probes they measure the
+    pipeline with (see :class:`SinkSet`); a sink that cannot start closes those started."""
+    sinks = SinkSet(on_command)
+    try:
+        sinks.apply(config)
+    except ConfigError:
+        sinks.close(1.0)  # the port is taken: release what was started
+        raise
+    return sinks.fanout, sinks.probes
+

@@ -1,0 +1,270 @@
+"""A feed SCADA can trust across `systemctl reload` (issue 10 §1), against a real mosquitto and
+`python -m edgedsm run`.
+
+- A reload that changes only publishing, logging or thresholds keeps the MQTT session (no
+  ``offline``), the estimator window (the frame count goes on) and the drying states (no region
+  goes back to ``warming_up``, no alert).
+- A reload that must restart measurement (the estimator's window) publishes one ``reset`` alert
+  naming what changed, then every region's ``warming_up``, then the states start again.
+- Per-region retained ``state/<region>`` topics; a removed region's topic is cleared.
+- ``[mqtt] laser_command = false``: ``cmd/laser`` refused, saying so.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from helpers_mqtt import WAIT_S, Broker, Subscriber, wait_until
+from test_daemon_e2e import (
+    DRYING_SCENE,
+    Daemon,
+    base_config,
+    collapse,
+    distinct_alerts,
+    frames_published,
+    region_states,
+    wait_frames_beyond,
+    write_config,
+)
+
+from edgedsm.publish import Topics
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+#: The demo plate at 100 frames/s.
+SLOW_CAMERA = f"sim:{DRYING_SCENE}?time_scale=0.2"
+
+
+@pytest.fixture
+def daemons() -> Iterator[Callable[..., Daemon]]:
+    made: list[Daemon] = []
+
+    def start(config: Path) -> Daemon:
+        made.append(Daemon(config))
+        return made[-1]
+
+    yield start
+    for daemon in made:
+        daemon.kill()
+
+
+def _feed(tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+          daemons: Callable[..., Daemon], **extra: Any) -> tuple[dict[str, Any], Path, Topics, Subscriber, Daemon]:
+    config = base_config(tmp_path, port=broker.port, camera=SLOW_CAMERA)
+    for section, values in extra.items():
+        config.setdefault(section, {}).update(values)
+    path = write_config(tmp_path / "daemon.toml", config)
+    topics = Topics.of("edgedsm", "e2e")
+    scada = subscribers(broker.port, [f"{topics.base}/#"], client_id=f"scada-{uuid.uuid4().hex[:6]}")
+    daemon = daemons(path)
+    scada.wait_for(topics.availability, lambda m: m.payload == b"online", "availability online", timeout=30)
+    try:
+        wait_until(lambda: any(a.get("from") == "warming_up" for a in distinct_alerts(scada, topics)), 60,
+                   "the first alert out of warming_up")
+    except BaseException:
+        print(daemon.log)
+        raise
+    return config, path, topics, scada, daemon
+
+
+def _availability(scada: Subscriber, topics: Topics) -> list[bytes]:
+    return collapse([m.payload for m in scada.on(topics.availability)])  # type: ignore[arg-type]
+
+
+@pytest.mark.timeout(150)
+def test_a_publishing_and_thresholds_reload_keeps_session_window_and_states(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon]) -> None:
+    config, path, topics, scada, daemon = _feed(tmp_path, broker, subscribers, daemons)
+    frames_before = wait_frames_beyond(scada, topics, 0)
+    alerts_before = len(distinct_alerts(scada, topics))
+    states_before = len(scada.on(topics.state))
+
+    config["mqtt"]["stats_interval_s"] = 0.4          # publishing
+    config["mqtt"]["maps_interval_s"] = 30.0
+    config["logging"]["level"] = "debug"               # logging
+    config["regions"][0]["min_dwell_s"] = 1.5          # thresholds
+    write_config(path, config)
+    daemon.signal(signal.SIGHUP)
+    daemon.wait_log(r"configuration reloaded", WAIT_S)
+    after = wait_frames_beyond(scada, topics, frames_before + 60)
+
+    assert "Traceback" not in daemon.log
+    assert _availability(scada, topics) == [b"online"], "the session was dropped across the reload"
+    new_alerts = distinct_alerts(scada, topics)[alerts_before:]
+    assert [a["type"] for a in new_alerts if a["type"] != "transition"] == []
+    assert all(a["to"] != "warming_up" for a in new_alerts), new_alerts
+    states = region_states(scada.on(topics.state)[states_before:], "plate")
+    assert "warming_up" not in states, states
+    # the frame count went on: the same window, not a new pipeline counting from zero
+    stats_frames = [m.json()["frames"] for m in scada.on(topics.stats)]
+    assert stats_frames == sorted(stats_frames) and after > frames_before + 60
+    assert "measurement kept" in daemon.log
+    # between transitions the report is republished as activity and time to dry move
+    reports = [m.json()["regions"]["plate"] for m in scada.on(topics.state)]
+    within_a_state = [r for r in reports if r["since"] == reports[-1]["since"]]
+    assert len({(r["activity"], r["time_to_dry_s"]) for r in within_a_state}) >= 2, reports
+    per_region = [m.json() for m in scada.on(f"{topics.state}/plate")]
+    assert per_region[-1] == reports[-1]
+
+
+@pytest.mark.timeout(150)
+def test_a_measurement_reload_publishes_one_reset_alert_then_warming_up(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon]) -> None:
+    config, path, topics, scada, daemon = _feed(tmp_path, broker, subscribers, daemons)
+    alerts_before = len(distinct_alerts(scada, topics))
+
+    config["estimator"]["window"] = 80
+    write_config(path, config)
+    sent = time.time()
+    daemon.signal(signal.SIGHUP)
+    daemon.wait_log(r"configuration reloaded", WAIT_S)
+    wait_until(lambda: any(a.get("from") == "warming_up" for a in distinct_alerts(scada, topics)[alerts_before:]),
+               60, "out of warming_up again after the reset")
+
+    assert _availability(scada, topics) == [b"online"]
+    new_alerts = distinct_alerts(scada, topics)[alerts_before:]
+    assert new_alerts[0]["type"] == "reset", new_alerts
+    assert "estimator" in new_alerts[0]["reason"] and new_alerts[0]["region"] is None
+    assert abs(new_alerts[0]["t"] - sent) < 10  # wall-clock UTC on the wire
+    assert [a["type"] for a in new_alerts[1:]] == ["transition"] * (len(new_alerts) - 1)
+    assert new_alerts[1]["from"] == "warming_up" and new_alerts[1]["to"] in ("wet", "drying", "dry")
+    # the states went back to warming_up only after the reset alert, and explicitly
+    retained_state = [m.json() for m in scada.on(topics.state)]
+    later = [s for s in retained_state if s["t"] >= new_alerts[0]["t"]]
+    assert collapse([s["regions"]["plate"]["state"] for s in later])[:2] == ["warming_up", new_alerts[1]["to"]]
+    # per-region topic: the same RegionState, wall-clock times
+    per_region = [m.json() for m in scada.on(f"{topics.state}/plate")]
+    assert per_region and set(per_region[-1]) >= {"region", "state", "since", "activity", "time_to_dry_s"}
+    assert per_region[-1]["region"] == "plate" and abs(per_region[-1]["since"] - time.time()) < 120
+
+
+@pytest.mark.timeout(150)
+def test_a_removed_region_has_its_retained_topic_cleared_and_laser_command_can_be_disabled(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon]) -> None:
+    config, path, topics, scada, daemon = _feed(tmp_path, broker, subscribers, daemons,
+                                                mqtt={"laser_command": False})
+    scada.wait_for(f"{topics.state}/plate", lambda m: bool(m.payload), "state/plate")
+
+    scada.client.publish(topics.command("laser"), json.dumps({"state": "on", "request_id": "q1"}), qos=1)
+    reply = scada.wait_for(topics.reply("laser"), lambda m: m.json().get("request_id") == "q1", "laser reply").json()
+    assert reply["ok"] is False and "disabled by configuration" in reply["error"]
+    # the other commands still work
+    scada.client.publish(topics.command("publish_maps"), json.dumps({"request_id": "q2"}), qos=1)
+    reply = scada.wait_for(topics.reply("publish_maps"), lambda m: m.json().get("request_id") == "q2",
+                           "publish_maps reply").json()
+    assert reply["ok"] is True
+
+    config["regions"][0]["name"] = "board"
+    write_config(path, config)
+    daemon.signal(signal.SIGHUP)
+    daemon.wait_log(r"configuration reloaded", WAIT_S)
+    scada.wait_for(f"{topics.state}/plate", lambda m: m.payload == b"", "state/plate cleared")
+    scada.wait_for(f"{topics.state}/board", lambda m: bool(m.payload), "state/board")
+    resets = [a for a in distinct_alerts(scada, topics) if a["type"] == "reset"]
+    assert len(resets) == 1 and "regions" in resets[0]["reason"]
+
+    # a new subscriber sees the retained per-region state of 'board' only
+    late = subscribers(broker.port, [f"{topics.state}/+"], client_id=f"late-{uuid.uuid4().hex[:6]}")
+    wait_until(lambda: bool(late.on(f"{topics.state}/board")), WAIT_S, "retained state/board")
+    time.sleep(0.5)
+    assert late.on(f"{topics.state}/plate") == []
+
+    # removed while the daemon is stopped: cleared at the next start
+    code, _ = daemon.terminate()
+    assert code == 0
+    config["regions"][0]["name"] = "plate"
+    write_config(path, config)
+    daemons(path)
+    scada.wait_for(f"{topics.state}/board", lambda m: m.payload == b"", "state/board cleared at start", timeout=30)
+    scada.wait_for(f"{topics.state}/plate", lambda m: bool(m.payload) and m.json()["region"] == "plate",
+                   "state/plate again")
+
+
+@pytest.mark.timeout(150)
+def test_only_the_sink_whose_settings_changed_starts_a_new_session(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon]) -> None:
+    from helpers_sparkplug import SparkplugHost
+
+    host = SparkplugHost(broker.port).start()
+    try:
+        config, path, topics, scada, daemon = _feed(
+            tmp_path, broker, subscribers, daemons, sparkplug={"group_id": "plant", "rebirth_min_interval_s": 0.5},
+            homeassistant={})
+        born = host.wait_for("NBIRTH", "the first NBIRTH")[0].payload.by_name()["bdSeq"].value()
+        frames = frames_published(scada, topics)
+
+        # thresholds and cadence: nothing reconnects
+        config["regions"][0]["min_dwell_s"] = 1.5
+        config["mqtt"]["stats_interval_s"] = 0.4
+        write_config(path, config)
+        daemon.signal(signal.SIGHUP)
+        daemon.wait_log(r"configuration reloaded", WAIT_S)
+        wait_frames_beyond(scada, topics, frames + 60)
+        assert len(host.of("NBIRTH")) == 1 and host.of("NDEATH") == []
+
+        # the Sparkplug node's own settings: that node alone is born again, with the next bdSeq
+        config["sparkplug"]["deadband_rel"] = 0.02
+        write_config(path, config)
+        daemon.signal(signal.SIGHUP)
+        wait_until(lambda: daemon.log.count("configuration reloaded") == 2, WAIT_S, "the second reload")
+        births = host.wait_for("NBIRTH", "the node born again", count=2)
+        assert births[1].payload.by_name()["bdSeq"].value() == (born + 1) % 256
+        # the old session's death (the node's own NDEATH; the broker may deliver its will too)
+        deaths = {m.payload.by_name()["bdSeq"].value() for m in host.of("NDEATH")}
+        assert deaths == {born}, (deaths, born)
+        assert _availability(scada, topics) == [b"online"], "the JSON session was dropped with the Sparkplug one"
+        assert "sinks built: sparkplug; closed: sparkplug" in daemon.log
+        assert not [a for a in distinct_alerts(scada, topics) if a["type"] == "reset"]
+    finally:
+        host.stop()
+
+
+@pytest.mark.timeout(60)
+def test_a_reload_whose_sink_cannot_start_is_refused_and_the_running_sinks_serve_on(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    import socket
+    import urllib.request
+
+    from helpers_mqtt import free_port
+    from test_daemon_e2e import service_thread
+
+    config = base_config(tmp_path)
+    port = free_port()
+    config["http"] = {"listen": f"127.0.0.1:{port}"}
+    path = write_config(tmp_path / "daemon.toml", config)
+    with socket.socket() as taken, service_thread(path) as (service, result):
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        url = f"http://127.0.0.1:{port}/metrics"
+        wait_until(lambda: b"edgedsm_frames_total" in _get(urllib.request, url), WAIT_S, "metrics served")
+        pipeline = service.pipeline
+        config["http"] = {"listen": f"127.0.0.1:{taken.getsockname()[1]}"}
+        config["regions"][0]["min_dwell_s"] = 2.0
+        write_config(path, config)
+        service.request_reload()
+        wait_until(lambda: "reload refused" in caplog.text, WAIT_S, "the reload refused")
+        assert "http.listen" in caplog.text
+        assert service.config.regions[0].min_dwell_s == 1.0 and service.pipeline is pipeline
+        # the running [http] settings serve again (rebuilt: the counters start again from 0)
+        wait_until(lambda: b"edgedsm_frames_total" in _get(urllib.request, url), WAIT_S, "metrics served again")
+        assert result["thread"].is_alive() and "Traceback" not in caplog.text
+
+
+def _get(request: Any, url: str) -> bytes:
+    try:
+        with request.urlopen(url, timeout=2) as response:
+            return bytes(response.read())
+    except OSError:
+        return b""
+
