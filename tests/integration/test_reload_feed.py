@@ -108,9 +108,13 @@ def test_a_publishing_and_thresholds_reload_keeps_session_window_and_states(
     assert stats_frames == sorted(stats_frames) and after > frames_before + 60
     assert "measurement kept" in daemon.log
     # between transitions the report is republished as activity and time to dry move
+    def republished_within_a_state() -> bool:
+        reports = [m.json()["regions"]["plate"] for m in scada.on(topics.state)]
+        within_a_state = [r for r in reports if r["since"] == reports[-1]["since"]]
+        return len({(r["activity"], r["time_to_dry_s"]) for r in within_a_state}) >= 2
+
+    wait_until(republished_within_a_state, 30, "a state report republished within one state as activity moved")
     reports = [m.json()["regions"]["plate"] for m in scada.on(topics.state)]
-    within_a_state = [r for r in reports if r["since"] == reports[-1]["since"]]
-    assert len({(r["activity"], r["time_to_dry_s"]) for r in within_a_state}) >= 2, reports
     per_region = [m.json() for m in scada.on(f"{topics.state}/plate")]
     assert per_region[-1] == reports[-1]
 

@@ -119,6 +119,8 @@ def test_one_device_name_default_for_daemon_watch_cmd_dashboard_sparkplug(tmp_pa
     watch_args = argparse.Namespace(config=None, host=None, port=None, topic_prefix=None, device=None, username=None,
                                     tls=False, ca_file=None, cert_file=None, key_file=None, insecure=False)
     assert Topics.from_settings(watch.settings_from_args(watch_args)).base == f"edgedsm/{DEFAULT_DEVICE}"
-    cmd_args = argparse.Namespace(config=None, broker=None, topic_prefix=None, device=None, username=None)
+    parser = argparse.ArgumentParser()
+    cmd.add_arguments(parser)
+    cmd_args = parser.parse_args(["laser"])  # every option at its default
     assert Topics.from_settings(cmd.settings_of(cmd_args)).base == f"edgedsm/{DEFAULT_DEVICE}"
     assert list(regions_from_configs([path])) == [DEFAULT_DEVICE]
