@@ -50,12 +50,15 @@ def mean_square_difference(frames: np.ndarray, lag: int) -> np.ndarray:
 
 
 def ambient_corrected_s2(s2: np.ndarray, mean: np.ndarray, mean_square_diff: np.ndarray,
-                         dark_mean: np.ndarray | float, dark_var: np.ndarray | float) -> np.ndarray:
+                         dark_mean: np.ndarray | float, dark_var: np.ndarray | float,
+                         smooth: int = 1) -> np.ndarray:
     """S2 with the ambient level and the ambient shot noise removed, (H, W) float64.
 
     ``s2``: plain S2 map (Eq. 2); ``mean``: the window's temporal mean Ī; ``mean_square_diff``:
     E[(I_i - I_{i+m})²] at the same lag; ``dark_mean``/``dark_var``: the dark frames' mean and
-    variance (per pixel or one value; all in the frames' unit). Defined everywhere: 0 where the
+    variance (per pixel or one value; all in the frames' unit). ``smooth`` > 1 box-averages Ī and
+    E[(ΔI)²] over smooth x smooth pixels before forming the factors, so the correction follows the
+    beam and the activity, not each speckle's noise. Defined everywhere: 0 where the
     laser level Ī - μ_d <= 0 or where the ambient noise explains all of the fluctuation.
     """
     s2 = np.asarray(s2, dtype=np.float64)
@@ -64,6 +67,11 @@ def ambient_corrected_s2(s2: np.ndarray, mean: np.ndarray, mean_square_diff: np.
     msd = _as_map("mean_square_diff", mean_square_diff, shape)
     mu_d = _as_map("dark_mean", dark_mean, shape)
     v_d = _as_map("dark_var", dark_var, shape)
+    if smooth > 1:
+        from scipy import ndimage
+
+        mean = ndimage.uniform_filter(mean, size=smooth, mode="nearest")
+        msd = ndimage.uniform_filter(msd, size=smooth, mode="nearest")
     laser = mean - mu_d
     keep = np.zeros(shape, np.float64)
     np.divide(2.0 * v_d, msd, out=keep, where=msd > 0)
