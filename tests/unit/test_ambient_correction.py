@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from edgedsm.bench.ambient import Case, beats_plain, measure
+from edgedsm.cli import main
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import s2
 from edgedsm.estimators.ambient import ambient_corrected_s2, dark_statistics, mean_square_difference
@@ -62,3 +63,18 @@ def test_bench_reproduces_the_defect_and_the_correction_removes_the_beam_imprint
     assert gt["S2 corrected"] == gt["S2 plain"]  # η = 0: the correction changes nothing
     assert 0.02 < result.clipped["gaussian"][0.2] < 0.1
     assert beats_plain(result)["gaussian"][0.0]
+
+
+@pytest.mark.slow
+def test_bench_ambient_quick_writes_the_table(tmp_path, capsys) -> None:
+    out = tmp_path / "ambient.md"
+    assert main(["bench", "ambient", "--quick", "--output", str(out)]) == 0
+    text = out.read_text(encoding="utf-8")
+    rows = [line for line in text.splitlines() if line.startswith(("| uniform |", "| gaussian |"))]
+    assert len(rows) == 2 * 5 * 5  # lights x η x estimators
+    gaussian_02 = {r.split("|")[3].strip(): r for r in rows if r.startswith("| gaussian | 0.2 |")}
+    imprint = {name: float(row.split("|")[5]) for name, row in gaussian_02.items()}
+    assert imprint["S2 plain"] > 0.4 and abs(imprint["S2 corrected"]) < 0.2
+    assert "- gaussian: corrected S2 beats plain S2 on all four — η=0: yes" in text
+    assert "64², N = 100" in text
+    assert rows[0] in capsys.readouterr().out  # printed as well as written
