@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -292,3 +292,55 @@ def findings(settings: Settings, results: dict[str, Any]) -> list[Finding]:
             "τ_noise (see above).",
             yes(all_rise, partly=any_rise)))
     return out
+
+
+# -- one tally per reading of the paper's phase noise --------------------------------------------
+READING_FIGURES = {"fig2": "Fig. 2 (findings 2-5)", "fig3": "Fig. 3 (findings 6-7)",
+                   "fig4": "Fig. 4 (findings 8-9)"}
+
+
+@dataclass
+class Tally:
+    """The findings judged with one reading of the phase noise throughout."""
+
+    reading: str
+    findings: list[Finding]
+    borrowed: list[str]  # figures not simulated with this reading: its white-noise runs stand in
+
+    def count(self, verdict: str) -> int:
+        return sum(f.verdict == verdict for f in self.findings)
+
+
+def _reading_view(settings: Settings, results: dict[str, Any],
+                  reading: str) -> tuple[Settings, dict[str, Any], list[str]]:
+    """Settings and results in which the 'white' runs are replaced by ``reading``'s runs."""
+    borrowed = []
+    fig2 = {}
+    for light, cases in results["fig2"].items():
+        view = dict(cases)
+        if reading != "white":
+            if f"case 1 ({reading})" in cases:
+                view["case 1"], view["case 3"] = cases[f"case 1 ({reading})"], cases[f"case 3 ({reading})"]
+            elif "fig2" not in borrowed:
+                borrowed.append("fig2")
+        fig2[light] = view
+    if reading in results["fig3"]:
+        fig3 = {"white": results["fig3"][reading]}
+    else:
+        fig3 = {"white": results["fig3"]["white"]}
+        borrowed.append("fig3")
+    if reading != "white":
+        borrowed.append("fig4")  # Fig. 4 is simulated with white noise only
+    sweep = {name: dict(entry, models={"white": entry["models"][reading], "ou": entry["models"][reading]})
+             for name, entry in results["sweep"].items()}
+    view_settings = replace(settings, models=("white", "ou"), fig3_models=("white",))
+    return view_settings, dict(results, fig2=fig2, fig3=fig3, sweep=sweep), borrowed
+
+
+def tally_by_reading(settings: Settings, results: dict[str, Any]) -> list[Tally]:
+    """The 14 findings judged once per reading (white, ou, walk) of the paper's phase noise."""
+    tallies = []
+    for reading in settings.models:
+        view_settings, view, borrowed = _reading_view(settings, results, reading)
+        tallies.append(Tally(reading, findings(view_settings, view), borrowed))
+    return tallies
