@@ -119,7 +119,9 @@ class EstimatorSection(StrictModel):
     lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
     q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
     mode: Literal["sliding", "exponential", "tumbling"] = Field("sliding", description="window mode of the engine")
-    ambient_correction: bool = Field(True, description="S2 with the measured dark level subtracted")
+    ambient_correction: bool = Field(
+        False, description="subtract the measured dark level from every frame before all estimators (off: the "
+                           "validation in docs/ambient.md shows it distorts S2; use S3 under ambient light)")
     threads: int | None = Field(None, ge=1, le=256, description="kernel threads (default: all cores)")
     area: Literal["frame", "regions"] = Field(
         "frame", description="frame: maps of the whole sensor; regions: only the bounding box of all regions "

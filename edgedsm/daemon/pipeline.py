@@ -217,7 +217,7 @@ class Pipeline:
         ratio = ambient / self.lit_level
         if ratio > AMBIENT_S2_WARNING and not self.config.estimator.ambient_correction:
             return (f"ambient light is {ratio:.0%} of the signal: plain S2 is unreliable (paper §2B); "
-                    "use S3 or estimator.ambient_correction")
+                    "use S3, which ambient light does not bias (docs/ambient.md)")
         return None
 
     def summary(self) -> str:

@@ -121,7 +121,9 @@ def test_camera_loss_switches_laser_off_and_faults(setup):
     pipeline.run(lambda: False, max_frames=600)
     assert pipeline.counters["camera_lost"] == 1 and pipeline.counters["camera_reconnects"] == 1
     moves = [(a.from_state, a.to_state) for a in publisher.alerts if a.kind == AlertKind.TRANSITION]
-    assert moves[:4] == [("warming_up", "wet"), ("wet", "fault"), ("fault", "warming_up"), ("warming_up", "wet")]
+    assert moves[:3] == [("warming_up", "wet"), ("wet", "fault"), ("fault", "warming_up")]
+    # back to a measured state (the plate has started drying by then: wet or drying)
+    assert moves[3][0] == "warming_up" and moves[3][1] in ("wet", "drying")
     # the laser went off when the camera was lost, and on again after it came back
     offs_after_start = [f for on, f in switch_offs if not on and f > 10]
     assert offs_after_start and offs_after_start[0] <= 305
