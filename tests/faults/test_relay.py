@@ -78,8 +78,6 @@ def test_relay_answering_garbage_while_on(tmp_path: Path, relay_board: RelayRig,
     assert off - broken <= NOTICE_BOUND_S
 
 
-@pytest.mark.xfail(strict=True, reason="defect: the serial relay driver never reopens its port, so a board "
-                   "plugged in again is never used: the laser stays unknown for ever")
 @pytest.mark.timeout(60)
 def test_relay_unplugged_while_on_then_plugged_in_again(tmp_path: Path, broker: Broker, plant: Plant,
                                                         daemons: Callable[[dict[str, Any]], Daemon]) -> None:
