@@ -50,6 +50,7 @@ RELAY_TIMEOUT_S = 0.3
 BOUNDS_S = {"relay garbage": RELAY_CHECK_S + RELAY_TIMEOUT_S + OFF_RETRY.initial + 1.5, "daemon SIGKILL": 15.0}
 RSS_WARMUP_S = 5.0
 WAIT_S = 30.0
+START_WAIT_S = 90.0  # a daemon's start includes compiling its kernels: slow on a loaded machine
 
 
 def _tool(name: str) -> str:
@@ -230,7 +231,7 @@ class Rig:
             "regions": {"name": "plate", "wet_above": 0.30, "dry_below": 0.16, "hysteresis": 0.05, "min_dwell_s": 1.0},
             "mqtt": {"host": "127.0.0.1", "port": self.broker.port, "keepalive_s": 5, "reconnect_min_s": 0.1,
                      "reconnect_max_s": 0.5, "stats_interval_s": 0.5, "maps_interval_s": 600.0},
-            "logging": {"level": "warning"},
+            "logging": {"level": "info"},
         }
         write_config(self.config, self.tables)
         self.daemon: subprocess.Popen[bytes] | None = None
@@ -240,11 +241,15 @@ class Rig:
         self.daemon = subprocess.Popen([sys.executable, "-m", "edgedsm", "run", "-c", str(self.config)],
                                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                        stderr=open(self.directory / "daemon.log", "ab"))  # noqa: SIM115
-        self.wait_measuring()
+        self.wait_measuring(START_WAIT_S)
 
-    def wait_measuring(self) -> None:
+    def wait_measuring(self, timeout: float = WAIT_S) -> None:
         frames = self.plant.frames()
-        _wait(lambda: self.plant.measuring(frames) and self.board.is_on, WAIT_S, "the daemon measuring")
+        try:
+            _wait(lambda: self.plant.measuring(frames) and self.board.is_on, timeout, "the daemon measuring")
+        except EdgedsmError as exc:
+            tail = (self.directory / "daemon.log").read_text(errors="replace").splitlines()[-15:]
+            raise EdgedsmError("\n".join([str(exc), "the daemon's log ends:", *tail])) from exc
 
     def sample_rss(self) -> None:
         if self.daemon is None:
