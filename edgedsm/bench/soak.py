@@ -241,6 +241,7 @@ class Rig:
         self.daemon = subprocess.Popen([sys.executable, "-m", "edgedsm", "run", "-c", str(self.config)],
                                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                        stderr=open(self.directory / "daemon.log", "ab"))  # noqa: SIM115
+        self.plant.last_stats = {}  # a new process counts its frames from 0
         self.wait_measuring(START_WAIT_S)
 
     def wait_measuring(self, timeout: float = WAIT_S) -> None:
