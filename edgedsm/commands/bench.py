@@ -5,6 +5,7 @@
   edgedsm bench devices  camera drivers: frames/s and CPU per frame
   edgedsm bench e2e      the daemon end to end at 2048²: sustained frames/s, CPU, latency, memory
   edgedsm bench ambient  ambient-light correction of S2 against the ground truth (docs/ambient.md)
+  edgedsm bench soak     faults in a loop against the daemon: alerts lost, laser-off delays, memory drift
 
 Every benchmark prints a markdown table and can write it to a file (--output).
 """
@@ -17,7 +18,7 @@ import importlib
 NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
 SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices",
-          "e2e": "edgedsm.bench.e2e", "ambient": "edgedsm.bench.ambient"}
+          "e2e": "edgedsm.bench.e2e", "ambient": "edgedsm.bench.ambient", "soak": "edgedsm.bench.soak"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -8,6 +8,7 @@ and a board that trickles garbage must not keep us waiting either.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -83,17 +84,21 @@ class SerialRelay(LaserRelay):
         self._port = port
         self.channel = channel
         self.timeout = timeout
+        self._spec: RelaySpec | None = None  # set by from_spec: how to reopen the port
+        self._port_failed = False  # the port failed (board unplugged): reopened before the next request
 
     @classmethod
     def from_spec(cls, spec: RelaySpec) -> SerialRelay:
         """Open the port named by a parsed URI and build the driver on it."""
         port = open_port(spec)
         try:
-            return cls(port, channel=spec.channel, timeout=spec.timeout, verify=spec.verify,
-                       **cls._spec_options(spec))
+            relay = cls(port, channel=spec.channel, timeout=spec.timeout, verify=spec.verify,
+                        **cls._spec_options(spec))
         except BaseException:
             port.close()
             raise
+        relay._spec = spec
+        return relay
 
     @classmethod
     def _spec_options(cls, spec: RelaySpec) -> dict[str, Any]:
@@ -102,8 +107,23 @@ class SerialRelay(LaserRelay):
 
     # -- byte-level helpers for drivers -----------------------------------------------------
 
+    def _reopen_if_failed(self) -> None:
+        """A port that failed is dead for good (a USB board unplugged): open its path again, so a
+        board plugged in again is used (raises DeviceError while it is still missing)."""
+        if not self._port_failed or self._spec is None:
+            return
+        with contextlib.suppress(*PORT_ERRORS):
+            self._port.close()
+        self._port = open_port(self._spec)
+        self._port_failed = False
+
+    def _port_lost(self, exc: BaseException) -> DeviceLost:
+        self._port_failed = True
+        return DeviceLost(f"{self.description}: port failed: {exc}")
+
     def _send(self, data: bytes) -> float:
         """Write one request; return the deadline for its answer (time.monotonic())."""
+        self._reopen_if_failed()
         try:
             # Drop stale bytes: an exchange cut short (timeout, signal) may have left an
             # answer behind that would otherwise be read as the answer to this request.
@@ -115,7 +135,7 @@ class SerialRelay(LaserRelay):
                 # write_timeout expired: the port is there but takes nothing (flow control)
                 raise DeviceTimeout(f"{self.description}: could not write within "
                                     f"{self.timeout} s ({exc})") from exc
-            raise DeviceLost(f"{self.description}: port failed: {exc}") from exc
+            raise self._port_lost(exc) from exc
         return time.monotonic() + self.timeout
 
     def _read_chunk(self, wanted: int) -> bytes:
@@ -123,7 +143,7 @@ class SerialRelay(LaserRelay):
             waiting = self._port.in_waiting
             return self._port.read(max(1, min(waiting, wanted)))
         except PORT_ERRORS as exc:
-            raise DeviceLost(f"{self.description}: port failed: {exc}") from exc
+            raise self._port_lost(exc) from exc
 
     def _no_answer(self, what: str, got: bytes) -> DeviceError:
         if not got:
