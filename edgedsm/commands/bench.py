@@ -4,6 +4,7 @@
   edgedsm bench engine   streaming estimator engine vs batch recompute, memory bandwidth bound
   edgedsm bench devices  camera drivers: frames/s and CPU per frame
   edgedsm bench e2e      the daemon end to end at 2048²: sustained frames/s, CPU, latency, memory
+  edgedsm bench accuracy what N, m, mode, estimator and smoothing cost and buy (docs/accuracy.md)
 
 Every benchmark prints a markdown table and can write it to a file (--output).
 """
@@ -16,7 +17,7 @@ import importlib
 NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
 SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices",
-          "e2e": "edgedsm.bench.e2e"}
+          "e2e": "edgedsm.bench.e2e", "accuracy": "edgedsm.bench.accuracy"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
