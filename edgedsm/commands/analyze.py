@@ -5,9 +5,19 @@ apart: S1 = mean |I_i - I_{i+m}| (grey levels), S2 = mean |I_i - I_{i+m}|/(I_i +
 (for uneven illumination), S3 = S1/σ with σ each pixel's temporal standard deviation
 (robust to ambient light). Higher values mean faster processes (more activity).
 
+With --timeline OUT_DIR it follows the activity against time instead (the paper's §3 reads
+drying this way): a sliding window of N frames is sampled every --every frames, and
+OUT_DIR/timeline.csv gets, per region and sample, the mean S1, S2, S3 and the region's τc
+(frames and seconds); OUT_DIR/timeline.png plots them and OUT_DIR/histogram.png shows the
+histogram of the S2 map (--histogram) against time. FRAMES may then also be a scene file
+(or 'default'), simulated on the fly (--frames of them). Regions come from a daemon config
+(-c), else the whole frame is one region named 'frame'.
+
 Examples:
   edgedsm analyze frames.npy --estimator s1 --window 200 --lag 10 -o s1.npy --png
   edgedsm analyze frames/ --estimator s3 --window 50 --lag 4 -o s3.npy --png s3.png
+  edgedsm analyze config/scenes/drying_demo.toml --frames 1200 --timeline out/ --window 100 --lag 2
+  edgedsm analyze recording.npy --timeline out/ -c edgedsm.toml --dt 0.05
 """
 
 from __future__ import annotations
@@ -18,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edgedsm.commands.timeline_output import add_timeline_arguments, run_timeline
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import s1, s2, s3
 from edgedsm.imageio import read_stack, save_map_png
@@ -34,13 +45,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lag", type=int, default=1, metavar="m", help="time lag in frames (default 1)")
     parser.add_argument("--q", type=float, default=0.0, help="S2 only: added to the denominator (default 0)")
     parser.add_argument("--start", type=int, default=0, help="index of the first frame used (default 0)")
-    parser.add_argument("-o", "--output", required=True, metavar="MAP.npy", help="float64 map as .npy")
+    parser.add_argument("-o", "--output", metavar="MAP.npy", help="float64 map as .npy (required without --timeline)")
     parser.add_argument("--png", nargs="?", const=True, metavar="PNG",
                         help="also write a colour-mapped picture (default: MAP.png beside the .npy)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    add_timeline_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.timeline is not None:
+        return run_timeline(args)
+    if args.output is None:
+        raise EstimatorError("give -o MAP.npy (or --timeline OUT_DIR)")
     stack = read_stack(args.frames)
     total = stack.shape[0]
     if not 0 <= args.start < total:

@@ -6,6 +6,7 @@
   edgedsm bench e2e      the daemon end to end at 2048²: sustained frames/s, CPU, latency, memory
   edgedsm bench ambient  ambient-light correction of S2 against the ground truth (docs/ambient.md)
   edgedsm bench soak     faults in a loop against the daemon: alerts lost, laser-off delays, memory drift
+  edgedsm bench accuracy what N, m, mode, estimator and smoothing cost and buy (docs/accuracy.md)
 
 Every benchmark prints a markdown table and can write it to a file (--output).
 """
@@ -18,7 +19,8 @@ import importlib
 NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
 SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices",
-          "e2e": "edgedsm.bench.e2e", "ambient": "edgedsm.bench.ambient", "soak": "edgedsm.bench.soak"}
+          "e2e": "edgedsm.bench.e2e", "ambient": "edgedsm.bench.ambient", "soak": "edgedsm.bench.soak",
+          "accuracy": "edgedsm.bench.accuracy"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

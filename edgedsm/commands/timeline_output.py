@@ -1,0 +1,143 @@
+"""`edgedsm analyze --timeline`: frames from a recording or a scene, regions from a config, and the
+CSV and pictures of :mod:`edgedsm.timeline`."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from edgedsm.errors import EstimatorError
+from edgedsm.timeline import COLUMNS, Timeline, timeline
+
+SCENE_SUFFIXES = (".toml",)
+
+
+def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("time histories (--timeline)")
+    group.add_argument("--timeline", metavar="OUT_DIR",
+                       help="write timeline.csv, timeline.png and histogram.png to OUT_DIR")
+    group.add_argument("-c", "--config", metavar="CONFIG.toml", help="take the regions from this daemon config")
+    group.add_argument("--every", type=int, metavar="FRAMES", help="frames between samples (default N/4)")
+    group.add_argument("--max-lag", type=int, default=20, metavar="K", help="lags fitted for τc (default 20)")
+    group.add_argument("--dt", type=float, metavar="SECONDS",
+                       help="frame interval (default: the scene's, the config's camera.frame_interval_s, else 1)")
+    group.add_argument("--frames", dest="frame_count", type=int, metavar="COUNT",
+                       help="frames to simulate when FRAMES is a scene (default: the scene's)")
+    group.add_argument("--histogram", choices=("s1", "s2", "s3"), default="s2",
+                       help="estimator whose map histogram is drawn against time (default s2)")
+
+
+def _frames(args: argparse.Namespace) -> tuple[Iterator[np.ndarray], int | None, float | None, int]:
+    """(frames, bits, the source's dt if it knows one, count)."""
+    source = args.frames
+    if source == "default" or Path(source).suffix.lower() in SCENE_SUFFIXES:
+        from edgedsm.commands.common import scene_argument
+        from edgedsm.sim import Simulator
+
+        scene = scene_argument(source)
+        count = args.frame_count or scene.scene.frames
+        return Simulator(scene).frames(count), scene.detector.bits if scene.detector else None, scene.scene.dt, count
+    from edgedsm.imageio import read_stack
+
+    stack = read_stack(source)[args.start:]
+    if args.frame_count is not None:
+        stack = stack[: args.frame_count]
+    return (np.asarray(frame) for frame in stack), None, None, len(stack)
+
+
+def _regions(args: argparse.Namespace, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray], float | None]:
+    if args.config is None:
+        return {"frame": np.ones(shape, bool)}, None
+    from edgedsm.config import check_regions, load_config
+
+    config = load_config(args.config)
+    check_regions(config, shape)
+    return ({region.name: region.mask(shape, config.base_dir) for region in config.regions},
+            config.camera.frame_interval_s)
+
+
+def run_timeline(args: argparse.Namespace) -> int:
+    window = args.window or 100
+    frames, bits, scene_dt, count = _frames(args)
+    first = next(frames, None)
+    if first is None:
+        raise EstimatorError(f"{args.frames}: no frames")
+    regions, config_dt = _regions(args, first.shape)
+    dt = args.dt or scene_dt or config_dt or 1.0
+
+    def all_frames() -> Iterator[np.ndarray]:
+        yield first
+        yield from frames
+
+    result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
+                      max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits)
+    out = Path(args.timeline)
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "timeline.csv", result)
+    plot_activity(out / "timeline.png", result, f"{args.frames}: N = {window}, m = {args.lag}")
+    plot_histograms(out / "histogram.png", result, f"{args.frames}: N = {window}, m = {args.lag}")
+    samples = len(result.sample_frames)
+    print(f"{samples} samples of {len(regions)} region(s) from {count} frames (Δt = {dt:g} s) -> "
+          f"{out / 'timeline.csv'}, {out / 'timeline.png'}, {out / 'histogram.png'}")
+    return 0
+
+
+def write_csv(path: Path, result: Timeline) -> None:
+    with path.open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(COLUMNS)
+        for row in result.rows:
+            writer.writerow([f"{cell:.6g}" if isinstance(cell, float) else cell for cell in row])
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    return plt
+
+
+def plot_activity(path: Path, result: Timeline, title: str) -> None:
+    plt = _pyplot()
+    names = list(dict.fromkeys(row[2] for row in result.rows))
+    columns = (("s1", "S1 (grey levels)"), ("s2", "S2"), ("s3", "S3"), ("tau_c_s", "τc (s)"))
+    fig, axes = plt.subplots(len(columns), 1, figsize=(8, 9), sharex=True)
+    for ax, (column, label) in zip(axes, columns, strict=True):
+        for name in names:
+            ax.plot(result.series(name, "time_s"), result.series(name, column), label=name)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[-1].axhline(result.max_lag * result.dt, color="grey", ls="--", lw=0.8,
+                     label=f"K·Δt = {result.max_lag * result.dt:g} s: longer τc reads as this")
+    axes[-1].legend(fontsize=8)
+    axes[-1].set_yscale("log")
+    axes[-1].set_xlabel("time (s)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Activity against time — {title}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_histograms(path: Path, result: Timeline, title: str) -> None:
+    plt = _pyplot()
+    image = result.histogram_image()
+    times = np.asarray(result.sample_frames, np.float64) * result.dt
+    edges = result.histogram_edges
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    span = (times[0], times[-1] if times[-1] > times[0] else times[0] + result.dt)
+    shown = ax.imshow(image, origin="lower", aspect="auto", cmap="magma",
+                      extent=(span[0], span[1], edges[0], edges[-1]))
+    fig.colorbar(shown, ax=ax, label="probability density")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"{result.histogram_estimator.upper()} of the pixels")
+    ax.set_title(f"Histogram of the {result.histogram_estimator.upper()} map against time — {title}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

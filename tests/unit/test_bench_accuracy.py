@@ -1,0 +1,92 @@
+"""`edgedsm bench accuracy`: its measures on known inputs, and the quick run's tables and numbers."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+from scipy import special
+
+from edgedsm.bench.accuracy import QUICK, cnr, edge_width, measure, smoothed
+from edgedsm.bench.accuracy_report import write_report
+from edgedsm.bench.report import Report
+from edgedsm.commands import bench
+
+
+def test_edge_width_of_a_gaussian_edge_is_2_56_sigma() -> None:
+    x = np.arange(64, dtype=np.float64)
+    for sigma in (1.5, 4.0):
+        row = 2.0 + 3.0 * 0.5 * (1 + special.erf((x - 30.0) / (np.sqrt(2) * sigma)))
+        noise = np.random.default_rng(0).normal(0, 0.05, (32, 64))
+        assert edge_width(row + noise) == pytest.approx(2 * 1.2816 * sigma, rel=0.05)
+
+
+def test_cnr_and_smoothing_on_known_maps() -> None:
+    rng = np.random.default_rng(1)
+    values = rng.normal(0.0, 1.0, (64, 64))
+    values[:, :32] += 2.0
+    left, right = np.zeros((64, 64), bool), np.zeros((64, 64), bool)
+    left[:, :22], right[:, 42:] = True, True
+    assert cnr(values, left, right) == pytest.approx(2.0, abs=0.15)
+    assert smoothed(values, "box", 1) is values
+    # a 5 x 5 box averages 25 independent values: the noise falls 5x, the CNR rises ~5x
+    assert cnr(smoothed(values, "box", 5), left, right) == pytest.approx(10.0, rel=0.2)
+
+
+def test_bench_lists_the_accuracy_suite() -> None:
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    args = parser.parse_args(["accuracy", "--quick"])
+    assert args.quick and args.output is None
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory: pytest.TempPathFactory):
+    results = measure(QUICK)
+    folder = tmp_path_factory.mktemp("accuracy")
+    report = Report("Accuracy against time", echo=lambda _line: None)
+    write_report(report, results, None, "edgedsm bench accuracy --quick", folder / "accuracy")
+    path = report.save(folder / "accuracy.md")
+    return results, path
+
+
+@pytest.mark.slow
+def test_quick_run_tables_and_figures(quick) -> None:
+    results, path = quick
+    text = path.read_text()
+    assert len(results.contrast_n) == 2 * 4 * len(QUICK.windows)
+    assert len(results.contrast_m) == 2 * 3 * len(QUICK.lags)
+    assert len(results.delays) == (4 + 4 + 3) * len(QUICK.step_windows)  # no τc in exponential mode
+    assert len(results.smoothing) == 2 * len(QUICK.kernels)
+    for heading in ("## 1.", "## 2.", "## 3.", "## 4.", "## How to choose"):
+        assert heading in text
+    for name in ("contrast-vs-window", "contrast-vs-lag", "step-response", "smoothing"):
+        figure = path.parent / "accuracy" / f"{name}.png"
+        assert figure.stat().st_size > 10_000
+        assert f"(accuracy/{name}.png)" in text
+    assert all(ms > 0 for ms in results.cost.values())
+
+
+@pytest.mark.slow
+def test_quick_run_numbers(quick) -> None:
+    results, _ = quick
+    beta = {(noise, name, n): b for noise, name, n, b, _ in results.contrast_n}
+    small, large = min(QUICK.windows), max(QUICK.windows)
+    # S3's contrast grows with N (σ of a slow pixel is underestimated in a short window) ...
+    assert beta["clean", "s3", large] > beta["clean", "s3", small] + 0.1
+    # ... while S1's does not move much
+    s1 = [beta["clean", "s1", n] for n in QUICK.windows]
+    assert max(s1) - min(s1) < 0.08
+    assert beta["clean", "s1", large] > beta["noisy", "s1", large] + 0.1  # noise costs contrast
+    delays = {(mode, n, name): (d50, d90) for mode, n, name, d50, d90 in results.delays}
+    for n in QUICK.step_windows:
+        assert delays["tumbling", n, "s3"][0] == n  # the first whole block after the step
+        assert delays["sliding", n, "s1"][0] < n  # half the window is enough for half the way
+    levels = {(mode, n, name): after for mode, n, name, _, after in results.levels}
+    s3 = [levels["sliding", n, "s3"] for n in QUICK.step_windows]
+    assert s3[0] > s3[1] > s3[2]  # S3's level after the step is not portable across N
+    s1_levels = [levels["sliding", n, "s1"] for n in QUICK.step_windows]
+    assert max(s1_levels) / min(s1_levels) < 1.1
+    widths = {(kind, k): w for kind, k, _, _, w, _ in results.smoothing}
+    assert widths["box", 9] > widths["box", 1] + 3  # smoothing costs resolution

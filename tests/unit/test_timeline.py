@@ -1,0 +1,87 @@
+"""`edgedsm analyze --timeline`: activity against time from a small simulated drying scene."""
+
+from __future__ import annotations
+
+import csv
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edgedsm.cli import main
+from edgedsm.errors import EstimatorError
+from edgedsm.timeline import timeline
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def small_drying_scene(folder: Path) -> Path:
+    """config/scenes/drying_demo.toml at 32² with the drying moved to frames 100…400."""
+    data = tomllib.loads((ROOT / "config/scenes/drying_demo.toml").read_text())
+    data["scene"]["size"] = 32
+    data["activity"]["drying"].update(start=100, duration=300)
+    lines = []
+    for section, table in data.items():
+        scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        lines.append(f"[{section}]")
+        lines += [f"{k} = {v!r}".replace("'", '"') for k, v in scalars.items()]
+        for name, sub in table.items():
+            if isinstance(sub, dict):
+                lines.append(f"[{section}.{name}]")
+                lines += [f"{k} = {v!r}".replace("'", '"') for k, v in sub.items()]
+    path = folder / "drying_small.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def read_rows(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_timeline_of_a_drying_scene_falls(tmp_path: Path) -> None:
+    scene = small_drying_scene(tmp_path)
+    out = tmp_path / "out"
+    assert main(["analyze", str(scene), "--frames", "480", "--timeline", str(out), "--window", "50",
+                 "--lag", "2", "--every", "10"]) == 0
+    rows = read_rows(out / "timeline.csv")
+    assert [row["region"] for row in rows] == ["frame"] * 44  # frames 49, 59, ..., 479
+    assert rows[0]["frame"] == "49" and float(rows[0]["time_s"]) == pytest.approx(49 * 0.05)
+    early, late = rows[:4], rows[-4:]  # before the drying starts / after it ended (τc 3 -> 300)
+    for column in ("s1", "s2"):
+        before = np.mean([float(r[column]) for r in early])
+        after = np.mean([float(r[column]) for r in late])
+        assert after < 0.5 * before, column
+    assert float(early[0]["tau_c_frames"]) == pytest.approx(3.0, rel=0.25)  # the scene's τc before drying
+    assert early[0]["tau_c_status"] == "measured" and late[-1]["tau_c_status"] == "above"
+    assert float(late[-1]["tau_c_s"]) == pytest.approx(20 * 0.05)  # K·Δt: a lower bound
+    for picture in ("timeline.png", "histogram.png"):
+        assert (out / picture).stat().st_size > 10_000
+
+
+def test_timeline_regions_from_a_config(tmp_path: Path) -> None:
+    frames = np.random.default_rng(0).integers(0, 256, (40, 24, 24), dtype=np.uint8)
+    frames[:, :, 12:] //= 8  # the right half is much quieter
+    np.save(tmp_path / "frames.npy", frames)
+    config = tmp_path / "edgedsm.toml"
+    region = '[[regions]]\nname = "{}"\nshape = "rect"\nx = {}\ny = 0\nwidth = 12\nheight = 24\n' \
+             'wet_above = 0.3\ndry_below = 0.1\n\n'
+    config.write_text('[camera]\nuri = "sim:default"\nframe_interval_s = 0.1\n\n'
+                      + region.format("left", 0) + region.format("right", 12))
+    out = tmp_path / "out"
+    assert main(["analyze", str(tmp_path / "frames.npy"), "--timeline", str(out), "-c", str(config),
+                 "--window", "20", "--lag", "1", "--every", "5", "--max-lag", "5"]) == 0
+    rows = read_rows(out / "timeline.csv")
+    assert {row["region"] for row in rows} == {"left", "right"}
+    assert len(rows) == 2 * 5  # samples at frames 19, 24, 29, 34, 39
+    assert float(rows[-1]["time_s"]) == pytest.approx(3.9)  # Δt from the config's camera
+    left = [float(r["s1"]) for r in rows if r["region"] == "left"]
+    right = [float(r["s1"]) for r in rows if r["region"] == "right"]
+    assert min(left) > 5 * max(right)
+
+
+def test_timeline_refuses_too_few_frames() -> None:
+    frames = [np.zeros((8, 8), np.uint8) + i for i in range(5)]
+    with pytest.raises(EstimatorError, match="5 frames do not fill one window of N = 10"):
+        timeline(frames, {"frame": np.ones((8, 8), bool)}, window=10, lag=1, every=1, max_lag=5)
