@@ -97,7 +97,7 @@ def base_config(tmp_path: Path, *, device: str = "e2e", camera: str = SIM_CAMERA
         "camera": {"uri": camera},
         "acquisition": {"dark_frames": 5 if laser else 0, "dark_every_min": 0},
         "estimator": {"activity": "s2", "window": 100, "lag": 5, "q": 1.0},
-        "regions": [{"name": region, "wet_above": 0.30, "dry_below": 0.16, "hysteresis": 0.05,
+        "regions": [{"name": region, "wet_above": 0.24, "dry_below": 0.10, "hysteresis": 0.05,
                      "min_dwell_s": 1.0}],
         "logging": {"level": "info"},
     }
@@ -316,7 +316,7 @@ def test_drying_states_and_alerts_exactly_once_across_broker_and_daemon_restarts
     assert all(raw == by_key[(raw["stream"], raw["seq"])] for raw in scada.alerts(topics))
     # the thresholds were really crossed: S2 activity falls through the cycle
     activities = [a["activity"] for a in alerts[:3]]
-    assert activities[0] >= 0.30 and 0.16 < activities[1] < 0.30 * 0.95 and activities[2] <= 0.16 * 0.95
+    assert activities[0] >= 0.24 and 0.10 < activities[1] < 0.24 * 0.95 and activities[2] <= 0.10 * 0.95
 
     # States in order: the second daemon's live states went through the whole cycle; the first
     # one's never went backwards (some were published while the broker was down).

@@ -92,12 +92,12 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
     broker = Broker(tmp / "broker").start()
     (tmp / "wet.toml").write_text(STILL_WET_SCENE)
     drying = _config(tmp, "plate-a", f"sim:{DRYING_SCENE}?time_scale=0.2", broker.port,
-                     [{"name": "plate", "wet_above": 0.30, "dry_below": 0.16, "hysteresis": 0.05, "min_dwell_s": 1.0}])
+                     [{"name": "plate", "wet_above": 0.24, "dry_below": 0.10, "hysteresis": 0.05, "min_dwell_s": 1.0}])
     wet = _config(tmp, "plate-b", f"sim:{tmp / 'wet.toml'}?time_scale=0.5", broker.port,
-                  [{"name": "left", "shape": "rect", "x": 8, "y": 8, "width": 48, "height": 110, "wet_above": 0.30,
-                    "dry_below": 0.16, "min_dwell_s": 1.0},
-                   {"name": "spot", "shape": "circle", "cx": 92, "cy": 64, "radius": 26, "wet_above": 0.30,
-                    "dry_below": 0.16, "min_dwell_s": 1.0}])
+                  [{"name": "left", "shape": "rect", "x": 8, "y": 8, "width": 48, "height": 110, "wet_above": 0.24,
+                    "dry_below": 0.10, "min_dwell_s": 1.0},
+                   {"name": "spot", "shape": "circle", "cx": 92, "cy": 64, "radius": 26, "wet_above": 0.24,
+                    "dry_below": 0.10, "min_dwell_s": 1.0}])
     database = tmp / "history.sqlite3"
     dashboard = DashboardProcess(["--broker", f"127.0.0.1:{broker.port}", "--listen", "127.0.0.1:0",
                                   "--database", str(database), "-c", str(drying), "-c", str(wet)],
@@ -286,7 +286,7 @@ def test_the_history_plot_has_the_points_the_database_has(plant: Plant) -> None:
     # every transition reached the database (the first may be warming_up -> drying on a loaded machine)
     assert [to for (to,) in transitions] == [a["to"] for a in page_alerts if a["type"] == "transition"]
     assert transitions[-1] == ("dry",)
-    assert plant.js("return window.edgedsmDashboard.thresholds()") == {"wet_above": 0.30, "dry_below": 0.16}
+    assert plant.js("return window.edgedsmDashboard.thresholds()") == {"wet_above": 0.24, "dry_below": 0.10}
     csv_text = plant.get(f"/api/history?device=plate-a&region=plate&from={time.time() - 3600}&format=csv").decode()
     assert len(csv_text.strip().splitlines()) == len(rows) + 1
     _no_errors(plant)
