@@ -1,106 +1,16 @@
-"""Streaming estimator engine: S1, S2, S3 (paper Eq. 1-4) at O(1) cost per pixel per frame.
+"""Streaming estimator engine: S1, S2, S3 (paper Eq. 1-4) and τc at O(1) cost per pixel per frame.
 
 :class:`SlidingWindow` takes frames one at a time (``push``) and returns the activity maps of
 its window on demand (``maps``). Intensities are grey levels (integers, ``bits`` per pixel);
-S1 is in grey levels, S2 and S3 are dimensionless; the window N and the lag m are in frames.
+S1 is in grey levels, S2 and S3 are dimensionless, τc is in frames; the window N and the lag m
+are in frames.
 
-Modes
------
-``sliding`` (exact)
-    The window is the last N frames i-N+1..i; its N-m pairs are (j, j+m). Each push adds the
-    pair (i-m, i) and the frame i, and removes the pair (i-N, i-N+m) and the frame i-N.
-    ``maps()`` equals the batch reference on the last N frames (``s1``, ``s2``, ``s3`` of
-    :mod:`edgedsm.estimators.batch`) within the bounds below. The ring holds N frames, not
-    N+1: the slot of frame i-N is read and overwritten by frame i in the same pass.
-``tumbling`` (exact, the paper's §3 sets of N = 200 frames)
-    Frames are cut into consecutive blocks [kN, (k+1)N); ``maps()`` returns the maps of the
-    last *completed* block, equal to the batch reference on that block. Pairs never straddle
-    two blocks. Only the last m frames are kept (in a ring of m+1 slots).
-``exponential`` (memory of m frames only)
-    Every average is exponentially weighted, weight λ^k for the k-th newest term,
-    λ = 1 - 1/N (so Σλ^k → N: ``window`` is the equivalent window length)::
-
-        S1 = Σ_k λ^k |I_{i-k} - I_{i-k-m}| / Σ_k λ^k          over all pairs seen
-        S2 = Σ_k λ^k |ΔI| / (I_{i-k} + I_{i-k-m} + q) / Σ_k λ^k
-        σ² = Σ_k λ^k (I_{i-k} - Ī)² / Σ_k λ^k,  Ī = Σ_k λ^k I_{i-k} / Σ_k λ^k  over all frames
-        S3 = S1 / σ
-
-    kept in float64 with normalised (bias-free) updates, so the very first maps are already
-    proper weighted means. This is a different estimator from the window of Eq. 1-4 (older
-    pairs fade instead of leaving); its error against its own definition is rounding only.
-
-``ready`` is true once N frames were pushed, in every mode; ``maps()`` refuses before.
-
-Memory per pixel (b = 1 byte for <= 8-bit data, 2 above; each integer sum takes 4 bytes
-while its largest possible value fits in int32, else 8; all three maps requested; the
-example is 8-bit data, N = 200, m = 10, see :attr:`SlidingWindow.bytes_per_pixel`)::
-
-    sliding      N·b ring + Σ|ΔI|, ΣI, ΣI² (4 or 8 B each) + ΣS2 (8 B)   200 + 4+4+4 + 8 = 220 B
-    tumbling     (m+1)·b ring + 2 x the sums (block in progress, last)   11 + 2·20      =  51 B
-    exponential  m·b ring + 4 float64 (S1, S2, mean, M2)                 10 + 32        =  42 B
-
-Exactness and bounds (u = 2^-53, the unit roundoff of float64)
---------------------------------------------------------------
-- S1 and σ (Eq. 1, 4), sliding and tumbling: Σ|I_i - I_{i+m}|, ΣI and ΣI² are integer
-  sums, exact for ever (what is added for a pair or frame is subtracted when it leaves). N²σ² = N·ΣI² - (ΣI)² is formed
-  exactly in int64 as N·Σ(I-k)² - r², k = round(ΣI/N), r = ΣI - kN (the identity holds for
-  any integer k; this one keeps Σ(I-k)² = ΣI² - k(ΣI + r) and r² small: no cancellation, no
-  overflow while N·Σ(I-k)² < 2^63: for 16-bit data up to N = 92 000 frames, for 8-bit data
-  up to N = 2.4e7; beyond, the same difference is taken in float64, relative error
-  <= 2^-51 since r² <= (N/2 + 1)²). S1 is the
-  correctly rounded quotient; S1, σ and S3 are bit-identical to the batch reference.
-- S2 (Eq. 2), sliding and tumbling: each term |a-b|/(a+b+q) enters an int64 sum as a fixed-point integer T with
-  scale 2^K (:func:`ratio_scale_bits`; N-m terms stay below 2^63). Adding and removing use
-  the same T, so the sum is an exact integer and never drifts. How T is formed
-  (:func:`ratio_kind`):
-
-  * ``exact`` (<= 8-bit data, integer q; K = min(51, 63 - bit_length(N-m))): T is |a-b|·2^K
-    / (a+b+q) rounded half up, *exactly*: the float64 estimate fl(fl(|a-b|/d)·2^K) is within
-    2^(K-53) <= 1/4 of the true value, so its rounding is off by at most one, and one
-    integer test of the remainder, 0 <= 2(|a-b|·2^K - T·d) + d < 2d, corrects it. Branch-
-    free and vectorised, and equal entry by entry to the table below (tested).
-  * ``lut`` (<= 8-bit data, fractional q; K = min(62, 63 - bit_length(N-m))): a 256 x 256
-    table of the same exactly rounded values, computed once with rational arithmetic (a
-    float q is an exact binary fraction). Exact too, but a gather per term: ~2x slower.
-  * ``float`` (9 to 16-bit data): T = ⌊fl(|a-b| / fl(a+b+q))·2^K + 0.5⌋ with
-    |T·2^-K - term| <= 2^-K + 2u·term, K = min(62, 63 - bit_length(N-m)).
-
-  With the final conversion to float64 (two roundings, S2 <= 1 because |a-b| <= a+b+q)
-  this gives the absolute bound :func:`s2_error_bound`::
-
-      |S2_stream - S2_exact| <= 2^-(K+1) + 2^-51   (exact, lut: every term exactly rounded)
-      |S2_stream - S2_exact| <= 2^-K + 2^-50       (float)
-
-  That is below 7e-16 for N = 200, m = 10 (K = 51, 8-bit, q = 0): closer to the exact value
-  than the float64 batch sum itself, whose own error is up to ~(N-m)·u. Because nothing
-  drifts, resynchronising from the ring (:meth:`SlidingWindow.resync`, ``resync_every``)
-  reproduces the running sums bit for bit; it is offered as a guard against corrupted
-  memory in month-long runs.
-- Exponential mode (float64, against the definition above with λ = 1 - 1/N exactly): each
-  update of a mean y += w·(x - y) makes an error <= 3u·M (M: full scale, 2^bits - 1 for S1
-  and the mean, 1 for S2) and older errors are damped by 1 - w <= λ per frame; rounding λ
-  and the weights shifts the result by a similar amount. Hence, however long the stream::
-
-      |ΔS1| <= 8·N·u·(2^bits - 1),  |ΔS2| <= 8·N·u,  |Δσ²| <= 16·N·u·(2^bits - 1)²
-
-  (4.5e-11 grey levels for S1 with N = 200 at 8 bits); S3 = S1/σ follows. Tested on random
-  and million-frame adversarial streams against a 40-digit reference.
-
-τc (``"tau_c"``, sliding and tumbling; exponential mode refuses it: its bias model is that of
-a finite window). Per pixel the K lag products Σ I_t·I_{t+k} (k = 1..K, ``max_lag``, default
-min(2m, N-2)) are exact integer sums like the others, next to ΣI and ΣI² (see
-:mod:`edgedsm.estimators.tau_stream` for their bounds); a push costs O(K) per pixel. ``maps()``
-then forms the same covariances and runs the same fit as :func:`edgedsm.estimators.tau_c`
-on the window, so ``maps()["tau_c"]`` equals the batch reference (bit for bit: same integers,
-same float64 steps); :meth:`SlidingWindow.tau_c_bounds` adds the status map and
-:meth:`SlidingWindow.region_tau_c` gives a region's value from its pooled correlations.
-The lag products of TAU_BATCH (8) frames are added (and, sliding, removed) in one pass over
-the K sums, which then move once per 8 frames instead of every frame: tumbling keeps K + 8
-frames in its ring; sliding (when N >= K + 8) keeps the last 8 frames that left the ring in a
-small buffer, and brings the sums up to date before any τc result is formed, so results never
-depend on where a batch stands. Memory: K·4 bytes per pixel (8-bit data, N <= 33 026; else
-K·8) plus 8 bytes of buffer (sliding); tumbling twice the sums plus the block's edge sums
-(2·K·8 bytes) and K + 8 ring frames.
+Modes: ``sliding`` (exact: the last N frames), ``tumbling`` (exact: the last completed block of
+N frames, the paper's §3 sets) and ``exponential`` (weights λ^k, λ = 1 - 1/N, memory of m
+frames). S1 and σ are exact integer sums, bit-identical to the batch reference for ever; S2 is
+an exact sum of fixed-point terms with a stated bound (:mod:`edgedsm.estimators.fixed_point`);
+τc uses exact integer lag products (:mod:`edgedsm.estimators.tau_stream`). Modes, memory per
+pixel, every bound and its proof: ``docs/engine.md``.
 
 Degenerate cases are those of the batch reference: a pair with a+b+q = 0 contributes 0 to
 S2; S3 = 0 where σ = 0 (constant or saturated pixel). Maps never contain NaN or inf.
@@ -113,11 +23,9 @@ engine untouched.
 
 from __future__ import annotations
 
-import functools
 import importlib
 import math
 from collections.abc import Iterable
-from fractions import Fraction
 from types import ModuleType
 from typing import Any, Literal
 
@@ -126,7 +34,11 @@ import numpy as np
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import TauC, _check_mask
+from edgedsm.estimators.fixed_point import _NO_LUT, ratio_kind, ratio_lut, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.snapshot import EngineSnapshot
+
+__all__ = ["KERNELS", "MODES", "PARALLEL_MIN_PIXELS", "SlidingWindow", "ratio_kind", "ratio_lut",
+           "ratio_scale_bits", "s2_error_bound"]
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
@@ -139,62 +51,6 @@ _MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 _INT32_MAX = 2**31 - 1
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
 TAU_BATCH = 8  # tumbling τc: frames whose lag products are added in one pass over the sums
-
-
-_EXACT_MAX_Q = 2**40  # integer q up to this keeps a+b+q and T·(a+b+q) exact in the kernels
-
-
-def ratio_kind(bits: int, q: float) -> str:
-    """How S2 terms are formed: "exact", "lut" or "float" (see the module docstring)."""
-    if bits > 8:
-        return "float"
-    return "exact" if float(q).is_integer() and q <= _EXACT_MAX_Q else "lut"
-
-
-def ratio_scale_bits(pairs: int, kind: str = "lut") -> int:
-    """K of the S2 fixed point: the largest with pairs·2^K <= 2^63 - 1, and K <= 51 for the
-    "exact" terms (their float64 estimate must be within 1/4 of the true value)."""
-    if pairs < 1:
-        raise EstimatorError(f"need at least one pair, got {pairs}")
-    k = min(62, 63 - int(pairs).bit_length())
-    return min(k, 51) if kind == "exact" else k
-
-
-def s2_error_bound(pairs: int, bits: int, q: float = 0.0) -> float:
-    """Absolute bound on |S2_stream - S2_exact| for N - m = ``pairs`` (see module docstring)."""
-    kind = ratio_kind(bits, q)
-    k = ratio_scale_bits(pairs, kind)
-    if kind == "float":
-        return 2.0**-k + 2.0**-50
-    return 2.0 ** -(k + 1) + 2.0**-51
-
-
-@functools.lru_cache(maxsize=16)
-def ratio_lut(q: float, scale_bits: int) -> np.ndarray:
-    """Eq. 2 terms for 8-bit data in fixed point: entry (a << 8) | b = round(|a-b|/(a+b+q)·2^K).
-
-    Computed with exact rational arithmetic (a float q is an exact binary fraction), rounded
-    half up, so every entry is within 2^-(K+1) of the true term; 0 where a + b + q = 0.
-    Read-only int64 array of 65536 entries (512 KiB), cached per (q, K).
-    """
-    q_exact = Fraction(q)
-    q_num, q_den = q_exact.numerator, q_exact.denominator
-    one = 1 << scale_bits
-    table = np.zeros(256 * 256, np.int64)
-    for a in range(256):
-        for b in range(a, 256):
-            # term·2^K = (b-a)·2^K·q_den / ((a+b)·q_den + q_num); round half up exactly
-            numerator = (b - a) * one * q_den
-            denominator = (a + b) * q_den + q_num
-            value = (2 * numerator + denominator) // (2 * denominator) if denominator else 0
-            table[(a << 8) | b] = value
-            table[(b << 8) | a] = value
-    table.setflags(write=False)
-    return table
-
-
-_NO_LUT = np.zeros(0, np.int64)
-_NO_LUT.setflags(write=False)
 
 
 def _load_kernels(kernel: str) -> ModuleType:
