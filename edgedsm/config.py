@@ -22,8 +22,8 @@ from edgedsm import geometry
 from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_camera_spec
 from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.drying import Thresholds
-from edgedsm.estimators.correlation_time import TAU_FLOOR
 from edgedsm.errors import ConfigError
+from edgedsm.estimators.correlation_time import TAU_FLOOR
 from edgedsm.publish.settings import DEFAULT_DEVICE, TOPIC_PREFIX_PATTERN, MqttSettings
 from edgedsm.publish.sparkplug.settings import SparkplugSettings
 from edgedsm.validation import StrictModel, read_toml, validate
