@@ -55,7 +55,7 @@ function regionStates(device) {
     out[name] = {
       state: newer || !out[name] ? region.state : out[name].state,
       activity: out[name] && out[name].activity !== undefined ? out[name].activity : region.activity,
-      time_to_dry_s: region.time_to_dry_s, since: region.since, estimator: region.estimator,
+      time_to_dry_s: region.time_to_dry_s, since: region.since,
     };
   }
   return out;
@@ -117,7 +117,7 @@ function renderDetail() {
       el("td", {}, name),
       el("td", {}, el("span", { class: `badge ${stateClass(value.state)}` }, value.state)),
       // judged on τc: the activity is the region's correlation time, in seconds
-      el("td", {}, fmt(value.activity) + (value.estimator === "tau_c" || stats.estimator === "tau_c" ? " s (τc)" : "")),
+      el("td", {}, fmt(value.activity) + (stats.estimator === "tau_c" ? " s (τc)" : "")),
       el("td", {}, duration(value.time_to_dry_s)),
       el("td", {}, clock(value.since))));
   $("regions").tBodies[0].replaceChildren(...rows);
