@@ -45,13 +45,15 @@ def test_states_judged_on_tau_seconds_and_tau_published(repo):
     sink, pipeline = _run(config, repo, 1300)
     assert pipeline.counters["dropped_queue"] == 0
     moves = [(a.from_state, a.to_state) for a in sink.alerts]
-    assert moves == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")]
+    assert moves == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")], sink.alerts
     assert "τc" in sink.alerts[1].reason and sink.alerts[1].activity > 0.2  # left wet above wet_below_s
     ready = [s for s in sink.stats if s.ready]
     assert ready and all(s.frame_interval_s == pytest.approx(DT) for s in ready)  # from the frames' timestamps
-    first = ready[0].tau_c["plate"]
+    before_drying = [s for s in ready if s.frames <= 200]  # the scene dries from frame 200 on
+    assert before_drying, [s.frames for s in ready]
+    first = before_drying[0].tau_c["plate"]
     # the scene starts at τc = 3 Δt = 0.15 s (docs/tau_c.md: the region fit is within 10 % at N = 33 τc)
-    assert first.status == "measured" and first.tau_c_s == pytest.approx(0.15, rel=0.1)
+    assert first.status == "measured" and first.tau_c_s == pytest.approx(0.15, rel=0.1), before_drying[0]
     last = ready[-1].tau_c["plate"]
     assert last.status == "above" and last.tau_c_s == pytest.approx(20 * DT)  # τc = 300 Δt > K·Δt: the bound
     assert all(math.isfinite(s.tau_c["plate"].tau_c_s) for s in ready)
