@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers_daemon import DRYING_SCENE, Daemon, base_config, last_stats, write_config
 from helpers_mqtt import Broker, Subscriber, wait_until
-from test_daemon_e2e import DRYING_SCENE, Daemon, base_config, daemons, last_stats, write_config  # noqa: F401
 
 from edgedsm.publish import Topics, decode_map
 from edgedsm.sim import load_scene, simulate
@@ -23,7 +23,7 @@ pytestmark = pytest.mark.integration
 @pytest.mark.timeout(90)
 def test_the_daemon_publishes_region_tau_in_seconds_and_its_map(
         tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
-        daemons: Callable[..., Daemon]) -> None:  # noqa: F811 (the fixture imported above)
+        daemons: Callable[..., Daemon]) -> None:
     scene = load_scene(DRYING_SCENE)
     scene.scene.size = 64
     total = 200  # the plate starts drying at frame 200: τc = 3 Δt = 0.15 s throughout
