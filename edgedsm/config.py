@@ -133,8 +133,11 @@ class EstimatorSection(StrictModel):
     max_lag: int | None = Field(None, ge=1, le=99_998,
                                 description="K: lags 1..K in frames that τc is fitted over (default min(2·lag, "
                                             "window-2)); τc is measured up to K·Δt, above it reported as '> K·Δt'")
-    tau_c_map: bool = Field(True, description="publish the per-pixel τc map (seconds) with the other maps; its fit "
-                                              "costs about 5 µs per pixel on the evaluator thread, per map")
+    tau_c_map: bool = Field(True, description="publish the τc map (seconds) with the other maps")
+    tau_c_map_block: int | None = Field(
+        None, ge=1, le=256, description="side b of the b×b pixel blocks the τc map is fitted over, pooled as a "
+                                        "region (1: per pixel, ~6 µs each on the evaluator thread per map); "
+                                        "default: the smallest b that keeps the map at 65,536 fits (2048²: 8)")
     ambient_correction: bool = Field(
         False, description="subtract the measured dark level from every frame before all estimators (off: the "
                            "validation in docs/ambient.md shows it distorts S2; use S3 under ambient light)")

@@ -33,11 +33,12 @@ import numpy as np
 from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.tau import TauRegions, engine_estimators
+from edgedsm.daemon.tau import TauRegions, engine_estimators, map_block
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, maps_from
+from edgedsm.estimators.tau_pooled import pooled_covariances
 from edgedsm.frames import Frame
 from edgedsm.messages import (
     Alert,
@@ -178,8 +179,11 @@ class Evaluation:
             for values in maps_from(snapshot).values():
                 RegionBox.of(np.ones_like(mask)).stats(values)
                 RegionBox.of(mask).stats(values)
-        if self.tau.on:
-            engine.tau_snapshot()
+        if self.tau.on:  # the pooled-covariance kernels of the regions and the block map
+            tau = engine.tau_snapshot()
+            self.tau.map_seconds(tau, 1.0, block=2)
+            pooled_covariances(tau.window, tau.total, tau.total_sq, tau.products, tau.edges, tau.ends,
+                               np.flatnonzero(mask))
 
     # -- pipeline thread --------------------------------------------------------------------------
     def prepare(self, frame: Frame) -> None:
@@ -379,11 +383,12 @@ class Evaluation:
                                                extra={"estimator": name, "frames": status.frames, **origin}))
             if snapshot.tau is not None and interval_s is not None and est.tau_c_map:
                 self.counters["maps_published"] += 1
-                seconds = self.tau.map_seconds(snapshot.tau, interval_s)
+                block = map_block(snapshot.tau.shape, est.tau_c_map_block)
+                seconds = self.tau.map_seconds(snapshot.tau, interval_s, block)
                 self.sink.publish_map(MapFrame("tau_c", seconds, seq=status.frames, t=t, window=est.window, lag=est.lag,
                                                extra={"estimator": "tau_c", "unit": "s", "frames": status.frames,
                                                       "max_lag": est.lags, "frame_interval_s": interval_s,
-                                                      **origin}))
+                                                      "block": block, **origin}))
         if self.probes.evaluated is not None:
             self.probes.evaluated(stats, time.perf_counter() - started)
 

@@ -23,6 +23,7 @@ count twice), and only when those say nothing, 1/fps.
 from __future__ import annotations
 
 import itertools
+import math
 from collections import deque
 
 import numpy as np
@@ -30,8 +31,9 @@ import numpy as np
 from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
-from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL
+from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL, fit_correlations, normalise
 from edgedsm.estimators.snapshot import TauSnapshot, tau_covariances
+from edgedsm.estimators.tau_pooled import block_covariances, pooled_covariances
 from edgedsm.estimators.tau_stream import tau_map, tau_region
 from edgedsm.frames import Frame
 from edgedsm.messages import RegionTau, TauStatus
@@ -41,6 +43,16 @@ STATUS_NAMES: dict[int, TauStatus] = {MEASURED: "measured", ABOVE: "above", BELO
                                       NO_SIGNAL: "no_signal"}
 #: Frame timestamps the interval is the median step of.
 INTERVAL_FRAMES = 64
+#: The automatic τc map block keeps the map at about this many fitted values (~5 µs each).
+MAP_FITS = 1 << 16
+
+
+def map_block(shape: tuple[int, int], configured: int | None) -> int:
+    """Side b of the b×b blocks the τc map is pooled over: ``estimator.tau_c_map_block``, or the
+    smallest b that keeps the map at MAP_FITS values or fewer (2048²: 8, 512²: 2, 256²: 1)."""
+    if configured is not None:
+        return configured
+    return max(1, math.ceil(math.sqrt(shape[0] * shape[1] / MAP_FITS)))
 
 
 def engine_estimators(config: DaemonConfig) -> tuple[str, ...]:
@@ -111,14 +123,27 @@ class TauRegions:
         for name, pixels in self.pixels.items():
             if names is not None and name not in names:
                 continue
-            cov, var = tau_covariances(snapshot, pixels)
-            fit = tau_region(snapshot.window, cov, var)
+            cov, var = pooled_covariances(snapshot.window, snapshot.total, snapshot.total_sq, snapshot.products,
+                                          snapshot.edges, snapshot.ends, pixels)
+            fit = tau_region(snapshot.window, cov[:, None], np.array([var]))
             out[name] = RegionTau(tau_c_s=float(fit.tau) * interval_s, status=STATUS_NAMES[int(fit.status)])
             self.status[name] = out[name].status
         return out
 
     @staticmethod
-    def map_seconds(snapshot: TauSnapshot, interval_s: float) -> np.ndarray:
-        """The per-pixel τc map in seconds (bounds where the status says so; 0 without signal)."""
-        cov, var = tau_covariances(snapshot)
-        return np.asarray(tau_map(snapshot.window, snapshot.shape, cov, var).tau) * interval_s
+    def map_seconds(snapshot: TauSnapshot, interval_s: float, block: int = 1) -> np.ndarray:
+        """The τc map in seconds, in the snapshot's shape (bounds where the status says so; 0
+        without signal). ``block`` 1: per pixel (median-unbiased, ~6 µs per pixel); b > 1: one
+        value per b×b block from its pooled correlations, as a region's, repeated over the
+        block's pixels (b² times fewer fits, and the pooled value's smaller bias)."""
+        if block == 1:
+            cov, var = tau_covariances(snapshot)
+            return np.asarray(tau_map(snapshot.window, snapshot.shape, cov, var).tau) * interval_s
+        cov, var = block_covariances(snapshot.window, snapshot.shape, block, snapshot.total, snapshot.total_sq,
+                                     snapshot.products, snapshot.edges, snapshot.ends)
+        lags, rows, cols = cov.shape
+        corr, valid = normalise(cov.reshape(lags, -1), var.reshape(-1))
+        tau, _, _ = fit_correlations(corr, snapshot.window)
+        tau = np.where(valid, tau, 0.0).reshape(rows, cols)  # NO_SIGNAL: 0, as fit_map
+        full = np.repeat(np.repeat(tau, block, axis=0), block, axis=1)[:snapshot.shape[0], :snapshot.shape[1]]
+        return np.ascontiguousarray(full) * interval_s
