@@ -166,8 +166,10 @@ class Evaluation:
         plans = {name: RegionPlan.of(RegionBox.of(region), (side, side))
                  for name, region in (("all", np.ones_like(mask)), ("inner", mask))}
         maps_from(engine.snapshot())
-        region_moments(engine.snapshot(live=True), plans, ESTIMATORS)
-        region_moments(engine.snapshot([est.activity], live=True), plans, [est.activity], spread=False)
+        for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
+            region_moments(engine.snapshot(live=True), plans, ESTIMATORS, parallel=parallel)
+            region_moments(engine.snapshot([est.activity], live=True), plans, [est.activity], spread=False,
+                           parallel=parallel)
 
     # -- pipeline thread --------------------------------------------------------------------------
     def prepare(self, frame: Frame) -> None:
