@@ -23,6 +23,7 @@ from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_cam
 from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.drying import Thresholds
 from edgedsm.errors import ConfigError
+from edgedsm.estimators.correlation_time import TAU_FLOOR
 from edgedsm.publish.settings import DEFAULT_DEVICE, TOPIC_PREFIX_PATTERN, MqttSettings
 from edgedsm.publish.sparkplug.settings import SparkplugSettings
 from edgedsm.validation import StrictModel, read_toml, validate
@@ -112,13 +113,28 @@ class AcquisitionSection(StrictModel):
                                      description="fixed queue length in frames instead (overrides queue_seconds)")
 
 
+#: estimator.max_lag K when not given: twice the lag m, at most N - 2 (the engine's default).
+def default_max_lag(window: int, lag: int) -> int:
+    return max(1, min(2 * lag, window - 2))
+
+
 class EstimatorSection(StrictModel):
-    activity: Literal["s1", "s2", "s3"] = Field(
-        "s2", description="estimator the drying states are judged on (S3 saturates once τc >> N)")
+    activity: Literal["s1", "s2", "s3", "tau_c"] = Field(
+        "s2", description="estimator the drying states are judged on (S3 saturates once τc >> N; tau_c: the "
+                          "region's correlation time in seconds, thresholds wet_below_s / dry_above_s)")
     window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
     lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
     q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
     mode: Literal["sliding", "exponential", "tumbling"] = Field("sliding", description="window mode of the engine")
+    tau_c: bool = Field(
+        False, description="also estimate the correlation time τc (docs/tau_c.md): about 1.6-2.6x the push cost "
+                           "of S1+S2+S3, so off unless asked for here or needed (activity = 'tau_c', or a region "
+                           "with wet_below_s / dry_above_s); needs mode 'sliding' or 'tumbling'")
+    max_lag: int | None = Field(None, ge=1, le=99_998,
+                                description="K: lags 1..K in frames that τc is fitted over (default min(2·lag, "
+                                            "window-2)); τc is measured up to K·Δt, above it reported as '> K·Δt'")
+    tau_c_map: bool = Field(True, description="publish the per-pixel τc map (seconds) with the other maps; its fit "
+                                              "costs about 5 µs per pixel on the evaluator thread, per map")
     ambient_correction: bool = Field(
         False, description="subtract the measured dark level from every frame before all estimators (off: the "
                            "validation in docs/ambient.md shows it distorts S2; use S3 under ambient light)")
@@ -134,7 +150,21 @@ class EstimatorSection(StrictModel):
         cores = os.cpu_count() or 1
         if self.threads is not None and self.threads > cores:
             raise ValueError(f"threads ({self.threads}) is more than this machine's {cores} cores")
+        if self.max_lag is not None and self.max_lag > self.window - 2:
+            raise ValueError(f"max_lag ({self.max_lag}) must be at most window - 2 ({self.window - 2}): τc needs "
+                             "K < N - 1")
+        if self.activity == "tau_c" and self.mode == "exponential":
+            raise ValueError("activity 'tau_c' needs mode 'sliding' or 'tumbling' (τc's finite-window bias "
+                             "correction has no exponential counterpart)")
+        if self.tau_c and self.mode == "exponential":
+            raise ValueError("tau_c needs mode 'sliding' or 'tumbling' (τc's finite-window bias correction has "
+                             "no exponential counterpart)")
         return self
+
+    @property
+    def lags(self) -> int:
+        """K, the τc lags in frames (``max_lag`` or its default)."""
+        return self.max_lag if self.max_lag is not None else default_max_lag(self.window, self.lag)
 
 
 class RegionSettings(StrictModel):
@@ -142,18 +172,45 @@ class RegionSettings(StrictModel):
     Shapes are in camera pixels; a mask's path is relative to the config file."""
 
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$", description="region name in MQTT")
-    wet_above: float = Field(gt=0, le=1e9, description="activity at or above which the surface is wet")
-    dry_below: float = Field(gt=0, le=1e9, description="activity at or below which the surface is dry")
+    wet_above: float | None = Field(None, gt=0, le=1e9, description="activity (estimator.activity's region mean) "
+                                                                    "at or above which the surface is wet")
+    dry_below: float | None = Field(None, gt=0, le=1e9, description="activity at or below which the surface is dry")
+    wet_below_s: float | None = Field(None, gt=0, le=86400,
+                                      description="judge on τc instead: the region's correlation time (s) at or "
+                                                  "below which the surface is wet (wet decorrelates fast)")
+    dry_above_s: float | None = Field(None, gt=0, le=86400,
+                                      description="judge on τc: the correlation time (s) at or above which the "
+                                                  "surface is dry")
     hysteresis: float = Field(0.05, ge=0, lt=0.5, description="relative margin to leave a state")
     min_dwell_s: float = Field(10.0, ge=0, le=86400, description="a new state must hold this long")
     trend_window_s: float = Field(120.0, gt=0, le=86400, description="time-to-dry trend window")
 
     @model_validator(mode="after")
     def _thresholds_fit(self) -> RegionSettings:
+        on_activity = (self.wet_above, self.dry_below)
+        on_tau = (self.wet_below_s, self.dry_above_s)
+        if any(v is not None for v in on_activity) and any(v is not None for v in on_tau):
+            raise ValueError("give either wet_above/dry_below (activity) or wet_below_s/dry_above_s (τc in "
+                             "seconds), not both")
+        for pair, names in ((on_activity, "wet_above and dry_below"), (on_tau, "wet_below_s and dry_above_s")):
+            if (pair[0] is None) != (pair[1] is None):
+                raise ValueError(f"give both {names}")
+        if all(v is None for v in (*on_activity, *on_tau)):
+            raise ValueError("drying thresholds missing: give wet_above and dry_below (activity), or "
+                             "wet_below_s and dry_above_s (τc in seconds)")
         self.thresholds()  # its ValueError names the problem
         return self
 
+    @property
+    def on_tau(self) -> bool:
+        """Judged on the region's τc in seconds (wet_below_s / dry_above_s)."""
+        return self.wet_below_s is not None
+
     def thresholds(self) -> Thresholds:
+        if self.wet_below_s is not None and self.dry_above_s is not None:
+            return Thresholds.of_tau(self.wet_below_s, self.dry_above_s, self.hysteresis, self.min_dwell_s,
+                                     self.trend_window_s)
+        assert self.wet_above is not None and self.dry_below is not None  # the validator checked
         return Thresholds(self.wet_above, self.dry_below, self.hysteresis, self.min_dwell_s, self.trend_window_s)
 
     def mask(self, shape: tuple[int, int], base_dir: Path) -> np.ndarray:
@@ -304,7 +361,56 @@ class DaemonConfig(StrictModel):
             raise ValueError("[homeassistant] needs [mqtt]: discovery is published on the broker")
         if self.sparkplug is not None and self.sparkplug.edge_node_id is None:
             self.sparkplug.edge_node_id = self.device.name
+        self._check_tau_c()
         return self
+
+    @property
+    def tau_c_on(self) -> bool:
+        """τc is estimated: asked for (estimator.tau_c), judged on (activity = 'tau_c') or needed by a
+        region's wet_below_s / dry_above_s."""
+        return self.estimator.tau_c or self.estimator.activity == "tau_c" or any(r.on_tau for r in self.regions)
+
+    def _check_tau_c(self) -> None:
+        """τc settings that depend on more than one table (messages name the key path)."""
+        est = self.estimator
+        for index, region in enumerate(self.regions):
+            if est.activity == "tau_c" and not region.on_tau:
+                raise ValueError(f"regions.{index}.wet_above: estimator.activity = 'tau_c' judges every region on "
+                                 "its τc in seconds: give wet_below_s and dry_above_s")
+            if region.on_tau and est.mode == "exponential":
+                raise ValueError(f"regions.{index}.wet_below_s: τc thresholds need estimator.mode 'sliding' or "
+                                 "'tumbling' (τc has no exponential window)")
+        if not self.tau_c_on:
+            return
+        if est.window < 3:
+            raise ValueError("estimator.window: τc needs a window of at least 3 frames (K < N - 1)")
+        dt = self.camera.frame_interval_s
+        if dt is None:
+            return  # known once frames flow; thresholds beyond the measurable range are logged then
+        for index, region in enumerate(self.regions):
+            if region.wet_below_s is None or region.dry_above_s is None:
+                continue
+            problem = tau_threshold_problem(region.wet_below_s, region.dry_above_s, region.hysteresis, est.lags, dt)
+            if problem:
+                raise ValueError(f"regions.{index}: {problem}")
+
+
+def tau_threshold_problem(wet_below_s: float, dry_above_s: float, hysteresis: float, lags: int,
+                          frame_interval_s: float) -> str | None:
+    """Why τc thresholds cannot be told apart at this frame interval (None: they can). τc is measured
+    from TAU_FLOOR·Δt (Δt/3) up to K·Δt; beyond, only a bound is known (docs/tau_c.md)."""
+    top = lags * frame_interval_s
+    floor = TAU_FLOOR * frame_interval_s
+    # dry is entered at τc >= dry_above_s/(1-h), wet at τc <= wet_below_s/(1+h) (the hysteresis
+    # is relative on 1/τc); "above K" reads as τc = K·Δt, "below the floor" as Δt/3
+    if dry_above_s / (1 - hysteresis) > top:
+        return (f"dry_above_s ({dry_above_s:g} s; {dry_above_s / (1 - hysteresis):.4g} s with the hysteresis) is "
+                f"beyond the longest τc measured, estimator.max_lag x Δt = {lags} x {frame_interval_s:g} s = "
+                f"{top:g} s: raise max_lag (and window) or lower dry_above_s")
+    if wet_below_s / (1 + hysteresis) < floor:
+        return (f"wet_below_s ({wet_below_s:g} s; {wet_below_s / (1 + hysteresis):.4g} s with the hysteresis) is "
+                f"below the shortest τc measured, Δt/3 = {floor:.4g} s: a faster camera is needed")
+    return None
 
 
 def load_config(path: str | Path) -> DaemonConfig:

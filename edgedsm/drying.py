@@ -13,6 +13,13 @@ of the chosen estimator (S1 grey levels, S2/S3 dimensionless). Thresholds:
 
 The time left until dry is extrapolated from an exponential fit (log-linear least squares) of
 the activity over the last ``trend_window_s`` seconds.
+
+A region may instead be judged on its correlation time τc in seconds (``Thresholds.of_tau``:
+``wet_below_s`` / ``dry_above_s``): a wet surface decorrelates fast, so τc *rises* as it dries.
+The machine then judges the decorrelation rate 1/τc (1/s), which falls as it dries like any
+activity, so the hysteresis (relative: leaving wet at τc > wet_below_s/(1 - h)), the dwell and
+the time to dry (an exponential trend of 1/τc is one of τc) stay the same logic; what it
+reports (``activity``, the transitions) is τc in seconds, as configured.
 """
 
 from __future__ import annotations
@@ -42,16 +49,38 @@ class Thresholds:
     hysteresis: float = 0.05
     min_dwell_s: float = 5.0
     trend_window_s: float = 120.0
+    #: the observed values are correlation times τc in s (large = dry); the thresholds above are
+    #: then rates 1/τc (1/s). Build such thresholds with :meth:`of_tau`.
+    on_tau: bool = False
 
     def __post_init__(self) -> None:
         if not (0 < self.dry_below < self.wet_above and math.isfinite(self.wet_above)):
+            if self.on_tau:
+                raise ValueError(f"need 0 < wet_below_s ({1 / self.wet_above:.6g}) < dry_above_s "
+                                 f"({1 / self.dry_below:.6g})")
             raise ValueError(f"need 0 < dry_below ({self.dry_below}) < wet_above ({self.wet_above})")
         if not 0 <= self.hysteresis < 0.5:
             raise ValueError(f"hysteresis must be in [0, 0.5), got {self.hysteresis}")
         if self.dry_below * (1 + self.hysteresis) >= self.wet_above * (1 - self.hysteresis):
-            raise ValueError("the hysteresis bands of dry_below and wet_above overlap")
+            names = "wet_below_s and dry_above_s" if self.on_tau else "dry_below and wet_above"
+            raise ValueError(f"the hysteresis bands of {names} overlap")
         if self.min_dwell_s < 0 or self.trend_window_s <= 0:
             raise ValueError("min_dwell_s must be >= 0 and trend_window_s > 0")
+
+    @classmethod
+    def of_tau(cls, wet_below_s: float, dry_above_s: float, hysteresis: float = 0.05, min_dwell_s: float = 5.0,
+               trend_window_s: float = 120.0) -> Thresholds:
+        """Thresholds on τc in seconds: wet at τc <= ``wet_below_s``, dry at τc >= ``dry_above_s``."""
+        if not (0 < wet_below_s < dry_above_s and math.isfinite(dry_above_s)):
+            raise ValueError(f"need 0 < wet_below_s ({wet_below_s}) < dry_above_s ({dry_above_s})")
+        return cls(1.0 / wet_below_s, 1.0 / dry_above_s, hysteresis, min_dwell_s, trend_window_s, on_tau=True)
+
+    def activity_of(self, value: float | None) -> float | None:
+        """The activity judged for an observed ``value``: the value itself, or 1/τc (None for τc <= 0,
+        a region without signal)."""
+        if value is None or not self.on_tau:
+            return value
+        return 1.0 / value if value > 0 else None
 
 
 @dataclass(frozen=True)
@@ -113,25 +142,26 @@ class RegionStateMachine:
         if fault is not None:
             self._candidate = None
             return self._move(DryingState.FAULT, t, activity, fault) if self.state != DryingState.FAULT else None
-        if not ready or activity is None:
-            if self.state == DryingState.FAULT:
-                return self._move(DryingState.WARMING_UP, t, activity, "fault cleared, waiting for data")
-            return None
-        if not math.isfinite(activity):
+        if ready and activity is not None and not math.isfinite(activity):
             raise ValueError(f"activity must be finite, got {activity}")
-        self.activity = activity
-        self._remember(t, activity)
+        value, judged = activity, self.thresholds.activity_of(activity)  # on_tau: τc (s) and 1/τc
+        if not ready or judged is None:
+            if self.state == DryingState.FAULT:
+                return self._move(DryingState.WARMING_UP, t, value, "fault cleared, waiting for data")
+            return None
+        self.activity = value
+        self._remember(t, judged)
         if self.state in (DryingState.WARMING_UP, DryingState.FAULT):
-            return self._move(self._classify(activity), t, activity, "window full")
-        target = self._classify(activity)
+            return self._move(self._classify(judged), t, value, "window full")
+        target = self._classify(judged)
         if target == self.state:
             self._candidate = None
             return None
         if target != self._candidate:
             self._candidate, self._candidate_since = target, t
         if t - self._candidate_since >= self.thresholds.min_dwell_s:
-            return self._move(target, t, activity,
-                              f"activity {activity:.4g} held for {t - self._candidate_since:.1f} s")
+            what = f"τc {value:.4g} s" if self.thresholds.on_tau else f"activity {value:.4g}"
+            return self._move(target, t, value, f"{what} held for {t - self._candidate_since:.1f} s")
         return None
 
     def reset(self, t: float, reason: str) -> Transition | None:
@@ -153,7 +183,8 @@ class RegionStateMachine:
             self._history.popleft()
 
     def time_to_dry(self) -> float | None:
-        """Seconds until the activity falls to ``dry_below`` at the recent exponential trend.
+        """Seconds until the activity falls to ``dry_below`` (on τc: until τc reaches
+        ``dry_above_s``) at the recent exponential trend.
 
         0 when dry; None when unknown (too little data, activity not falling, or not positive).
         """

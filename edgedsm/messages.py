@@ -29,6 +29,10 @@ from edgedsm import _json
 RegionStateName = Literal["warming_up", "wet", "drying", "dry", "fault"]
 #: The laser as the daemon knows it: ``unknown`` after any relay error (never guessed).
 LaserState = Literal["on", "off", "unknown"]
+#: What a published τc is (``edgedsm.estimators.correlation_time`` statuses): ``measured``; ``above``:
+#: no decorrelation within K lags, τc is at least the value (K·Δt); ``below``: decorrelated within one
+#: frame, τc is at most the value (Δt/3); ``no_signal``: σ = 0 (laser off, saturated), value 0.
+TauStatus = Literal["measured", "above", "below", "no_signal"]
 
 
 @dataclass(frozen=True)
@@ -63,8 +67,20 @@ class RegionState(Message):
     region: str = Field(description="region name from the config")
     state: RegionStateName = Field(description="drying state")
     since: float = Field(description="when the region entered this state, UTC epoch s")
-    activity: float | None = Field(None, description="latest region mean of the judged estimator")
+    activity: float | None = Field(None, description="latest region mean of the judged estimator; a region "
+                                                     "judged on τc: its τc in seconds (see ``estimator``)")
     time_to_dry_s: float | None = Field(None, ge=0, description="extrapolated seconds until dry; 0 when dry")
+    estimator: str | None = Field(None, description="what ``activity`` is when not the report's estimator: "
+                                                    "'tau_c' (τc in s: small = wet, large = dry)")
+    tau_c_status: TauStatus | None = Field(None, description="judged on τc: measured, or what the bound means "
+                                                             "(above: τc >= activity; below: τc <= activity)")
+
+
+class RegionTau(Message):
+    """A region's correlation time from its pooled correlations (docs/tau_c.md), in seconds."""
+
+    tau_c_s: float = Field(ge=0, description="τc in seconds (a bound when status is above or below; 0: no signal)")
+    status: TauStatus = Field(description="measured, above (τc >= tau_c_s), below (τc <= tau_c_s) or no_signal")
 
 
 #: Relative change of a region's activity worth republishing the state report for.
@@ -82,7 +98,7 @@ def _moved(new: float | None, old: float | None, relative: float, absolute: floa
 
 def _region_moved(new: RegionState, old: RegionState) -> bool:
     return (new.state != old.state or new.since != old.since
-            or _moved(new.activity, old.activity, ACTIVITY_MOVE)
+            or _moved(new.activity, old.activity, ACTIVITY_MOVE) or new.tau_c_status != old.tau_c_status
             or _moved(new.time_to_dry_s, old.time_to_dry_s, TIME_TO_DRY_MOVE, TIME_TO_DRY_MOVE_S))
 
 
@@ -160,6 +176,9 @@ class Stats(Message):
     states: dict[str, RegionStateName] = Field(default_factory=dict, alias="state",
                                                description="region -> drying state")
     warning: str | None = Field(None, description="a condition that makes a map unreliable")
+    tau_c: dict[str, RegionTau] = Field(default_factory=dict, description="region -> τc in seconds and its status "
+                                                                          "(when τc is estimated)")
+    frame_interval_s: float | None = Field(None, gt=0, description="Δt that puts τc in seconds (when τc is estimated)")
     mqtt: dict[str, Any] | None = Field(None, description="the MQTT sink's own counters (added on the wire)")
 
 

@@ -36,14 +36,26 @@ import numpy as np
 from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.tau import TauRegions, engine_estimators
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
 from edgedsm.estimators.region_stats import Moments, RegionPlan, region_moments
-from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
+from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.frames import Frame
-from edgedsm.messages import Alert, AlertKind, Clock, LaserState, MapFrame, MapStats, RegionState, StateReport, Stats
+from edgedsm.messages import (
+    Alert,
+    AlertKind,
+    Clock,
+    LaserState,
+    MapFrame,
+    MapStats,
+    RegionState,
+    RegionTau,
+    StateReport,
+    Stats,
+)
 from edgedsm.publish.sink import Sink
 
 log = logging.getLogger(__name__)
@@ -119,8 +131,9 @@ class Snapshot:
     # valid until the next copy, which reuses its buffers
     publish_maps: bool = False
     publish_stats: bool = True  # False: the drying states only (activity means, no stats message)
+    tau: TauSnapshot | None = None  # τc's sums, when τc is estimated and this evaluation needs it
     #: region -> map -> moments, from the live sums on the pipeline thread (empty before the window
-    #: is full); states only: the activity map's means
+    #: is full); states only: the judged map's means
     regions: dict[str, dict[str, Moments]] = field(default_factory=dict)
 
 
@@ -146,6 +159,8 @@ class Evaluation:
                                             initializer=yield_cores)
         self._pending: Future[None] | None = None  # the latest analysis
         self._buffers: EngineSnapshot | None = None  # the latest snapshot, overwritten by the next
+        self.tau = TauRegions(config)  # τc: frame interval, region pixels, snapshot (edgedsm.daemon.tau)
+        self._tau_buffers: TauSnapshot | None = None
         self.warm_up()
         self._last: Future[None] | None = None  # the latest work handed to the evaluator thread
 
@@ -156,20 +171,27 @@ class Evaluation:
         est = self.config.estimator
         deep = self.config.camera.pixel_format not in (None, "Mono8")
         side = 256  # at least PARALLEL_MIN_PIXELS: the parallel kernels real frames use
-        engine = SlidingWindow((side, side), window=est.lag + 2, lag=est.lag, q=est.q, bits=16 if deep else 8,
-                               estimators=ESTIMATORS, mode=est.mode, threads=est.threads)
+        window = est.lag + 2
+        if self.tau.on:  # long enough for every τc kernel (sliding batches need N >= K + 8)
+            window = max(window, est.lags + 10)
+        engine = SlidingWindow((side, side), window=window, lag=est.lag, q=est.q, bits=16 if deep else 8,
+                               estimators=engine_estimators(self.config), mode=est.mode, threads=est.threads,
+                               max_lag=est.lags if self.tau.on else None)
         frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
-        for _ in range(est.lag + 3):
+        for _ in range(window + 9):
             engine.push(frame)
         mask = np.zeros((side, side), bool)
         mask[1:-1, 1:-1] = True
         plans = {name: RegionPlan.of(RegionBox.of(region), (side, side))
                  for name, region in (("all", np.ones_like(mask)), ("inner", mask))}
-        maps_from(engine.snapshot())
+        maps_from(engine.snapshot(ESTIMATORS))
+        wanted = [ESTIMATORS] + ([[est.activity]] if est.activity in ESTIMATORS else [])
         for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
-            region_moments(engine.snapshot(live=True), plans, ESTIMATORS, parallel=parallel)
-            region_moments(engine.snapshot([est.activity], live=True), plans, [est.activity], spread=False,
-                           parallel=parallel)
+            for names in wanted:
+                region_moments(engine.snapshot(names, live=True), plans, names, spread=names is ESTIMATORS,
+                               parallel=parallel)
+        if self.tau.on:
+            engine.tau_snapshot()
 
     # -- pipeline thread --------------------------------------------------------------------------
     def prepare(self, frame: Frame) -> None:
@@ -192,6 +214,7 @@ class Evaluation:
             pixels = np.subtract(pixels, np.minimum(pixels, dark))
         try:
             self.engine.push(pixels)
+            self.tau.interval.saw(frame)
         except FrameError as exc:
             self.counters["dropped_invalid"] += 1
             log.warning("frame %d dropped: %s", frame.seq, exc)
@@ -225,9 +248,11 @@ class Evaluation:
             shape = (rows.stop - rows.start, cols.stop - cols.start)
         check_engine_memory(frame, est.window, est.mode, pixels=shape[0] * shape[1])
         self.engine = SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
-                                    estimators=ESTIMATORS, mode=est.mode, threads=threads)
+                                    estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
+                                    max_lag=est.lags if self.tau.on else None)
         self.regions = regions
         self._plans = {name: RegionPlan.of(box, shape) for name, box in regions.items()}
+        self.tau.prepare(regions, shape)
         self.frame_shape = frame.shape
 
     def reset(self, why: str, states: bool = True) -> None:
@@ -268,19 +293,22 @@ class Evaluation:
             pending.result()  # re-raises an error of the evaluator thread here
         started = time.perf_counter()
         ready = self.ready
-        engine = None
+        engine = tau = None
         moments: dict[str, dict[str, Moments]] = {}
         publish_maps = ready and maps_due and stats_due
         if ready and self.engine is not None:
-            wanted = ESTIMATORS if stats_due else (self.config.estimator.activity,)
-            # the live sums, read between two pushes on the thread that pushes: no copy
-            moments = region_moments(self.engine.snapshot(wanted, live=True), self._plans, wanted,
-                                     spread=stats_due, parallel=self.engine.shape[0] * self.engine.shape[1]
-                                     >= PARALLEL_MIN_PIXELS)
+            wanted = self._snapshot_estimators(stats_due)
+            if wanted:
+                # the live sums, read between two pushes on the thread that pushes: no copy
+                moments = region_moments(self.engine.snapshot(wanted, live=True), self._plans, wanted,
+                                         spread=stats_due, parallel=self.engine.shape[0] * self.engine.shape[1]
+                                         >= PARALLEL_MIN_PIXELS)
             if publish_maps:
                 # the previous snapshot's analysis has ended (checked above): its buffers are reused
-                engine = self._buffers = self.engine.snapshot(into=self._buffers)
-        snapshot = Snapshot(status, ready, engine, publish_maps=publish_maps, publish_stats=stats_due,
+                engine = self._buffers = self.engine.snapshot(ESTIMATORS, into=self._buffers)
+            tau = self.tau.take(self.engine, stats_due, self._tau_buffers)
+            self._tau_buffers = tau or self._tau_buffers
+        snapshot = Snapshot(status, ready, engine, publish_maps=publish_maps, publish_stats=stats_due, tau=tau,
                             regions=moments)
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
@@ -289,6 +317,15 @@ class Evaluation:
             pending, self._pending = self._pending, None
             pending.result()
         return snapshot
+
+    def _snapshot_estimators(self, stats_due: bool) -> list[str]:
+        """The S maps an evaluation needs: all for the stats; for the states alone, the judged one
+        if a region is judged on it (none when every region is judged on τc)."""
+        if stats_due:
+            return list(ESTIMATORS)
+        activity = self.config.estimator.activity
+        judged_on_activity = any(not region.on_tau for region in self.config.regions)
+        return [activity] if activity in ESTIMATORS and judged_on_activity else []
 
     def finish(self) -> None:
         """Let the work handed over end (bounded), so alerts and maps are not lost."""
@@ -303,7 +340,7 @@ class Evaluation:
         self._executor.shutdown(wait=False)
         # the window's ring is the bulk of the daemon's memory (N frames): released now, not
         # when the garbage collector gets to the pipeline (a reload builds a new one at once)
-        self.engine = self._buffers = None
+        self.engine = self._buffers = self._tau_buffers = None
 
     def states_line(self) -> str:
         with self.monitor_lock:
@@ -320,13 +357,16 @@ class Evaluation:
         activities: dict[str, float] = {}
         for name, per_map_moments in snapshot.regions.items():
             if not snapshot.publish_stats:  # states only: the activity means
-                activities[name] = per_map_moments[estimator].mean
+                if estimator in per_map_moments:
+                    activities[name] = per_map_moments[estimator].mean
                 continue
             per_map = {key: MapStats(**moments.stats().as_dict()) for key, moments in per_map_moments.items()}
             regions[name] = per_map
-            mean = per_map[estimator].mean
+            mean = per_map[estimator].mean if estimator in per_map else None
             if mean is not None:
                 activities[name] = mean
+        taus, interval_s = self._region_taus(snapshot)
+        activities.update({name: tau.tau_c_s for name, tau in taus.items() if name in self.tau.judged})
         with self.monitor_lock:
             transitions = self.monitor.step(status.now, activities, ready=snapshot.ready and status.fault is None,
                                              fault=status.fault)
@@ -345,27 +385,46 @@ class Evaluation:
                       estimator=estimator, drops=status.drops, camera=status.camera,
                       ambient_level=status.ambient_level, regions=regions,
                       states={name: region.state for name, region in report.regions.items()},
-                      warning=status.warning)
+                      warning=status.warning, tau_c=taus, frame_interval_s=interval_s)
         self.sink.publish_stats(stats)
         # on a transition, and at most once per stats interval when time to dry or activity moved
         if transitions or self._last_report is None or report.moved_from(self._last_report):
             self.sink.publish_state(report)
             self._last_report = report
-        if snapshot.publish_maps and snapshot.engine is not None:
-            maps = maps_from(snapshot.engine)
+        if snapshot.publish_maps:
+            maps = maps_from(snapshot.engine) if snapshot.engine is not None else {}
             est = self.config.estimator
             origin = {} if self.crop is None else {"origin": [self.crop[1].start, self.crop[0].start]}
             for name, values in maps.items():
                 self.counters["maps_published"] += 1
                 self.sink.publish_map(MapFrame(name, values, seq=status.frames, t=t, window=est.window, lag=est.lag,
                                                extra={"estimator": name, "frames": status.frames, **origin}))
+            if snapshot.tau is not None and interval_s is not None and est.tau_c_map:
+                self.counters["maps_published"] += 1
+                seconds = self.tau.map_seconds(snapshot.tau, interval_s)
+                self.sink.publish_map(MapFrame("tau_c", seconds, seq=status.frames, t=t, window=est.window, lag=est.lag,
+                                               extra={"estimator": "tau_c", "unit": "s", "frames": status.frames,
+                                                      "max_lag": est.lags, "frame_interval_s": interval_s,
+                                                      **origin}))
         if self.probes.evaluated is not None:
             self.probes.evaluated(stats, time.perf_counter() - started)
 
+    def _region_taus(self, snapshot: Snapshot) -> tuple[dict[str, RegionTau], float | None]:
+        """Each region's τc in seconds (all with the stats, the judged ones for the states alone) and
+        the frame interval used; nothing when the snapshot has no τc sums or Δt is not known."""
+        interval_s = self.tau.interval.seconds(snapshot.status.fps) if snapshot.tau is not None else None
+        if snapshot.tau is None or interval_s is None:
+            return {}, None
+        names = None if snapshot.publish_stats else self.tau.judged
+        return self.tau.regions(snapshot.tau, interval_s, names), interval_s
+
     def _report(self, status: Status, estimator: str) -> StateReport:
         """Every region's state (the monitor lock held)."""
+        judged_on_tau = self.tau.judged
         regions = {name: RegionState(region=name, state=machine.state.value, since=self.clock.to_wall(machine.since),
-                                     activity=machine.activity, time_to_dry_s=machine.time_to_dry())
+                                     activity=machine.activity, time_to_dry_s=machine.time_to_dry(),
+                                     **({"estimator": "tau_c", "tau_c_status": self.tau.status.get(name)}
+                                        if name in judged_on_tau else {}))
                    for name, machine in self.monitor.regions.items()}
         return StateReport(t=self.clock.to_wall(status.now), estimator=estimator, laser=status.laser, regions=regions)
 

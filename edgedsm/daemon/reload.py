@@ -102,7 +102,8 @@ SECTION_CHANGE: dict[str, str] = {
 }
 
 #: The region fields that are drying thresholds (applied in place); every other one is geometry.
-THRESHOLD_FIELDS = frozenset({"wet_above", "dry_below", "hysteresis", "min_dwell_s", "trend_window_s"})
+THRESHOLD_FIELDS = frozenset({"wet_above", "dry_below", "wet_below_s", "dry_above_s", "hysteresis", "min_dwell_s",
+                              "trend_window_s"})
 
 
 def changed_sections(new: DaemonConfig, running: DaemonConfig) -> list[str]:
@@ -122,4 +123,8 @@ def restart_reasons(new: DaemonConfig, running: DaemonConfig) -> list[str]:
         reasons.append("configuration directory")
     if _geometry(new) != _geometry(running):
         reasons.append("regions")
+    if new.tau_c_on != running.tau_c_on:  # τc thresholds added or removed: the engine keeps other sums
+        reasons.append("τc on/off")
+    elif any(a.on_tau != b.on_tau for a, b in zip(new.regions, running.regions, strict=False)):
+        reasons.append("regions judged on τc")  # what the evaluator reads per region
     return reasons

@@ -11,8 +11,8 @@ from typing import Any
 
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.tau import engine_estimators
 from edgedsm.errors import ConfigError
-from edgedsm.estimators import ESTIMATORS
 from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.sink import FanOut, LogSink, Sink
 
@@ -94,7 +94,8 @@ class SinkSet:
         if name == "sparkplug" and mqtt is not None and config.sparkplug is not None:
             from edgedsm.publish.sparkplug.node import SparkplugSink
 
-            return SparkplugSink(config.sparkplug, mqtt, state_dir, regions=regions, maps=ESTIMATORS).start()
+            return SparkplugSink(config.sparkplug, mqtt, state_dir, regions=regions,
+                                 maps=engine_estimators(config)).start()
         if name == "homeassistant" and mqtt is not None and config.homeassistant is not None:
             from edgedsm.publish.homeassistant import HomeAssistantSink
 

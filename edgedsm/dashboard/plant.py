@@ -184,6 +184,8 @@ class Plant:
             raise Rejected(f"more than {MAX_REGIONS} regions")
         activity = {name: per_map[stats.estimator].mean if stats.estimator in per_map else None
                     for name, per_map in stats.regions.items()}
+        if stats.estimator == "tau_c":  # judged on τc: a region's activity is its τc in seconds
+            activity = {name: tau.tau_c_s for name, tau in stats.tau_c.items()}
         device.stats = {"t": stats.t, "fps": stats.fps, "frames": stats.frames, "ready": stats.ready,
                         "laser": stats.laser, "estimator": stats.estimator, "drops": stats.drops,
                         "ambient_level": stats.ambient_level, "warning": stats.warning,

@@ -23,6 +23,8 @@ the model is a/c + w·(b_k - a·d/c), linear in w: at each τ of a log grid (sha
 pixels, so the lag sums become one matrix product) w is closed form; the best grid point is
 refined by a parabola in log τ, then by one through exact residuals a quarter step apart.
 A region's τc is fitted to its pooled correlation Σ_p cov_p(k) / Σ_p var_p.
+Per-pixel maps are then made median-unbiased (:func:`median_unbiased`): one pixel's fit
+reads about 4.5τ/N low; regions, fitted to pooled sums, are not corrected.
 
 Results (units: frames, i.e. Δt), with a status per value (:data:`MEASURED` ...):
 
@@ -54,6 +56,8 @@ DEFAULT_MAX_LAG = 20
 _GRID_STEP = 2.0 ** (1.0 / 16.0)  # 4.4 % between grid values of τ
 _GRID_TOP = 8.0  # the grid reaches 8·K: a minimum there is far beyond K anyway
 _CHUNK = 1 << 14  # pixels per fitting chunk: (chunk, grid) float64 temporaries of a few MiB
+# per-pixel fits: median(τ̂) ≈ τ·(1 - PIXEL_BIAS·τ/N) (Monte Carlo of the model, docs/tau_c.md)
+PIXEL_BIAS = 4.5
 
 
 class TauC(NamedTuple):
@@ -321,11 +325,32 @@ def fit_pooled(cov: np.ndarray, var: np.ndarray, n: int) -> TauC:
     return TauC(float(tau[0]), int(status[0]))
 
 
+def median_unbiased(tau: np.ndarray, n: int) -> np.ndarray:
+    """Per-pixel τ̂ (frames) of N-frame windows corrected for the fit's small-sample bias.
+
+    One pixel holds about N/(2τ) independent speckle realisations; its least-squares τ̂ is a
+    nonlinear function of noisy covariances and its median lies below τ by about
+    PIXEL_BIAS·τ/N (docs/tau_c.md: -20 % at N = 20τ). As Andrews' median-unbiased AR(1)
+    estimator (Econometrica 61, 1993) this inverts the median function τ ↦ τ(1 - cτ/N):
+    τ = (N/2c)(1 - sqrt(1 - 4cτ̂/N)) = 2τ̂/(1 + sqrt(1 - 4cτ̂/N)), monotone in τ̂, so the median
+    of the corrected map is the corrected median. Beyond τ̂ = N/(4c), where the median
+    function has no inverse, the correction stays at its largest factor, 2.
+    """
+    root = np.sqrt(np.maximum(1.0 - 4.0 * PIXEL_BIAS * tau / n, 0.0))
+    return 2.0 * tau / (1.0 + root)
+
+
 def fit_map(cov: np.ndarray, var: np.ndarray, n: int) -> TauC:
-    """Per-pixel τc and status from cov (K, H, W) and var (H, W)."""
+    """Per-pixel τc and status from cov (K, H, W) and var (H, W); measured values are
+    median-unbiased (:func:`median_unbiased`), which may move a pixel to ABOVE."""
     lags_count, h, w = cov.shape
     corr, valid = normalise(cov.reshape(lags_count, h * w), var.reshape(-1))
     tau, _, status = fit_correlations(corr, n)
+    measured = status == MEASURED
+    tau[measured] = median_unbiased(tau[measured], n)
+    above = measured & (tau > lags_count)
+    tau[above] = float(lags_count)
+    status[above] = ABOVE
     tau[~valid] = 0.0
     status[~valid] = NO_SIGNAL
     return TauC(tau.reshape(h, w), status.reshape(h, w))

@@ -278,18 +278,34 @@ def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callab
         for p in range(row.size):
             row[p] = wide(row[p]) + wide(first[p]) * wide(second[p])
 
+    @numba.njit(inline="always", nogil=True)
+    def add_four(row, a0, c0, a1, c1, a2, c2, a3, c3):  # pragma: no cover - compiled
+        for p in range(row.size):  # four frames per load and store of the sums
+            row[p] = (wide(row[p]) + wide(a0[p]) * wide(c0[p]) + wide(a1[p]) * wide(c1[p])
+                      + wide(a2[p]) * wide(c2[p]) + wide(a3[p]) * wide(c3[p]))
+
     @numba.njit(parallel=parallel, cache=True, nogil=True)
     def kernel(ring, frame_slots, lag_slots, lag_counts, products):  # pragma: no cover
         size = ring.shape[1]
         blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        count = frame_slots.size
         for block in numba.prange(blocks):
             start = block * PRODUCTS_BLOCK
             stop = min(start + PRODUCTS_BLOCK, size)
             for k in range(products.shape[0]):
                 row = products[k, start:stop]
-                for b in range(frame_slots.size):
+                b = 0
+                while b + 4 <= count and k < lag_counts[b] and k < lag_counts[b + 1] \
+                        and k < lag_counts[b + 2] and k < lag_counts[b + 3]:
+                    add_four(row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop],
+                             ring[frame_slots[b + 1], start:stop], ring[lag_slots[b + 1, k], start:stop],
+                             ring[frame_slots[b + 2], start:stop], ring[lag_slots[b + 2, k], start:stop],
+                             ring[frame_slots[b + 3], start:stop], ring[lag_slots[b + 3, k], start:stop])
+                    b += 4
+                while b < count:
                     if k < lag_counts[b]:
                         add_rows(row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
+                    b += 1
 
     return kernel
 
@@ -311,19 +327,36 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
         for p in range(row.size):
             row[p] = wide(row[p]) - wide(old[p]) * wide(leaving[p]) + wide(new[p]) * wide(lagged[p])
 
+    @numba.njit(inline="always", nogil=True)
+    def slide_two(row, o0, v0, n0, l0, o1, v1, n1, l1):  # pragma: no cover - compiled
+        for p in range(row.size):  # two frames per load and store of the sums
+            row[p] = (wide(row[p]) - wide(o0[p]) * wide(v0[p]) + wide(n0[p]) * wide(l0[p])
+                      - wide(o1[p]) * wide(v1[p]) + wide(n1[p]) * wide(l1[p]))
+
     @numba.njit(parallel=parallel, cache=True, nogil=True)
     def kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
                products):  # pragma: no cover - compiled
         size = ring.shape[1]
         blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        count = new_slots.size
         for block in numba.prange(blocks):
             start = block * PRODUCTS_BLOCK
             stop = min(start + PRODUCTS_BLOCK, size)
             for k in range(products.shape[0]):
                 row = products[k, start:stop]
-                for b in range(new_slots.size):
+                b = 0
+                while b + 2 <= count:
+                    s0 = retired if leave_retired[b, k] else ring
+                    s1 = retired if leave_retired[b + 1, k] else ring
+                    slide_two(row, retired[old_slots[b], start:stop], s0[leave_slots[b, k], start:stop],
+                              ring[new_slots[b], start:stop], ring[lag_slots[b, k], start:stop],
+                              retired[old_slots[b + 1], start:stop], s1[leave_slots[b + 1, k], start:stop],
+                              ring[new_slots[b + 1], start:stop], ring[lag_slots[b + 1, k], start:stop])
+                    b += 2
+                while b < count:
                     source = retired if leave_retired[b, k] else ring
                     slide_rows(row, retired[old_slots[b], start:stop], source[leave_slots[b, k], start:stop],
                                ring[new_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
+                    b += 1
 
     return kernel

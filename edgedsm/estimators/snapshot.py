@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edgedsm.estimators import tau_stream
+
 
 @dataclass(frozen=True)
 class EngineSnapshot:
@@ -60,3 +62,41 @@ def maps_from(snapshot: EngineSnapshot) -> dict[str, np.ndarray]:
         snapshot.maps_step(sums["abs"], sums["ratio"], sums["total"], sums["total_sq"], snapshot.pairs,
                            snapshot.ratio_unit, snapshot.window, flat["s1"], flat["s2"], flat["s3"], flat["sigma"])
     return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}
+
+
+@dataclass(frozen=True)
+class TauSnapshot:
+    """The integer sums τc of one window is formed from, at one moment (copies; see
+    :meth:`SlidingWindow.tau_snapshot`): ΣI and ΣI² (P,), the lag products Σ_t I_t·I_{t+k}
+    (K, P), and either the edge sums (K, P) (tumbling: accumulated during the block) or the
+    first K and last K frames of the window in time order (2K, P) (sliding: the edge sums are
+    formed from them by :func:`tau_covariances`, off the pipeline thread)."""
+
+    shape: tuple[int, int]
+    window: int
+    max_lag: int
+    frames_seen: int
+    total: np.ndarray
+    total_sq: np.ndarray
+    products: np.ndarray
+    edges: np.ndarray | None
+    ends: np.ndarray | None
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self.total, self.total_sq, self.products, self.edges, self.ends)
+        return sum(array.nbytes for array in arrays if array is not None)
+
+
+def tau_covariances(snapshot: TauSnapshot, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """cov (K, P) and var (P,) of the snapshot's window for all pixels or the flat indices
+    ``pixels`` (pure; any thread): the same integers and float64 steps as
+    :meth:`SlidingWindow.region_tau_c` and ``maps()["tau_c"]``, so the same τc."""
+    every = slice(None) if pixels is None else pixels
+    if snapshot.edges is not None:
+        edges = snapshot.edges[:, every]
+    else:
+        assert snapshot.ends is not None
+        edges = tau_stream.edges_of(list(snapshot.ends[:, every]), snapshot.max_lag)
+    return tau_stream.covariances(snapshot.window, snapshot.total[every], snapshot.total_sq[every],
+                                  snapshot.products[:, every], edges)

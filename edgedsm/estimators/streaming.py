@@ -35,7 +35,7 @@ from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import TauC, _check_mask
 from edgedsm.estimators.fixed_point import _NO_LUT, ratio_kind, ratio_lut, ratio_scale_bits, s2_error_bound
-from edgedsm.estimators.snapshot import EngineSnapshot
+from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
 
 __all__ = ["KERNELS", "MODES", "PARALLEL_MIN_PIXELS", "SlidingWindow", "ratio_kind", "ratio_lut",
            "ratio_scale_bits", "s2_error_bound"]
@@ -588,6 +588,41 @@ class SlidingWindow:
             pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
             sums=sums,
             weight_frames=self._weight_frames, maps_step=self._kernels.maps_kernel(*flags, False))
+
+    def tau_snapshot(self, into: TauSnapshot | None = None) -> TauSnapshot:
+        """Copies of the integer sums τc is formed from (needs "tau_c"): about K+4 sums of
+        memory traffic per pixel; :func:`edgedsm.estimators.snapshot.tau_covariances` turns them
+        into the covariances ``region_tau_c`` and ``maps()["tau_c"]`` fit, on any thread.
+        ``into``: an older snapshot nobody reads any more, whose arrays are overwritten."""
+        if not self._do_tau:
+            raise EstimatorError("tau_snapshot() needs 'tau_c' among the estimators")
+        if not self.ready:
+            raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
+                                 f"{self.window} frames pushed (check .ready)")
+        self._flush()
+        arrays, n, lags, seen = self._arrays, self.window, self.max_lag, self.frames_seen
+        prefix = "done_" if self.mode == "tumbling" else ""
+
+        def copy(source: np.ndarray, target: np.ndarray | None) -> np.ndarray:
+            if target is not None and target.shape == source.shape and target.dtype == source.dtype:
+                np.copyto(target, source)
+                return target
+            return source.copy()
+
+        old = into if into is not None and into.shape == self.shape and into.max_lag == lags else None
+        edges = ends = None
+        if self.mode == "tumbling":
+            edges = copy(arrays["done_edges"], old.edges if old else None)
+        else:  # the window's first K and last K frames, in time order (slot j % N holds frame j)
+            slots = np.array([j % n for j in (*range(seen - n, seen - n + lags), *range(seen - lags, seen))])
+            target = old.ends if old and old.ends is not None and old.ends.shape[0] == slots.size else None
+            ends = np.take(arrays["ring"], slots, axis=0, out=target) if target is not None and \
+                target.dtype == arrays["ring"].dtype else np.take(arrays["ring"], slots, axis=0)
+        return TauSnapshot(shape=self.shape, window=n, max_lag=lags, frames_seen=seen,
+                           total=copy(arrays[prefix + "total"], old.total if old else None),
+                           total_sq=copy(arrays[prefix + "total_sq"], old.total_sq if old else None),
+                           products=copy(arrays[prefix + "products"], old.products if old else None),
+                           edges=edges, ends=ends)
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:
         """S1, S2, S3 and σ from the integer sums, one fused pass (see maps_kernel)."""

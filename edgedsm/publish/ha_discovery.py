@@ -94,6 +94,15 @@ class Discovery:
             "name": f"{region} {estimator.upper()}", "state_topic": self.topics.stats, "state_class": "measurement",
             "value_template": template, "icon": "mdi:chart-bell-curve"}, region)
 
+    def tau_entity(self, region: str) -> Entity:
+        """The region's correlation time τc in seconds (its pooled fit), from the stats."""
+        template = (f"{{{{ value_json.get('tau_c', {{}}).get('{region}', {{}})"
+                    f".get('tau_c_s') }}}}")
+        return self._entity("sensor", f"{region}_tau_c", {
+            "name": f"{region} τc", "state_topic": self.topics.stats, "state_class": "measurement",
+            "device_class": "duration", "unit_of_measurement": "s", "value_template": template,
+            "icon": "mdi:timer-sand"}, region)
+
     def device_entities(self) -> list[Entity]:
         """The laser (read-only) and the device's link to the broker."""
         return [

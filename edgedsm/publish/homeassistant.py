@@ -174,6 +174,7 @@ class HomeAssistantSink:
     def publish_stats(self, stats: Stats) -> None:
         self._add(self.discovery.activity_entity(region, estimator)
                   for region, maps in stats.regions.items() if region in self.regions for estimator in maps)
+        self._add(self.discovery.tau_entity(region) for region in stats.tau_c if region in self.regions)
 
     def publish_map(self, frame: MapFrame) -> None:
         if self.colormap is None:

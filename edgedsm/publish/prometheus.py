@@ -13,19 +13,20 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from typing import Protocol
+from typing import Protocol, get_args
 
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 from edgedsm.frames import Frame
-from edgedsm.messages import Alert, MapFrame, StateReport, Stats
+from edgedsm.messages import Alert, MapFrame, StateReport, Stats, TauStatus
 from edgedsm.publish.http_server import MetricsServer
 
 #: The five drying states, each a label value of ``edgedsm_region_state``.
 STATES = ("warming_up", "wet", "drying", "dry", "fault")
 LASER_STATES = ("on", "off", "unknown")
+TAU_STATUSES = get_args(TauStatus)
 #: Engine pushes the ms/frame gauge is averaged over.
 ENGINE_FRAMES = 64
 
@@ -193,6 +194,7 @@ def _stats_families(stats: Stats | None) -> Iterator[GaugeMetricFamily | Counter
             if map_stats.mean is not None:
                 activity.add_metric([region, estimator], map_stats.mean)
     yield activity
+    yield from _tau_families(stats)
     states = GaugeMetricFamily("edgedsm_region_state", "1 for the region's current drying state",
                                labels=["region", "state"])
     for region, current in sorted(stats.states.items()):
@@ -207,3 +209,24 @@ class _Collector(Collector):
 
     def collect(self) -> Iterator[GaugeMetricFamily | CounterMetricFamily]:
         return self.sink.families()
+
+
+def _tau_families(stats: Stats) -> Iterator[GaugeMetricFamily]:
+    """τc per region in seconds, its status (a bound when above or below) and the Δt it was put in
+    seconds with (nothing while τc is not estimated)."""
+    if not stats.tau_c:
+        return
+    seconds = GaugeMetricFamily("edgedsm_region_tau_c_seconds", "region correlation time τc from its pooled "
+                                "correlations, s (a bound when its status is above or below)", labels=["region"])
+    status = GaugeMetricFamily("edgedsm_region_tau_c_status", "1 for the status of the region's τc",
+                               labels=["region", "status"])
+    for region, tau in sorted(stats.tau_c.items()):
+        seconds.add_metric([region], tau.tau_c_s)
+        for name in TAU_STATUSES:
+            status.add_metric([region, name], float(tau.status == name))
+    yield seconds
+    yield status
+    if stats.frame_interval_s is not None:
+        interval = GaugeMetricFamily("edgedsm_frame_interval_seconds", "frame interval Δt that puts τc in seconds")
+        interval.add_metric([], stats.frame_interval_s)
+        yield interval

@@ -1,13 +1,18 @@
-"""Fixtures shared by the integration tests: real mosquitto brokers and test subscribers."""
+"""Fixtures shared by the integration tests: real mosquitto brokers, test subscribers, daemon
+processes (``daemons``) and a fresh simulated relay board (``sim_board_name``)."""
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers_daemon import Daemon
 from helpers_mqtt import Broker, Subscriber
+
+from edgedsm.devices.laser import forget_simulated_boards
 
 
 @pytest.fixture
@@ -43,3 +48,25 @@ def subscribers() -> Iterator[Callable[..., Subscriber]]:
     yield make
     for subscriber in made:
         subscriber.stop()
+
+
+@pytest.fixture
+def daemons() -> Iterator[Callable[..., Daemon]]:
+    made: list[Daemon] = []
+
+    def start(config: Path, env: dict[str, str] | None = None) -> Daemon:
+        daemon = Daemon(config, env)
+        made.append(daemon)
+        return daemon
+
+    yield start
+    for daemon in made:
+        daemon.kill()
+
+
+@pytest.fixture
+def sim_board_name() -> Iterator[str]:
+    """A fresh process-wide simulated relay board for an in-process daemon."""
+    forget_simulated_boards()
+    yield f"e2e-{uuid.uuid4().hex[:8]}"
+    forget_simulated_boards()

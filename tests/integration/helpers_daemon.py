@@ -4,6 +4,8 @@ log collected line by line (used by test_aravis.py and tests/faults).
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 import re
 import signal
@@ -11,12 +13,15 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers_mqtt import child_env
+from helpers_mqtt import REPO, WAIT_S, Received, Subscriber, child_env, wait_until
+
+from edgedsm.daemon.service import Service
+from edgedsm.publish import Topics
 
 LOG_TAIL_LINES = 40
 
@@ -45,10 +50,11 @@ def toml_text(config: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_config(path: Path, config: dict[str, Any]) -> Path:
-    """Write atomically (a SIGHUP must never see half a file)."""
+def write_config(path: Path, config: dict[str, Any] | str) -> Path:
+    """Write atomically (a SIGHUP must never see half a file); ``config`` a dict of tables or TOML text."""
+    text = config if isinstance(config, str) else toml_text(config)
     partial = path.with_name(path.name + ".partial")
-    partial.write_text(toml_text(config), encoding="utf-8")
+    partial.write_text(text, encoding="utf-8")
     partial.replace(path)
     return path
 
@@ -107,6 +113,19 @@ class Daemon:
                 pytest.fail(f"timed out after {timeout} s waiting for {what}; the daemon's log ends:\n{tail}")
             time.sleep(0.02)
 
+    def signal(self, signum: int) -> None:
+        self.process.send_signal(signum)
+
+    def wait(self, timeout: float) -> int:
+        """Wait for the daemon to exit by itself; its exit code."""
+        try:
+            code = self.process.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            pytest.fail(f"the daemon did not exit within {timeout} s:\n{self.log}")
+        self._reader.join(2)
+        return code
+
     def terminate(self, timeout: float = 10.0) -> tuple[int, float]:
         """SIGTERM; (exit code, seconds until it exited)."""
         started = time.monotonic()
@@ -128,3 +147,87 @@ class Daemon:
         self._reader.join(2)
         if self.process.stderr is not None:
             self.process.stderr.close()
+
+
+# -- the demo plate as the daemon's camera ---------------------------------------------------
+
+DRYING_SCENE = REPO / "config" / "scenes" / "drying_demo.toml"
+#: The demo plate at 100 frames/s instead of 20: wet → drying → dry in about 12 s.
+SIM_CAMERA = f"sim:{DRYING_SCENE}?time_scale=0.2"
+
+
+def base_config(tmp_path: Path, *, device: str = "e2e", camera: str = SIM_CAMERA, port: int | None = None,
+                laser: str | None = None, region: str = "plate") -> dict[str, Any]:
+    """The demo's daemon config, with quick dwell, quick reconnects and its state in tmp_path."""
+    config: dict[str, Any] = {
+        "device": {"name": device, "state_dir": tmp_path / "state"},
+        "camera": {"uri": camera},
+        "acquisition": {"dark_frames": 5 if laser else 0, "dark_every_min": 0},
+        "estimator": {"activity": "s2", "window": 100, "lag": 5, "q": 1.0},
+        "regions": [{"name": region, "wet_above": 0.24, "dry_below": 0.10, "hysteresis": 0.05,
+                     "min_dwell_s": 1.0}],
+        "logging": {"level": "info"},
+    }
+    if laser is not None:
+        config["laser"] = {"uri": laser}
+    if port is not None:
+        config["mqtt"] = {"host": "127.0.0.1", "port": port, "keepalive_s": 5, "connect_timeout_s": 2.0,
+                          "reconnect_min_s": 0.1, "reconnect_max_s": 0.5, "stats_interval_s": 0.5,
+                          "maps_interval_s": 60.0}
+    return config
+
+
+@contextlib.contextmanager
+def service_thread(config: Path) -> Iterator[tuple[Service, dict[str, Any]]]:
+    """`Service` of a config file running in a thread; stopped (bounded) on exit."""
+    service = Service(config)
+    result: dict[str, Any] = {}
+
+    def run() -> None:
+        result["code"] = service.run()
+
+    thread = threading.Thread(target=run, name="e2e-service", daemon=True)
+    result["thread"] = thread
+    thread.start()
+    try:
+        yield service, result
+    finally:
+        service.stop()
+        thread.join(10)
+
+
+# -- what a subscriber saw -----------------------------------------------------------------
+
+def distinct_alerts(subscriber: Subscriber, topics: Topics) -> list[dict[str, Any]]:
+    """Alerts deduplicated on (stream, seq), in seq order."""
+    unique = {(a["stream"], a["seq"]): a for a in subscriber.alerts(topics)}
+    return [unique[key] for key in sorted(unique, key=lambda key: key[1])]
+
+
+def moves(alerts: list[dict[str, Any]]) -> list[tuple[str, str]]:
+    return [(a["from"], a["to"]) for a in alerts]
+
+
+def collapse(values: list[str]) -> list[str]:
+    """Consecutive repeats removed."""
+    return [value for value, _ in itertools.groupby(values)]
+
+
+def region_states(messages: list[Received], region: str) -> list[str]:
+    return [m.json()["regions"][region]["state"] for m in messages]
+
+
+def last_stats(subscriber: Subscriber, topics: Topics) -> dict[str, Any] | None:
+    stats = subscriber.on(topics.stats)
+    return stats[-1].json() if stats else None
+
+
+def frames_published(subscriber: Subscriber, topics: Topics) -> int:
+    stats = last_stats(subscriber, topics)
+    return int(stats["frames"]) if stats else -1
+
+
+def wait_frames_beyond(subscriber: Subscriber, topics: Topics, count: int, timeout: float = WAIT_S) -> int:
+    """Wait until a stats message reports more than ``count`` frames; returns its count."""
+    wait_until(lambda: frames_published(subscriber, topics) > count, timeout, f"stats with more than {count} frames")
+    return frames_published(subscriber, topics)

@@ -9,8 +9,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from helpers_daemon import Daemon, base_config, write_config
 from helpers_mqtt import WAIT_S, Broker, child_env, wait_until
-from test_daemon_e2e import Daemon, base_config, write_config
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

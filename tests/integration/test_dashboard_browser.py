@@ -25,11 +25,11 @@ import cv2
 import numpy as np
 import paho.mqtt.client as mqtt
 import pytest
+from helpers_daemon import DRYING_SCENE, Daemon, base_config, write_config
 from helpers_dashboard import DashboardProcess, make_browser, severe_console_messages, wait_for
 from helpers_mqtt import REPO, Broker
 from paho.mqtt.enums import CallbackAPIVersion
 from pydantic import TypeAdapter
-from test_daemon_e2e import DRYING_SCENE, Daemon, base_config, write_config
 
 from edgedsm.config import RegionSection
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import http.client
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,9 +15,9 @@ import cv2
 import jinja2
 import numpy as np
 import pytest
+from helpers_daemon import Daemon, base_config, write_config
 from helpers_mqtt import WAIT_S, Broker, Received, Subscriber, free_port, wait_until
 from prometheus_client.parser import text_string_to_metric_families
-from test_daemon_e2e import Daemon, base_config, write_config
 
 from edgedsm.publish import Topics
 
@@ -26,18 +26,6 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 PREFIX = "homeassistant"
 
 
-@pytest.fixture
-def daemons() -> Iterator[Callable[[Path], Daemon]]:
-    """`edgedsm run -c CONFIG` processes, killed after the test if still running."""
-    made: list[Daemon] = []
-
-    def start(config: Path) -> Daemon:
-        made.append(Daemon(config))
-        return made[-1]
-
-    yield start
-    for daemon in made:
-        daemon.kill()
 
 
 def _config(tmp_path: Path, port: int, http_port: int, region: str = "plate") -> dict[str, Any]:

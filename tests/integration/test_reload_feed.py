@@ -16,13 +16,12 @@ import json
 import signal
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers_mqtt import WAIT_S, Broker, Subscriber, wait_until
-from test_daemon_e2e import (
+from helpers_daemon import (
     DRYING_SCENE,
     Daemon,
     base_config,
@@ -33,6 +32,7 @@ from test_daemon_e2e import (
     wait_frames_beyond,
     write_config,
 )
+from helpers_mqtt import WAIT_S, Broker, Subscriber, wait_until
 
 from edgedsm.publish import Topics
 
@@ -40,19 +40,6 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 #: The demo plate at 100 frames/s.
 SLOW_CAMERA = f"sim:{DRYING_SCENE}?time_scale=0.2"
-
-
-@pytest.fixture
-def daemons() -> Iterator[Callable[..., Daemon]]:
-    made: list[Daemon] = []
-
-    def start(config: Path) -> Daemon:
-        made.append(Daemon(config))
-        return made[-1]
-
-    yield start
-    for daemon in made:
-        daemon.kill()
 
 
 def _feed(tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
@@ -142,9 +129,13 @@ def test_a_measurement_reload_publishes_one_reset_alert_then_warming_up(
     assert [a["type"] for a in new_alerts[1:]] == ["transition"] * (len(new_alerts) - 1)
     assert new_alerts[1]["from"] == "warming_up" and new_alerts[1]["to"] in ("wet", "drying", "dry")
     # the states went back to warming_up only after the reset alert, and explicitly
-    retained_state = [m.json() for m in scada.on(topics.state)]
-    later = [s for s in retained_state if s["t"] >= new_alerts[0]["t"]]
-    assert collapse([s["regions"]["plate"]["state"] for s in later])[:2] == ["warming_up", new_alerts[1]["to"]]
+    # (the state that follows an alert is published right after it: wait for it, bounded)
+    def states_since_reset() -> list[str]:
+        later = [m.json() for m in scada.on(topics.state)]
+        return collapse([s["regions"]["plate"]["state"] for s in later if s["t"] >= new_alerts[0]["t"]])
+
+    wait_until(lambda: len(states_since_reset()) >= 2, WAIT_S, "the state report after the transition")
+    assert states_since_reset()[:2] == ["warming_up", new_alerts[1]["to"]]
     # per-region topic: the same RegionState, wall-clock times
     per_region = [m.json() for m in scada.on(f"{topics.state}/plate")]
     assert per_region and set(per_region[-1]) >= {"region", "state", "since", "activity", "time_to_dry_s"}
@@ -240,8 +231,8 @@ def test_a_reload_whose_sink_cannot_start_is_refused_and_the_running_sinks_serve
     import socket
     import urllib.request
 
+    from helpers_daemon import service_thread
     from helpers_mqtt import free_port
-    from test_daemon_e2e import service_thread
 
     config = base_config(tmp_path)
     port = free_port()

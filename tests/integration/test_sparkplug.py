@@ -344,7 +344,7 @@ def test_clean_close_publishes_ndeath_before_disconnecting(make_node, host: Spar
 @pytest.mark.timeout(150)
 def test_the_daemon_end_to_end_publishes_the_drying_plate_as_sparkplug(
         broker: Broker, host: SparkplugHost, tmp_path: Path) -> None:
-    from test_daemon_e2e import Daemon, base_config, write_config
+    from helpers_daemon import Daemon, base_config, write_config
 
     config = base_config(tmp_path, port=broker.port, device="spb")
     config["sparkplug"] = {"group_id": "plant", "rebirth_min_interval_s": 0.5}  # edge node id: the device

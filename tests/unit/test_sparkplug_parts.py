@@ -165,7 +165,7 @@ def _stats(**overrides) -> Stats:
 
 def test_readings_are_data_driven_new_maps_and_drop_causes_appear() -> None:
     readings = stats_readings(_stats())
-    assert readings["regions/plate/tau_c/mean"] == Reading(DataType.DOUBLE, 42.0, "frames")
+    assert readings["regions/plate/tau_c/mean"] == Reading(DataType.DOUBLE, 42.0, "s")  # the daemon publishes τc in s
     assert readings["drops/dropped_queue"].value == 2 and readings["frames_dropped"].value == 3
     region = RegionState(region="plate", state="drying", since=10.0, activity=0.3, time_to_dry_s=12.5)
     state = state_readings(StateReport(t=11.0, estimator="s2", laser="unknown", regions={"plate": region}))

@@ -116,7 +116,8 @@ function renderDetail() {
     el("tr", { class: "region-row", "data-region": name },
       el("td", {}, name),
       el("td", {}, el("span", { class: `badge ${stateClass(value.state)}` }, value.state)),
-      el("td", {}, fmt(value.activity)),
+      // judged on τc: the activity is the region's correlation time, in seconds
+      el("td", {}, fmt(value.activity) + (stats.estimator === "tau_c" ? " s (τc)" : "")),
       el("td", {}, duration(value.time_to_dry_s)),
       el("td", {}, clock(value.since))));
   $("regions").tBodies[0].replaceChildren(...rows);

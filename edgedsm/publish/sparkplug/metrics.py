@@ -15,7 +15,7 @@ from edgedsm.messages import Alert, StateReport, Stats
 from edgedsm.publish.sparkplug.payload import DataType, Value
 
 #: Units of the maps' values (docs/mqtt.md); a map not listed here is published without a unit.
-MAP_UNITS = {"s1": "grey levels", "tau_c": "frames"}
+MAP_UNITS = {"s1": "grey levels", "tau_c": "s"}
 
 
 @dataclass(frozen=True)
@@ -66,11 +66,20 @@ def declared_readings(regions: Iterable[str], maps: Iterable[str]) -> dict[str, 
         "alerts/count": _count(0, None), "alerts/last": _text(None), "alerts/last_type": _text(None),
         "alerts/last_t": _datetime_ms(None),
     }
-    map_names = list(maps)
+    map_names = [name for name in maps if name != "tau_c"]  # τc: one pooled value per region, not a map mean
     for region in regions:
         readings.update(region_readings(region))
         readings.update(map_reading(region, name, None) for name in map_names)
+        if "tau_c" in maps:
+            readings.update(tau_readings(region))
+    if "tau_c" in maps:
+        readings["frame_interval_s"] = _double(None, "s")
     return readings
+
+
+def tau_readings(region: str, tau_c_s: float | None = None, status: str | None = None) -> dict[str, Reading]:
+    """A region's τc in seconds (its pooled fit) and its status (measured, above, below, no_signal)."""
+    return {f"regions/{region}/tau_c_s": _double(tau_c_s, "s"), f"regions/{region}/tau_c_status": _text(status)}
 
 
 def stats_readings(stats: Stats) -> dict[str, Reading]:
@@ -85,6 +94,10 @@ def stats_readings(stats: Stats) -> dict[str, Reading]:
     for region, per_map in stats.regions.items():
         readings.update(map_reading(region, name, map_stats.mean) for name, map_stats in per_map.items())
     readings.update((f"regions/{region}/state", _text(state)) for region, state in stats.states.items())
+    for region, tau in stats.tau_c.items():
+        readings.update(tau_readings(region, tau.tau_c_s, tau.status))
+    if stats.frame_interval_s is not None:
+        readings["frame_interval_s"] = _double(stats.frame_interval_s, "s")
     return readings
 
 
