@@ -2,16 +2,17 @@
 
 What runs is the daemon's code in this process, unmodified and watched only through its public
 probes (``PipelineProbes``): the replay camera driver on a recorded ``.npy`` stack, ``Pipeline``
-(capture thread, bounded drop-oldest queue sized by time, streaming engine with N = 200,
-m = 10 and all three maps, evaluator thread: maps from a snapshot of the sums, region
-statistics, drying states) and the MQTT sink (``MqttSink``) talking to a private mosquitto
-(``LocalBroker``) on loopback. The recording is simulated speckle (the constant-activity scene
-at 256², τc = 20 frames) tiled to ``--size``, each tile shifted in time, in ``--pixel-format``
-(Mono12p and Mono16 are replayed unpacked, as uint16: the unpacking a real camera's frames need
-is timed on its own), played in a loop. The default configuration is the issue's: stats every
-1 s, maps every 10 s, drying states every 0.5 s, two large regions, the default queue
-(``acquisition.queue_seconds`` = 1 s). Every trial measures for its seconds after the
-window filled (when evaluations start); drops are counted over the whole trial.
+(capture thread, bounded drop-oldest queue sized by time, streaming engine with N = 200, m = 10
+and all three maps, region statistics from the engine's sums between two pushes, evaluator
+thread: percentiles, maps from a copy of the sums, drying states) and the MQTT sink
+(``MqttSink``) talking to a private mosquitto (``LocalBroker``) on loopback. The recording is
+simulated speckle (the constant-activity scene at 256², τc = 20 frames) tiled to ``--size``,
+each tile shifted in time, in ``--pixel-format`` (Mono12p and Mono16 are replayed unpacked, as
+uint16: the unpacking a real camera's frames need is timed on its own), played in a loop. The
+default configuration is the issue's: stats every 1 s, maps every 10 s, drying states every 0.5
+s, two large regions, the default queue (``acquisition.queue_seconds`` = 1 s). Every trial
+measures for its seconds after the window filled (when evaluations start); drops are counted
+over the whole trial.
 
 Measured, in one run, per size:
 
@@ -141,8 +142,9 @@ def unpack_ms(shape: tuple[int, int], pixel_format: str, repeats: int = 20) -> f
 
 class Instruments:
     """Timestamps from the real pipeline's probes: each frame's entry into the queue and its
-    push, the pipeline thread's cost of each push and snapshot, each evaluation's cost on the
-    evaluator thread and when its states (and alerts) and its stats were handed to the sink."""
+    push, the pipeline thread's cost of each push and of each evaluation's region statistics,
+    each evaluation's cost on the evaluator thread and when its states (and alerts) and its
+    stats were handed to the sink."""
 
     def __init__(self) -> None:
         self.enqueued: dict[int, float] = {}

@@ -67,7 +67,7 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     report.line()
     report.table(["size", "bare engine frames/s", "daemon capacity frames/s (÷ bare)",
                   "highest paced rate, zero drops (÷ bare)", "queue frames", "CPU ms/frame",
-                  "push ms mean / p99", "snapshot ms mean / max (pipeline thread)",
+                  "push ms mean / p99", "region stats ms mean / max (pipeline thread)",
                   "evaluation ms mean / max (evaluator thread)", "frame → alert p50 / p99 (s)",
                   "frame → stats p50 / p99 (s)", "unpack ms/frame"],
                  [summary_row(result) for result in results])
@@ -79,9 +79,11 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
         report.line(f"- {_size(result)}: zero drops up to {ratio:.0%} of the bare engine's rate: {met} the "
                     f"target of {TARGET_RATIO:.0%}; capacity {result.capacity.fps / result.bare_fps:.0%}.")
     report.line()
-    report.line("An evaluation costs the pipeline thread one snapshot of the engine's integer sums (the "
-                "*snapshot* column); maps, region statistics, states and messages run on the evaluator thread "
-                "(the *evaluation* column) beside the next pushes. Frame → alert is the time from a frame "
+    report.line("An evaluation costs the pipeline thread one pass over the regions of the engine's live "
+                "integer sums (the *region stats* column: means at every states evaluation; count, mean, "
+                "deviation and percentile sample of every map at every stats evaluation; plus a copy of the "
+                "sums every 10 s for the maps); percentiles, maps, states and messages run on the evaluator "
+                "thread (the *evaluation* column) beside the next pushes. Frame → alert is the time from a frame "
                 "entering the queue to the drying states that include it being judged and their alerts handed "
                 "to the MQTT sink (states every 0.5 s: p99 ≈ 0.5 s + one evaluation); frame → stats, to the "
                 "stats message that counts it (every 1 s). Mono12p and Mono16 frames are replayed unpacked; "

@@ -1,13 +1,16 @@
 """Evaluation: the streaming engine and, beside it, region statistics, drying states and messages.
 
-The pipeline thread pushes frames into the engine and, on the states and stats cadence, takes a
-:class:`Snapshot`: a copy of the engine's sums (``engine.snapshot()``, about the cost of one
-push; the only evaluation work it does). One evaluator thread turns a snapshot into float maps
-(``maps_from``: the engine's maps kernel, GIL released), region statistics (numpy, over each
-region's bounding box), drying states and typed messages for the sink, beside the next pushes,
-so an evaluation never stalls capture or the engine. States are evaluated on their own, faster
-cadence from the activity map only (one sum copied, region means only); the full statistics
-and maps go out on theirs.
+The pipeline thread pushes frames into the engine and, on the states and stats cadence, reduces
+the engine's live sums to region statistics between two pushes
+(:func:`edgedsm.estimators.region_stats.region_moments`: one fused pass over each region's
+bounding box, no float maps and no copy of the sums; about the cost of one push at 2048²).
+States are evaluated on their own, faster cadence from the activity map's region means only; the
+full statistics (count, mean, deviation, percentile sample of every map) on the stats cadence.
+Only on the maps cadence does it copy the sums (``engine.snapshot()``). It hands a
+:class:`Snapshot` of all that to one evaluator thread, which takes the percentiles, turns a copy
+of the sums into float maps (``maps_from``: the engine's maps kernel, GIL released), steps the
+drying states and hands typed messages to the sink, beside the next pushes, so an evaluation
+never stalls capture or the engine.
 
 With ``estimator.area = "regions"`` the engine sees only the bounding box of all regions (frames
 are cropped before the push): the cost follows the regions, and the published maps cover that
@@ -26,7 +29,7 @@ import time
 from collections import Counter
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FuturesTimeout
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,7 +40,9 @@ from edgedsm.daemon.tau import TauRegions, engine_estimators, map_block
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators.region_stats import Moments, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, maps_from
+from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.estimators.tau_pooled import pooled_covariances
 from edgedsm.frames import Frame
 from edgedsm.messages import (
@@ -123,11 +128,14 @@ class Snapshot:
 
     status: Status
     ready: bool
-    engine: EngineSnapshot | None = None  # the sums (None before the window is full); valid until
-    # the next snapshot, which reuses its buffers
+    engine: EngineSnapshot | None = None  # a copy of the sums when maps are published (else None);
+    # valid until the next copy, which reuses its buffers
     publish_maps: bool = False
     publish_stats: bool = True  # False: the drying states only (activity means, no stats message)
     tau: TauSnapshot | None = None  # τc's sums, when τc is estimated and this evaluation needs it
+    #: region -> map -> moments, from the live sums on the pipeline thread (empty before the window
+    #: is full); states only: the judged map's means
+    regions: dict[str, dict[str, Moments]] = field(default_factory=dict)
 
 
 class Evaluation:
@@ -143,6 +151,7 @@ class Evaluation:
         self.engine: SlidingWindow | None = None
         self.frame_shape: tuple[int, int] | None = None  # fixed by the first frame
         self.regions: dict[str, RegionBox] = {}  # in the engine's coordinates
+        self._plans: dict[str, RegionPlan] = {}  # the same, prepared for region_moments
         self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
@@ -174,11 +183,14 @@ class Evaluation:
             engine.push(frame)
         mask = np.zeros((side, side), bool)
         mask[1:-1, 1:-1] = True
+        plans = {name: RegionPlan.of(RegionBox.of(region), (side, side))
+                 for name, region in (("all", np.ones_like(mask)), ("inner", mask))}
+        maps_from(engine.snapshot(ESTIMATORS))
         wanted = [ESTIMATORS] + ([[est.activity]] if est.activity in ESTIMATORS else [])
-        for snapshot in [engine.snapshot(names) for names in wanted]:
-            for values in maps_from(snapshot).values():
-                RegionBox.of(np.ones_like(mask)).stats(values)
-                RegionBox.of(mask).stats(values)
+        for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
+            for names in wanted:
+                region_moments(engine.snapshot(names, live=True), plans, names, spread=names is ESTIMATORS,
+                               parallel=parallel)
         if self.tau.on:  # the pooled-covariance kernels of the regions and the block map
             tau = engine.tau_snapshot()
             self.tau.map_seconds(tau, 1.0, block=2)
@@ -243,6 +255,7 @@ class Evaluation:
                                     estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
                                     max_lag=est.lags if self.tau.on else None)
         self.regions = regions
+        self._plans = {name: RegionPlan.of(box, shape) for name, box in regions.items()}
         self.tau.prepare(regions, shape)
         self.frame_shape = frame.shape
 
@@ -269,7 +282,8 @@ class Evaluation:
             log.error("alert %r could not be handed over: %s", alert.describe(), exc)
 
     def evaluate(self, status: Status, maps_due: bool, wait: bool = False, stats_due: bool = True) -> Snapshot | None:
-        """Snapshot the sums now, analyse and publish on the evaluator thread; None if skipped.
+        """Region statistics from the sums now (and a copy of the sums when maps are due), the
+        rest on the evaluator thread; None if skipped.
 
         An evaluation that is due while the previous one still runs is skipped (the caller
         retries);
@@ -284,15 +298,22 @@ class Evaluation:
         started = time.perf_counter()
         ready = self.ready
         engine = tau = None
+        moments: dict[str, dict[str, Moments]] = {}
+        publish_maps = ready and maps_due and stats_due
         if ready and self.engine is not None:
-            # the previous snapshot's analysis has ended (checked above): its buffers are reused
             wanted = self._snapshot_estimators(stats_due)
             if wanted:
-                engine = self._buffers = self.engine.snapshot(wanted, into=self._buffers)
+                # the live sums, read between two pushes on the thread that pushes: no copy
+                moments = region_moments(self.engine.snapshot(wanted, live=True), self._plans, wanted,
+                                         spread=stats_due, parallel=self.engine.shape[0] * self.engine.shape[1]
+                                         >= PARALLEL_MIN_PIXELS)
+            if publish_maps:
+                # the previous snapshot's analysis has ended (checked above): its buffers are reused
+                engine = self._buffers = self.engine.snapshot(ESTIMATORS, into=self._buffers)
             tau = self.tau.take(self.engine, stats_due, self._tau_buffers)
             self._tau_buffers = tau or self._tau_buffers
-        snapshot = Snapshot(status, ready, engine, publish_maps=ready and maps_due and stats_due,
-                            publish_stats=stats_due, tau=tau)
+        snapshot = Snapshot(status, ready, engine, publish_maps=publish_maps, publish_stats=stats_due, tau=tau,
+                            regions=moments)
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
         self._pending = self._last = self._executor.submit(self._analyse, snapshot)
@@ -331,19 +352,19 @@ class Evaluation:
 
     # -- evaluator thread ---------------------------------------------------------------------------
     def _analyse(self, snapshot: Snapshot) -> None:
-        """Maps from the sums, region statistics, drying states, messages to the sink."""
+        """Percentiles of the region statistics, drying states, maps from the copied sums,
+        messages to the sink."""
         started = time.perf_counter()
         status = snapshot.status
         estimator = self.config.estimator.activity
-        maps = maps_from(snapshot.engine) if snapshot.engine is not None else {}
         regions: dict[str, dict[str, MapStats]] = {}
         activities: dict[str, float] = {}
-        for name, box in self.regions.items() if maps else ():
+        for name, per_map_moments in snapshot.regions.items():
             if not snapshot.publish_stats:  # states only: the activity means
-                if estimator in maps:
-                    activities[name] = box.mean(maps[estimator])
+                if estimator in per_map_moments:
+                    activities[name] = per_map_moments[estimator].mean
                 continue
-            per_map = {key: MapStats(**box.stats(values).as_dict()) for key, values in maps.items()}
+            per_map = {key: MapStats(**moments.stats().as_dict()) for key, moments in per_map_moments.items()}
             regions[name] = per_map
             mean = per_map[estimator].mean if estimator in per_map else None
             if mean is not None:
@@ -375,6 +396,7 @@ class Evaluation:
             self.sink.publish_state(report)
             self._last_report = report
         if snapshot.publish_maps:
+            maps = maps_from(snapshot.engine) if snapshot.engine is not None else {}
             est = self.config.estimator
             origin = {} if self.crop is None else {"origin": [self.crop[1].start, self.crop[0].start]}
             for name, values in maps.items():

@@ -30,7 +30,8 @@ class PipelineProbes:
     frame_taken: Callable[[Frame, int], None] | None = None
     #: pipeline thread: a frame pushed into the engine, when the push ended, and its cost
     frame_pushed: Callable[[Frame, float, float], None] | None = None
-    #: pipeline thread: maps snapshotted for an evaluation, and what that cost this thread
+    #: pipeline thread: an evaluation's region statistics taken from the engine's sums (and the
+    #: sums copied when maps are due), and what that cost this thread
     snapshot_taken: Callable[[Snapshot, float], None] | None = None
     #: evaluator thread: an evaluation finished (statistics, states, messages handed to the sink),
     #: the stats message it published, and how long the evaluation took

@@ -549,11 +549,15 @@ class SlidingWindow:
         cov, var = self._tau_covariances(np.flatnonzero(region))
         return tau_stream.tau_region(self.window, cov, var)
 
-    def snapshot(self, estimators: Iterable[str] | None = None, into: EngineSnapshot | None = None) -> EngineSnapshot:
+    def snapshot(self, estimators: Iterable[str] | None = None, into: EngineSnapshot | None = None,
+                 live: bool = False) -> EngineSnapshot:
         """Copies of the sums ``maps()`` reads for ``estimators`` (default: the engine's own),
         about half a push of memory traffic; :func:`edgedsm.estimators.snapshot.maps_from` turns
         them into the same maps, on any thread. ``into``: an older snapshot nobody reads any
-        more, whose arrays are overwritten (no fresh pages to fault in: about half the cost)."""
+        more, whose arrays are overwritten (no fresh pages to fault in: about half the cost).
+        ``live``: views of the engine's own sums, no copy, valid until the next push or reset
+        (read them on the thread that pushes, e.g. with
+        :func:`edgedsm.estimators.region_stats.region_moments`)."""
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
                                  f"{self.window} frames pushed (check .ready)")
@@ -572,6 +576,8 @@ class SlidingWindow:
             target = old.get(name)
             if not needed[name]:
                 sums[name] = empty
+            elif live:
+                sums[name] = source
             elif target is not None and target.shape == source.shape and target.dtype == source.dtype:
                 np.copyto(target, source)
                 sums[name] = target

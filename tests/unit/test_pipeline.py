@@ -7,6 +7,7 @@ import time
 import numpy as np
 import pytest
 
+from edgedsm.analysis import region_stats
 from edgedsm.config import load_config
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.service import couple_simulated_laser
@@ -108,6 +109,30 @@ def test_published_maps_equal_batch_maps_of_the_window(setup):
     expected = all_maps(window, config.estimator.lag, q=config.estimator.q)[name]
     assert pipeline.counters["dropped_queue"] == 0
     assert pushed >= k and np.allclose(values, expected, rtol=0, atol=1e-9)
+
+
+def test_published_statistics_are_those_of_the_published_maps(setup):
+    """The region statistics come from the live sums (region_stats), the maps from a copy: at the
+    evaluation that published both, they describe the same window (issue 13)."""
+    config, camera, _relay, publisher, _ = setup
+    config.acquisition.dark_frames = 0
+    pipeline = make_pipeline(config, camera, None, publisher)
+    hold_back(camera, pipeline)
+    pipeline.run(lambda: False, max_frames=150)
+    assert publisher.maps and pipeline.counters["dropped_queue"] == 0
+    (region,) = config.regions
+    mask = region.mask(pipeline.frame_shape, config.base_dir)
+    checked = 0
+    for published in publisher.maps:
+        frames = published.meta()["frames"]
+        (stats,) = [s for s in publisher.stats if s.frames == frames]
+        expected = region_stats(published.values, mask)
+        got = stats.regions[region.name][published.name]
+        assert got.pixels == expected.pixels
+        for field in ("mean", "std", "p05", "median", "p95"):
+            assert getattr(got, field) == pytest.approx(getattr(expected, field), rel=1e-12, abs=1e-15), field
+        checked += 1
+    assert checked >= 3  # s1, s2 and s3 of at least one evaluation
 
 
 def test_camera_loss_switches_laser_off_and_faults(setup):
