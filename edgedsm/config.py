@@ -389,7 +389,7 @@ class DaemonConfig(StrictModel):
             raise ValueError("estimator.window: τc needs a window of at least 3 frames (K < N - 1)")
         dt = self.camera.frame_interval_s
         if dt is None:
-            return  # known once frames flow; thresholds beyond the measurable range are logged then
+            return  # known once frames flow: checked then (a warning alert per region, edgedsm.daemon.tau)
         for index, region in enumerate(self.regions):
             if region.wet_below_s is None or region.dry_above_s is None:
                 continue

@@ -53,9 +53,12 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     report = Report("End-to-end daemon benchmark")
     sizes = ",".join(f"{r.shape[1]}x{r.shape[0]}" for r in results)
     command = f"edgedsm bench e2e --size {sizes} --pixel-format {args.pixel_format}{' --quick' if args.quick else ''}"
+    quiet = load is not None and load < 1.0
     report.line(report.machine(command, "numba", load=load, load_after=load_average()) +
-                " The machine is shared: other engineers ran tests on its 2 cores during the run, so every "
-                "rate is noisy and only the ratios measured in this one run mean much.")
+                (" Nothing else ran on the machine during the run; still, only the ratios measured in this one "
+                 "run are meant to carry over to other machines." if quiet else
+                 " The machine is shared: other work ran on its cores during the run, so every rate is noisy "
+                 "and only the ratios measured in this one run mean much."))
     report.line()
     report.line(f"Replay of {RECORDED_FRAMES} recorded frames (looped) → the daemon's `Pipeline` (N = {WINDOW}, "
                 f"m = {LAG}, S1 + S2 + S3, two regions: the whole sensor and its centre quarter) → `MqttSink` → "

@@ -420,6 +420,10 @@ class Evaluation:
         interval_s = self.tau.interval.seconds(snapshot.status.fps) if snapshot.tau is not None else None
         if snapshot.tau is None or interval_s is None:
             return {}, None
+        for region, problem in self.tau.threshold_problems(interval_s).items():
+            log.warning("region %s: %s", region, problem, extra={"region": region})
+            self.sink.publish_alert(Alert(kind=AlertKind.WARNING, t=self.clock.to_wall(snapshot.status.now),
+                                          reason=problem, region=region))
         names = None if snapshot.publish_stats else self.tau.judged
         return self.tau.regions(snapshot.tau, interval_s, names), interval_s
 

@@ -29,7 +29,7 @@ from collections import deque
 import numpy as np
 
 from edgedsm.analysis import RegionBox
-from edgedsm.config import DaemonConfig
+from edgedsm.config import DaemonConfig, tau_threshold_problem
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
 from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL, fit_correlations, normalise
 from edgedsm.estimators.snapshot import TauSnapshot, tau_covariances
@@ -93,6 +93,26 @@ class TauRegions:
         self.interval = FrameInterval(config.camera.frame_interval_s)
         self.pixels: dict[str, np.ndarray] = {}  # region -> flat indices in the engine's frame
         self.status: dict[str, TauStatus] = {}  # the latest status of each region (evaluator thread)
+        self._checked_s: float | None = None  # the Δt the thresholds were last checked at
+
+    def threshold_problems(self, interval_s: float) -> dict[str, str]:
+        """Regions whose τc thresholds cannot be told apart at the measured Δt, and why: checked
+        the first time Δt is known and again when it moves by more than 10 % (a configured
+        ``camera.frame_interval_s`` is checked with the config instead)."""
+        if self.config.camera.frame_interval_s is not None:
+            return {}
+        if self._checked_s is not None and abs(interval_s - self._checked_s) <= 0.1 * self._checked_s:
+            return {}
+        self._checked_s = interval_s
+        problems = {}
+        for region in self.config.regions:
+            if region.wet_below_s is None or region.dry_above_s is None:
+                continue
+            problem = tau_threshold_problem(region.wet_below_s, region.dry_above_s, region.hysteresis,
+                                            self.config.estimator.lags, interval_s)
+            if problem:
+                problems[region.name] = f"at the measured frame interval {interval_s:.4g} s, {problem}"
+        return problems
 
     @property
     def on(self) -> bool:

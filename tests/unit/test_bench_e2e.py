@@ -76,3 +76,16 @@ def test_recordings_tile_any_size_in_the_pixel_format(tmp_path: Path, bits: int,
     assert 0 < stack.max() <= top and stack.std() > 0
     # tiles are shifted in time: two neighbouring tiles differ in the same frame
     assert not np.array_equal(stack[0, :256, :256], stack[0, :256, 256:512])
+
+
+def test_a_daemon_that_falls_behind_is_not_sustained_even_before_its_queue_overflows() -> None:
+    trial = _trial(140.0, 0)  # 10 s, nothing dropped yet ...
+    trial.processed = 1343  # ... but 134.3 frames/s processed of 140 asked: the queue only fills
+    assert not trial.sustained and best_zero_drop([trial]) is None
+
+
+def test_search_rate_on_a_fine_grid() -> None:
+    trials = search_rate(lambda rate: _trial(rate, 0 if rate <= 61 else 2), start=62.0, ceiling=72.0, max_trials=6,
+                         resolution=2.0, step=1.0)
+    assert [t.rate for t in trials] == [62, 31, 46, 54, 58, 60]
+    assert best_zero_drop(trials).rate == 60  # the budget ran out before 61

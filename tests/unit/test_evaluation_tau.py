@@ -111,3 +111,16 @@ def test_frame_interval_prefers_the_configured_one_then_the_frames_timestamps():
     for seq in (0, 1, 2, 4, 5, 6):  # frame 3 lost upstream: its gap is two intervals, not one long one
         stamped.saw(Frame(pixels, seq, seq * 25_000_000, 8))
     assert stamped.seconds(fps=1000.0) == pytest.approx(0.025)
+
+
+def test_thresholds_beyond_the_measured_range_raise_one_warning_per_region(repo):
+    # no camera.frame_interval_s: Δt (0.05 s) is known only once frames flow; then dry_above_s =
+    # 2 s is beyond K·Δt = 20 x 0.05 s = 1 s and can never be reached: a warning alert, once
+    config = _config(repo, {"max_lag": 20},
+                     [{"name": "plate", "wet_below_s": 0.2, "dry_above_s": 2.0},
+                      {"name": "fine", "shape": "rect", "x": 0, "y": 0, "width": 16, "height": 16,
+                       "wet_below_s": 0.2, "dry_above_s": 0.5}])
+    sink, _ = _run(config, repo, 400)
+    warnings = [a for a in sink.alerts if a.kind == "warning"]
+    assert [a.region for a in warnings] == ["plate"], sink.alerts
+    assert "dry_above_s" in warnings[0].reason and "0.05 s" in warnings[0].reason and "1 s" in warnings[0].reason
