@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
             "camera": config.camera.uri, "laser": config.laser.uri if config.laser else None,
             "estimator": {"activity": config.estimator.activity, "window": config.estimator.window,
                           "lag": config.estimator.lag, "mode": config.estimator.mode},
+            "tau_c": tau_range(config),
             "regions": [region.name for region in config.regions],
             "frame_shape": list(frame_shape) if frame_shape is not None else None,
             "mqtt": f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else None,
@@ -67,7 +68,30 @@ def run(args: argparse.Namespace) -> int:
           f"{config.estimator.activity.upper()} N={config.estimator.window} m={config.estimator.lag} "
           f"({config.estimator.mode}), {regions}, MQTT {mqtt}")
     print(queue_memory(config, frame_shape))
+    tau = tau_range(config)
+    if tau is not None:
+        print(tau_line(tau))
     return 0
+
+
+def tau_range(config: DaemonConfig) -> dict[str, float | int | None] | None:
+    """What τc can measure with this config (None: τc off): K, Δt and the range Δt/3 ... K·Δt in
+    seconds (None while Δt is known only from the frames)."""
+    from edgedsm.estimators.correlation_time import TAU_FLOOR
+
+    if not config.tau_c_on:
+        return None
+    lags, dt = config.estimator.lags, config.camera.frame_interval_s
+    return {"max_lag": lags, "frame_interval_s": dt, "shortest_s": TAU_FLOOR * dt if dt else None,
+            "longest_s": lags * dt if dt else None}
+
+
+def tau_line(tau: dict[str, float | int | None]) -> str:
+    if tau["frame_interval_s"] is None:
+        return (f"τc: K = {tau['max_lag']} lags, measured from Δt/3 to {tau['max_lag']}·Δt (Δt from the frames' "
+                "timestamps at start; thresholds checked then)")
+    return (f"τc: K = {tau['max_lag']} lags at Δt = {tau['frame_interval_s']:g} s: measured from "
+            f"{tau['shortest_s']:.3g} s to {tau['longest_s']:.3g} s (beyond: reported as a bound)")
 
 
 def queue_memory(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> str:

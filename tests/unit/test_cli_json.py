@@ -43,6 +43,22 @@ def test_check_config_prints_the_topic_base_it_will_use(tmp_path: Path, capsys: 
     assert (summary["homeassistant"], summary["http"]) == ("homeassistant", "127.0.0.1:9200")
 
 
+def test_check_config_says_what_tau_c_can_measure(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "tau.toml"
+    path.write_text(CONFIG.replace('uri = "sim:default"', 'uri = "sim:default"\nframe_interval_s = 0.05')
+                    .replace("wet_above = 0.9\ndry_below = 0.5", "wet_below_s = 0.2\ndry_above_s = 0.5")
+                    + "[estimator]\nwindow = 100\nlag = 5\nmax_lag = 20\n")
+    assert main(["check-config", str(path)]) == 0
+    assert "τc: K = 20 lags at Δt = 0.05 s: measured from 0.0167 s to 1 s" in capsys.readouterr().out
+    assert main(["check-config", str(path), "--json"]) == 0
+    tau = json.loads(capsys.readouterr().out)["tau_c"]
+    assert tau["max_lag"] == 20 and tau["longest_s"] == pytest.approx(1.0)
+    assert tau["shortest_s"] == pytest.approx(0.05 / 3)
+    path.write_text(CONFIG)  # τc off: no line, null in JSON
+    assert main(["check-config", str(path)]) == 0
+    assert "τc" not in capsys.readouterr().out
+
+
 def test_a_bad_config_still_exits_78_with_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(CONFIG.replace('listen = "127.0.0.1:9200"', 'listen = "127.0.0.1:99999"'))
