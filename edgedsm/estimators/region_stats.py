@@ -170,21 +170,29 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, exponential: bool,
     do_abs = want_s1 or want_s3
 
     @numba.njit(inline="always", nogil=True)
-    def pixel(p, abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight):  # pragma: no cover
-        """(S1, S2, S3) of flat pixel p; the arithmetic of maps_kernel (window modes) or of the
-        exponential maps: every operation as there, in the same order (the same float64)."""
+    def exponential_pixel(p, abs_sum, ratio_sum, second, weight):  # pragma: no cover - compiled
+        """(S1, S2, S3) of flat pixel p from the exponential window's float means, as its maps."""
         value = 0.0
         s2 = 0.0
         s3 = 0.0
+        if do_abs:
+            value = abs_sum[p]
+        if want_s2:
+            s2 = ratio_sum[p]
+        if want_s3:
+            deviation = np.sqrt(second[p] / weight)
+            s3 = value / deviation if deviation > 0.0 else 0.0
+        return value, s2, s3
+
+    @numba.njit(inline="always", nogil=True)
+    def pixel(p, abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight):  # pragma: no cover
+        """(S1, S2, S3) of flat pixel p; the arithmetic of maps_kernel (window modes) or of the
+        exponential maps: every operation as there, in the same order (the same float64)."""
         if exponential:
-            if do_abs:
-                value = abs_sum[p]
-            if want_s2:
-                s2 = ratio_sum[p]
-            if want_s3:
-                deviation = np.sqrt(second[p] / weight)
-                s3 = value / deviation if deviation > 0.0 else 0.0
-            return value, s2, s3
+            return exponential_pixel(p, abs_sum, ratio_sum, second, weight)
+        value = 0.0
+        s2 = 0.0
+        s3 = 0.0
         if do_abs:
             value = np.float64(abs_sum[p]) / pairs
         if want_s2:
@@ -226,18 +234,11 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, exponential: bool,
         N/(N-m), ``limit`` as in maps_kernel), one division and one square root per pixel instead
         of four and one, and no integer division. The
         centring integer k may differ from maps_kernel's by one: N²σ² is exact for every k."""
+        if exponential:
+            return exponential_pixel(p, abs_sum, ratio_sum, second, weight)
         value = 0.0
         s2 = 0.0
         s3 = 0.0
-        if exponential:
-            if do_abs:
-                value = abs_sum[p]
-            if want_s2:
-                s2 = ratio_sum[p]
-            if want_s3:
-                deviation = np.sqrt(second[p] / weight)
-                s3 = value / deviation if deviation > 0.0 else 0.0
-            return value, s2, s3
         if do_abs:
             value = np.float64(abs_sum[p]) * inv_pairs
         if want_s2:
