@@ -260,14 +260,18 @@ class Evaluation:
         self.frame_shape = frame.shape
 
     def reset(self, why: str, states: bool = True) -> None:
-        """Empty the estimator window; with ``states``, every region goes back to warming up."""
+        """Empty the estimator window; with ``states``, every region goes back to warming up,
+        announced as one ``reset`` alert (as a reload's), not as a transition per region."""
         if self.engine is not None:
             self.engine.reset()
         if states:
+            now = self.clock.monotonic()
             with self.monitor_lock:
-                transitions = self.monitor.reset(self.clock.monotonic(), why)
-            for transition in transitions:
-                self.publish_alert(self._alert(transition))
+                self.monitor.reset(now, why)
+            self.publish_alert(Alert(kind=AlertKind.RESET, t=self.clock.to_wall(now),
+                                     reason=f"measurement restarted: {why}; every region warms up again"))
+            log.warning("measurement restarted (%s); every region warms up again", why)
+            return
         log.info("measurement restarted (%s)", why)
 
     def publish_alert(self, alert: Alert) -> None:

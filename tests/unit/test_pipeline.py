@@ -292,3 +292,32 @@ def test_probes_see_every_frame_and_every_evaluation(setup):
     # the drying states are judged every 0.5 s (10 frames here) whatever the stats cadence (1 s)
     assert seen["states"] == [snapshot.status.frames for snapshot in seen["snapshots"]]
     assert len(seen["snapshots"]) >= 2 * len(publisher.stats) - 1
+
+
+def test_rebaseline_publishes_one_reset_alert_and_the_states_start_again(setup):
+    # as a reload does (docs/mqtt.md: "reset: measurement restarted"), not one X -> warming_up
+    # transition per region
+    import threading
+
+    config, camera, relay, publisher, _ = setup
+    pipeline = make_pipeline(config, camera, relay, publisher)
+    hold_back(camera, pipeline)
+    replies: list[dict] = []
+
+    def stop() -> bool:
+        if pipeline.counters["frames"] >= 450 and not replies:
+            replies.append({})
+            threading.Thread(target=lambda: replies.append(pipeline.submit("rebaseline"))).start()
+        return False
+
+    pipeline.run(stop, max_frames=900)
+    assert replies[-1] == {"ok": True}
+    kinds = [(a.kind, a.from_state, a.to_state) for a in publisher.alerts]
+    assert kinds[0] == (AlertKind.TRANSITION, "warming_up", "wet"), kinds
+    reset = [a for a in publisher.alerts if a.kind == AlertKind.RESET]
+    assert len(reset) == 1 and reset[0].region is None and "rebaseline" in reset[0].reason, publisher.alerts
+    after = publisher.alerts[publisher.alerts.index(reset[0]) + 1:]
+    assert all(a.to_state != "warming_up" for a in publisher.alerts if a.kind == AlertKind.TRANSITION)
+    assert after and after[0].from_state == "warming_up"  # the states start again from warming up
+    later = [s for s in publisher.states if s.t >= reset[0].t]
+    assert later and later[0].regions["plate"].state == "warming_up"
