@@ -110,12 +110,18 @@ class SinkSet:
 
     def _wire(self, config: DaemonConfig) -> None:
         """The metrics sink reads the MQTT link's health and is the pipeline's frame probes."""
-        link = self.get("mqtt")
         metrics = self.get("http")
-        self.probes.frame_taken = getattr(metrics, "frame_taken", None)
-        self.probes.frame_pushed = getattr(metrics, "frame_pushed", None)
-        if metrics is not None:
-            metrics.link = link  # type: ignore[attr-defined]
+        self.probes.frame_taken = self.probes.frame_pushed = None
+        if metrics is None:
+            return
+        from edgedsm.publish.json_sink import MqttSink
+        from edgedsm.publish.prometheus import MetricsSink
+
+        assert isinstance(metrics, MetricsSink)  # _build makes "http" a MetricsSink
+        link = self.get("mqtt")
+        metrics.link = link if isinstance(link, MqttSink) else None
+        self.probes.frame_taken = metrics.frame_taken
+        self.probes.frame_pushed = metrics.frame_pushed
 
     def get(self, name: str) -> Sink | None:
         built = self._built.get(name)
