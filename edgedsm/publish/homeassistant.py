@@ -33,12 +33,11 @@ from edgedsm.messages import Alert, MapFrame, StateReport, Stats
 from edgedsm.publish.colormap import encode_colour_png
 from edgedsm.publish.connection import build_ssl_context, connect_in_background, make_client
 from edgedsm.publish.ha_discovery import Discovery, Entity, colour_map_topic
+from edgedsm.publish.latest_worker import LatestWorker
 from edgedsm.publish.settings import MqttSettings, resolve_password
 from edgedsm.publish.topics import Topics
 
 log = logging.getLogger(__name__)
-
-WORKER_POLL_S = 0.25
 
 
 class HomeAssistantSink:
@@ -66,9 +65,8 @@ class HomeAssistantSink:
                 self._entities[entity.topic] = entity
         self._stale = self._forgotten_topics()
         self._connected = threading.Event()
-        self._maps: dict[str, np.ndarray] = {}
-        self._wake = threading.Event()
-        self._stop = threading.Event()
+        self._maps: LatestWorker[np.ndarray] = LatestWorker("edgedsm-ha-maps", "Home Assistant colour map",
+                                                            self._render)
         self.maps_sent = 0
         password = password if password is not None else resolve_password()
         ssl_context = build_ssl_context(settings.tls) if settings.tls is not None else None
@@ -77,13 +75,12 @@ class HomeAssistantSink:
         self._client.on_connect = self._on_connect
         self._client.on_disconnect = self._on_disconnect
         self._client.message_callback_add(self.status_topic, self._on_status)
-        self._worker = threading.Thread(target=self._work, name="edgedsm-ha-maps", daemon=True)
 
     def start(self) -> HomeAssistantSink:
         """Connect in the background (returns at once)."""
         connect_in_background(self._client, self.settings)
         if self.colormap is not None:
-            self._worker.start()
+            self._maps.start()
         return self
 
     @property
@@ -180,42 +177,23 @@ class HomeAssistantSink:
         if self.colormap is None:
             return
         self._add([self.discovery.image_entity(frame.name)])
-        with self._lock:
-            self._maps[frame.name] = frame.values  # the latest replaces one not yet rendered
-        self._wake.set()
+        self._maps.submit(frame.name, frame.values)  # the latest replaces one not yet rendered
 
     def flush(self, timeout_s: float) -> bool:
         return True
 
     def close(self, timeout_s: float) -> None:
-        self._stop.set()
-        self._wake.set()
-        if self._worker.is_alive():
-            self._worker.join(timeout=max(0.0, timeout_s / 2))
+        self._maps.stop(timeout_s=max(0.0, timeout_s / 2))
         self._client.disconnect()
         stopper = threading.Thread(target=self._client.loop_stop, daemon=True)
         stopper.start()
         stopper.join(timeout=max(0.0, timeout_s / 2))
 
     # -- colour maps (worker thread) -----------------------------------------------------------------
-    def _work(self) -> None:
-        while not self._stop.is_set():
-            self._wake.wait(WORKER_POLL_S)
-            self._wake.clear()
-            while not self._stop.is_set():
-                with self._lock:
-                    if not self._maps:
-                        break
-                    name = next(iter(self._maps))
-                    values = self._maps.pop(name)
-                if not self.connected:
-                    continue
-                try:
-                    png = encode_colour_png(values, colormap=self.colormap or "turbo",
-                                            max_size=self.settings.map_max_size, title=name.upper(),
-                                            compression=self.settings.map_png_compression)
-                except Exception:  # keep the worker alive for the next maps
-                    log.exception("Home Assistant: colour map %r not rendered", name)
-                    continue
-                self._client.publish(colour_map_topic(self.topics, name), png, qos=0, retain=True)
-                self.maps_sent += 1
+    def _render(self, name: str, values: np.ndarray) -> None:
+        if not self.connected:
+            return
+        png = encode_colour_png(values, colormap=self.colormap or "turbo", max_size=self.settings.map_max_size,
+                                title=name.upper(), compression=self.settings.map_png_compression)
+        self._client.publish(colour_map_topic(self.topics, name), png, qos=0, retain=True)
+        self.maps_sent += 1

@@ -21,14 +21,12 @@ from paho.mqtt.enums import MQTTErrorCode
 from edgedsm import _json
 from edgedsm.publish.counters import Counters
 from edgedsm.publish.errors import MapCodecError
+from edgedsm.publish.latest_worker import LatestWorker
 from edgedsm.publish.mapcodec import encode_map
 from edgedsm.publish.settings import MqttSettings
 from edgedsm.publish.topics import Topics
 
 log = logging.getLogger(__name__)
-
-WORKER_POLL_S = 0.25  # how often the idle worker looks at the stop flag
-
 
 class MapSender:
     """Sends maps handed to :meth:`submit` while ``connected`` is set."""
@@ -40,19 +38,18 @@ class MapSender:
         self._client = client
         self._connected = connected
         self._counters = counters
-        self._lock = threading.Lock()
-        self._jobs: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
-        self._sending = False  # the worker holds a map it has taken off _jobs
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self.thread = threading.Thread(target=self._work, name="edgedsm-mqtt-maps", daemon=True)
+        self._worker: LatestWorker[tuple[np.ndarray, dict[str, Any]]] = LatestWorker(
+            "edgedsm-mqtt-maps", "map", self._handle, on_error=lambda name: self._counters.add("maps_dropped"))
+
+    @property
+    def thread(self) -> threading.Thread:
+        return self._worker.thread
 
     def start(self) -> None:
-        self.thread.start()
+        self._worker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._wake.set()
+        self._worker.stop()
 
     def submit(self, name: str, values: np.ndarray, meta: Mapping[str, Any] | None = None) -> bool:
         """Hand one map over (returns at once); False (counted as dropped) when not connected.
@@ -69,49 +66,19 @@ class MapSender:
             del info["estimator"]  # the codec writes it
         if "seq" not in info and "frames" in info:
             info["seq"] = info["frames"]
-        with self._lock:
-            replaced = self._jobs.pop(str(name), None) is not None
-            self._jobs[str(name)] = (values, info)
-        if replaced:
-            self._counters.add("maps_dropped")
-        self._wake.set()
+        if self._worker.submit(str(name), (values, info)):
+            self._counters.add("maps_dropped")  # the one it replaced
         return True
 
     def flush(self, timeout: float) -> bool:
         """Wait at most ``timeout`` s until every map handed over has left (or was dropped)."""
-        deadline = time.monotonic() + timeout
-        while True:
-            with self._lock:
-                idle = not self._jobs and not self._sending
-            if idle:
-                return True
-            if time.monotonic() >= deadline:
-                return False
-            self._wake.set()
-            time.sleep(0.02)
+        return self._worker.flush(timeout)
 
-    def _work(self) -> None:
-        while not self._stop.is_set():
-            self._wake.wait(WORKER_POLL_S)
-            self._wake.clear()
-            while not self._stop.is_set():
-                with self._lock:
-                    if not self._jobs:
-                        break
-                    name = next(iter(self._jobs))
-                    values, meta = self._jobs.pop(name)
-                    self._sending = True
-                try:
-                    if not self._connected.is_set():
-                        self._counters.add("maps_dropped")
-                        continue
-                    self._send(name, values, meta)
-                except Exception:  # keep the worker alive for the next maps
-                    self._counters.add("maps_dropped")
-                    log.exception("map %r could not be published", name)
-                finally:
-                    with self._lock:
-                        self._sending = False
+    def _handle(self, name: str, job: tuple[np.ndarray, dict[str, Any]]) -> None:
+        if not self._connected.is_set():
+            self._counters.add("maps_dropped")
+            return
+        self._send(name, *job)
 
     def _send(self, name: str, values: np.ndarray, meta: dict[str, Any]) -> None:
         extra = {key: value for key, value in meta.items() if key not in ("seq", "t", "window", "lag")}
@@ -131,7 +98,7 @@ class MapSender:
         # Back-pressure: wait (in this thread only) until the PNG left, so maps never pile up.
         deadline = time.monotonic() + max(5.0, self.settings.maps_interval_s)
         while not sent.is_published() and sent.rc == MQTTErrorCode.MQTT_ERR_SUCCESS:
-            if self._stop.is_set() or time.monotonic() >= deadline:
+            if self._worker.stopping or time.monotonic() >= deadline:
                 return
             time.sleep(0.01)
         self._counters.add("maps_sent")
