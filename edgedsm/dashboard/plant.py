@@ -184,8 +184,12 @@ class Plant:
             raise Rejected(f"more than {MAX_REGIONS} regions")
         activity = {name: per_map[stats.estimator].mean if stats.estimator in per_map else None
                     for name, per_map in stats.regions.items()}
-        if stats.estimator == "tau_c":  # judged on τc: a region's activity is its τc in seconds
-            activity = {name: tau.tau_c_s for name, tau in stats.tau_c.items()}
+        # a region judged on τc (all of them with estimator "tau_c", or those the latest state report
+        # marks so): its activity is its τc in seconds, as in the state report
+        on_tau = set(stats.tau_c) if stats.estimator == "tau_c" else {
+            name for name, region in ((device.state or {}).get("regions") or {}).items()
+            if isinstance(region, dict) and region.get("estimator") == "tau_c"}
+        activity.update({name: tau.tau_c_s for name, tau in stats.tau_c.items() if name in on_tau})
         device.stats = {"t": stats.t, "fps": stats.fps, "frames": stats.frames, "ready": stats.ready,
                         "laser": stats.laser, "estimator": stats.estimator, "drops": stats.drops,
                         "ambient_level": stats.ambient_level, "warning": stats.warning,

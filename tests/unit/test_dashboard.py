@@ -25,7 +25,7 @@ from edgedsm.dashboard import history as history_module
 from edgedsm.dashboard.history import History, Sample
 from edgedsm.dashboard.plant import MAX_DEVICES, Plant, RegionInfo
 from edgedsm.dashboard.server import DashboardServer, EventHub
-from edgedsm.messages import Alert, AlertKind, MapStats, RegionState, StateReport, Stats
+from edgedsm.messages import Alert, AlertKind, MapStats, RegionState, RegionTau, StateReport, Stats
 from edgedsm.publish.mapcodec import encode_map
 
 NOW = 1_796_092_391.0
@@ -75,6 +75,24 @@ def test_stats_state_and_alerts_reach_the_view_and_the_history(plant: Plant, his
     assert history.flush(5)
     assert history.samples("cam1", "plate", NOW - 10, NOW + 10) == [(NOW, 0.25, "drying"), (NOW + 1, 0.20, "drying")]
     assert [a["to"] for a in history.alerts("cam1", "plate", NOW - 10, NOW + 10)] == ["drying"]
+
+
+def test_a_region_judged_on_tau_c_shows_its_tau_c_beside_others_on_s2(plant: Plant, history: History) -> None:
+    per_map = {"s2": MapStats(pixels=100, mean=0.25, std=0.01, p05=0.1, median=0.25, p95=0.4)}
+    report = StateReport(t=NOW, estimator="s2", laser="on", regions={
+        "plate": RegionState(region="plate", state="wet", since=NOW - 5, activity=0.25),
+        "edge": RegionState(region="edge", state="drying", since=NOW - 5, activity=0.31, estimator="tau_c",
+                            tau_c_status="measured")})
+    plant.handle("edgedsm/cam1/state", report.to_bytes())
+    message = Stats(t=NOW, frames=10, ready=True, fps=20.0, laser="on", estimator="s2",
+                    regions={"plate": per_map, "edge": per_map}, states={"plate": "wet", "edge": "drying"},
+                    tau_c={"plate": RegionTau(tau_c_s=0.12, status="measured"),
+                           "edge": RegionTau(tau_c_s=0.31, status="measured")})
+    plant.handle("edgedsm/cam1/stats", message.to_bytes())
+    (device,) = plant.snapshot()
+    assert device["stats"]["activity"] == {"plate": 0.25, "edge": 0.31}  # S2 for one, τc (s) for the other
+    assert history.flush(5)
+    assert history.samples("cam1", "edge", NOW - 1, NOW + 1) == [(NOW, 0.31, "drying")]
 
 
 @pytest.mark.parametrize(("topic", "payload", "reason"), [
