@@ -136,6 +136,8 @@ class Snapshot:
     #: region -> map -> moments, from the live sums on the pipeline thread (empty before the window
     #: is full); states only: the judged map's means
     regions: dict[str, dict[str, Moments]] = field(default_factory=dict)
+    #: the measurement it belongs to: an evaluation taken before a rebaseline is not judged after it
+    generation: int = 0
 
 
 class Evaluation:
@@ -155,6 +157,7 @@ class Evaluation:
         self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
+        self._generation = 0  # counts measurement restarts (rebaseline); guarded by monitor_lock
         self._last_report: StateReport | None = None  # the last one published
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate",
                                             initializer=yield_cores)
@@ -268,6 +271,7 @@ class Evaluation:
             now = self.clock.monotonic()
             with self.monitor_lock:
                 self.monitor.reset(now, why)
+                self._generation += 1  # an evaluation still in flight measured the old window
             self.publish_alert(Alert(kind=AlertKind.RESET, t=self.clock.to_wall(now),
                                      reason=f"measurement restarted: {why}; every region warms up again"))
             log.warning("measurement restarted (%s); every region warms up again", why)
@@ -316,8 +320,10 @@ class Evaluation:
                 engine = self._buffers = self.engine.snapshot(ESTIMATORS, into=self._buffers)
             tau = self.tau.take(self.engine, stats_due, self._tau_buffers)
             self._tau_buffers = tau or self._tau_buffers
+        with self.monitor_lock:
+            generation = self._generation
         snapshot = Snapshot(status, ready, engine, publish_maps=publish_maps, publish_stats=stats_due, tau=tau,
-                            regions=moments)
+                            regions=moments, generation=generation)
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
         self._pending = self._last = self._executor.submit(self._analyse, snapshot)
@@ -376,6 +382,9 @@ class Evaluation:
         taus, interval_s = self._region_taus(snapshot)
         activities.update({name: tau.tau_c_s for name, tau in taus.items() if name in self.tau.judged})
         with self.monitor_lock:
+            if snapshot.generation != self._generation:
+                log.debug("an evaluation of the window before the restart is dropped")
+                return
             transitions = self.monitor.step(status.now, activities, ready=snapshot.ready and status.fault is None,
                                              fault=status.fault)
             report = self._report(status, estimator)

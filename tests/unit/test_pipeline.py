@@ -141,6 +141,7 @@ def test_camera_loss_switches_laser_off_and_faults(setup):
     couple_simulated_laser(camera, relay)
     config.camera.reconnect_initial_s = 0.01
     pipeline = make_pipeline(config, camera, relay, publisher)
+    hold_back(camera, pipeline)  # every frame before the loss measured: the window fills whatever the load
     switch_offs = []
     relay.board.add_listener(lambda on: switch_offs.append((on, pipeline.counters["frames"])))
     pipeline.run(lambda: False, max_frames=600)
