@@ -127,12 +127,14 @@ class EstimatorSection(StrictModel):
     q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
     mode: Literal["sliding", "exponential", "tumbling"] = Field("sliding", description="window mode of the engine")
     tau_c: bool = Field(
-        False, description="also estimate the correlation time τc (docs/tau_c.md): about 1.6-2.6x the push cost "
-                           "of S1+S2+S3, so off unless asked for here or needed (activity = 'tau_c', or a region "
-                           "with wet_below_s / dry_above_s); needs mode 'sliding' or 'tumbling'")
+        False, description="also estimate the correlation time τc (docs/tau_c.md): a push of S1+S2+S3+τc "
+                           "costs about 1.4-2.0x one of S1+S2+S3 at 2048², so off unless asked for here or "
+                           "needed (activity = 'tau_c', or a region with wet_below_s / dry_above_s); needs mode "
+                           "'sliding' or 'tumbling'")
     max_lag: int | None = Field(None, ge=1, le=99_998,
-                                description="K: lags 1..K in frames that τc is fitted over (default min(2·lag, "
-                                            "window-2)); τc is measured up to K·Δt, above it reported as '> K·Δt'")
+                                description="K: the longest lag in frames that τc is fitted over, at multi-tau lags "
+                                            "1, 2, 3, 4, 6, 8, … K (default min(2·lag, window-2)); τc is measured up "
+                                            "to K·Δt, above it reported as '> K·Δt'")
     tau_c_map: bool = Field(True, description="publish the τc map (seconds) with the other maps")
     tau_c_map_block: int | None = Field(
         None, ge=1, le=256, description="side b of the b×b pixel blocks the τc map is fitted over, pooled as a "

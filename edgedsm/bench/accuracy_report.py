@@ -197,7 +197,7 @@ def write_report(report: Report, results: Results, load: float | None, command: 
     report.table(header, contrast_rows(results, "N"))
     report.line()
     figure("contrast_n", "beta and AUC against N")
-    report.line(f"β / AUC against the lag m at N = {plan.window_for_lags} (τc has no lag: it fits lags 1…K).")
+    report.line(f"β / AUC against the lag m at N = {plan.window_for_lags} (τc has no lag: it fits lags up to K).")
     report.line()
     report.table(["noise", "m", *(f"{LABELS[e]} β / AUC" for e in ESTIMATORS[:3])], contrast_rows(results, "m"))
     report.line()

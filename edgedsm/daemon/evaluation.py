@@ -198,7 +198,7 @@ class Evaluation:
             tau = engine.tau_snapshot()
             self.tau.map_seconds(tau, 1.0, block=2)
             pooled_covariances(tau.window, tau.total, tau.total_sq, tau.products, tau.edges, tau.ends,
-                               np.flatnonzero(mask))
+                               np.flatnonzero(mask), tau.lags)
 
     # -- pipeline thread --------------------------------------------------------------------------
     def prepare(self, frame: Frame) -> None:

@@ -2,8 +2,8 @@
 the region values and map the evaluator publishes (docs/tau_c.md, "In the daemon").
 
 Where the work runs. The pipeline thread copies the integer sums τc is formed from
-(:meth:`SlidingWindow.tau_snapshot`: ΣI, ΣI², K lag products, and the window's first and last
-K frames or the tumbling edge sums; about K + 4 sums per pixel, a memory copy). Forming the
+(:meth:`SlidingWindow.tau_snapshot`: ΣI, ΣI², the lag products at the multi-tau lags (9 for
+K = 20), and the window's first and last K frames or the tumbling edge sums; a memory copy). Forming the
 covariances from them costs about 1.5 µs per pixel and the per-pixel fit about 5 µs: far too
 much for the pipeline thread, which must keep pushing frames. So the snapshot carries the sums,
 and the evaluator thread forms each region's covariances (its pixels only), pools them and fits
@@ -144,8 +144,8 @@ class TauRegions:
             if names is not None and name not in names:
                 continue
             cov, var = pooled_covariances(snapshot.window, snapshot.total, snapshot.total_sq, snapshot.products,
-                                          snapshot.edges, snapshot.ends, pixels)
-            fit = tau_region(snapshot.window, cov[:, None], np.array([var]))
+                                          snapshot.edges, snapshot.ends, pixels, snapshot.lags)
+            fit = tau_region(snapshot.window, snapshot.max_lag, cov[:, None], np.array([var]))
             out[name] = RegionTau(tau_c_s=float(fit.tau) * interval_s, status=STATUS_NAMES[int(fit.status)])
             self.status[name] = out[name].status
         return out
@@ -158,12 +158,12 @@ class TauRegions:
         block's pixels (b² times fewer fits, and the pooled value's smaller bias)."""
         if block == 1:
             cov, var = tau_covariances(snapshot)
-            return np.asarray(tau_map(snapshot.window, snapshot.shape, cov, var).tau) * interval_s
+            return np.asarray(tau_map(snapshot.window, snapshot.max_lag, snapshot.shape, cov, var).tau) * interval_s
         cov, var = block_covariances(snapshot.window, snapshot.shape, block, snapshot.total, snapshot.total_sq,
-                                     snapshot.products, snapshot.edges, snapshot.ends)
+                                     snapshot.products, snapshot.edges, snapshot.ends, snapshot.lags)
         lags, rows, cols = cov.shape
         corr, valid = normalise(cov.reshape(lags, -1), var.reshape(-1))
-        tau, _, _ = fit_correlations(corr, snapshot.window)
+        tau, _, _ = fit_correlations(corr, snapshot.window, snapshot.lags)
         tau = np.where(valid, tau, 0.0).reshape(rows, cols)  # NO_SIGNAL: 0, as fit_map
         full = np.repeat(np.repeat(tau, block, axis=0), block, axis=1)[:snapshot.shape[0], :snapshot.shape[1]]
         return np.ascontiguousarray(full) * interval_s

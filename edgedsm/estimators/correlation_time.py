@@ -7,7 +7,7 @@ intensity autocorrelation, in frames. That is what :func:`tau_c` returns.
 
 Per pixel, over a window of N frames with the window mean Ī subtracted::
 
-    Ĉ(k) = [Σ_{t=1}^{N-k} (I_t - Ī)(I_{t+k} - Ī) / (N-k)] / [Σ_t (I_t - Ī)² / N],  k = 1..K
+    Ĉ(k) = [Σ_{t=1}^{N-k} (I_t - Ī)(I_{t+k} - Ī) / (N-k)] / [Σ_t (I_t - Ī)² / N],  k in tau_lags(K)
 
 is fitted to the *expected value* of that estimator under the model
 γ(u)/γ(0) = A·exp(-|u|/τ) for u != 0 (A <= 1: white noise, i.e. shot noise, uncorrelated phase
@@ -22,9 +22,13 @@ The fit minimises Σ_k (Ĉ(k) - E[Ĉ(k)])² over A in [0, 1] and τ. With w = A/
 the model is a/c + w·(b_k - a·d/c), linear in w: at each τ of a log grid (shared by all
 pixels, so the lag sums become one matrix product) w is closed form; the best grid point is
 refined by a parabola in log τ, then by one through exact residuals a quarter step apart.
+The lags are a multi-tau set (:func:`tau_lags`, as dynamic-light-scattering correlators
+use): every lag up to 4, then spaced by about 1.4 up to K, K included (K = 20: 9 lags, not 20).
+The streaming engine's push costs one row of sums per lag, so fewer lags is what keeps τc
+near the cost of S1+S2+S3; the model holds for any set of lags.
 A region's τc is fitted to its pooled correlation Σ_p cov_p(k) / Σ_p var_p.
 Per-pixel maps are then made median-unbiased (:func:`median_unbiased`): one pixel's fit
-reads about 4.5τ/N low; regions, fitted to pooled sums, are not corrected.
+reads about 4.3τ/N low; regions, fitted to pooled sums, are not corrected.
 
 Results (units: frames, i.e. Δt), with a status per value (:data:`MEASURED` ...):
 
@@ -53,11 +57,14 @@ MEASURED, ABOVE, BELOW, NO_SIGNAL = 0, 1, -1, 2
 TAU_FLOOR = 1.0 / 3.0  # frames: e^-3 = 5 % correlation left after one frame
 LAG1_MIN = 0.05  # fitted lag-1 correlation below this: nothing left to time
 DEFAULT_MAX_LAG = 20
+DENSE_LAGS = 4  # every lag up to this one
+LAG_FACTOR = 1.4  # then each lag about this factor above the previous (rounded)
 _GRID_STEP = 2.0 ** (1.0 / 16.0)  # 4.4 % between grid values of τ
 _GRID_TOP = 8.0  # the grid reaches 8·K: a minimum there is far beyond K anyway
 _CHUNK = 1 << 14  # pixels per fitting chunk: (chunk, grid) float64 temporaries of a few MiB
-# per-pixel fits: median(τ̂) ≈ τ·(1 - PIXEL_BIAS·τ/N) (Monte Carlo of the model, docs/tau_c.md)
-PIXEL_BIAS = 4.5
+# per-pixel fits: median(τ̂) ≈ τ·(1 - PIXEL_BIAS·τ/N) (Monte Carlo of the model, docs/tau_c.md and
+# scripts/tau_pixel_bias.py: 4.5 with all lags 1..K; the multi-tau lags read 4 % less, so 4.3)
+PIXEL_BIAS = 4.3
 
 
 class TauC(NamedTuple):
@@ -66,6 +73,47 @@ class TauC(NamedTuple):
 
     tau: np.ndarray | float
     status: np.ndarray | int
+
+
+# ----------------------------------------------------------------------------- lags
+def tau_lags(max_lag: int) -> np.ndarray:
+    """The lags (frames, int64, increasing) τc is fitted at, K = ``max_lag`` the longest.
+
+    Multi-tau, as dynamic-light-scattering correlators space their channels: every lag up to
+    DENSE_LAGS, then each about LAG_FACTOR times the one before (rounded half up), then K
+    itself; a lag closer to K than sqrt(LAG_FACTOR) gives way to K (no near-duplicate pair at
+    the end) unless that would leave a gap wider than LAG_FACTOR^1.5.
+    K = 20: 1, 2, 3, 4, 6, 8, 11, 15, 20; K = 10: 1, 2, 3, 4, 6, 8, 10; K = 16:
+    1, 2, 3, 4, 6, 8, 11, 16. A decay exp(-k/τ) is sampled about as densely per e-folding at
+    every τ <= K, with the short lags, where the correlation is largest, all kept.
+    """
+    top = int(max_lag)
+    if top < 1:
+        raise EstimatorError(f"max_lag must be >= 1, got {max_lag!r}")
+    lags = list(range(1, min(top, DENSE_LAGS) + 1))
+    factor_tenths = round(LAG_FACTOR * 10)
+    while lags[-1] < top:
+        step = (lags[-1] * factor_tenths + 5) // 10  # round(1.4·previous), exact integers
+        if step >= top:
+            # K² < 1.4·previous²: K is within sqrt(1.4) of the previous lag, which it replaces
+            # if K² <= 1.4³·(the lag before)²
+            if (len(lags) > DENSE_LAGS and top * top * 10 < factor_tenths * lags[-1] ** 2
+                    and top * top * 1000 <= factor_tenths**3 * lags[-2] ** 2):
+                lags.pop()
+            lags.append(top)
+        else:
+            lags.append(step)
+    return np.array(lags, np.int64)
+
+
+def _default_lags(lags: np.ndarray | None, rows: int) -> np.ndarray:
+    """The lags of ``rows`` rows of correlations: ``lags``, or 1..rows."""
+    if lags is None:
+        return np.arange(1, rows + 1, dtype=np.int64)
+    lags = np.asarray(lags, np.int64)
+    if lags.shape != (rows,):
+        raise EstimatorError(f"{lags.size} lags for {rows} rows of correlations")
+    return lags
 
 
 # ----------------------------------------------------------------------------- model
@@ -104,34 +152,37 @@ def tau_grid(max_lag: int) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- fit
-def fit_correlations(corr: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fit Ĉ(k), k = 1..K (array (K, P)) of N-frame windows: (τ, A, status), each (P,).
+def fit_correlations(corr: np.ndarray, n: int, lags: np.ndarray | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fit Ĉ(k) at ``lags`` (array (L, P), row j at lag lags[j]; default lags 1..L) of N-frame
+    windows: (τ, A, status), each (P,). K = lags[-1] is the longest lag (ABOVE beyond it).
 
     NO_SIGNAL (σ = 0) is the caller's to set. Deterministic: equal inputs give bit-identical
     outputs (this is what makes the streaming maps equal the batch ones).
     """
     corr = np.asarray(corr, np.float64)
-    lags_count, pixels = corr.shape
-    grid = tau_grid(lags_count)
-    b, d = _biased_terms(grid, n, np.arange(1, lags_count + 1))  # (K, G), (G,)
+    rows, pixels = corr.shape
+    lags = _default_lags(lags, rows)
+    grid = tau_grid(int(lags[-1]))
+    b, d = _biased_terms(grid, n, lags)  # (L, G), (G,)
     a, c = -1.0 / n, 1.0 - 1.0 / n
     # m_k = (a + A·β_k)/(c + A·δ) with β = b - a, δ = d - c; with w = A/(c + A·δ) this is
     # m_k = a/c + w·g_k, g_k = β_k - a·δ/c: linear in w, so A is profiled out in closed form
-    g = np.ascontiguousarray((b - a - a * (d - c) / c).T)  # (G, K)
+    g = np.ascontiguousarray((b - a - a * (d - c) / c).T)  # (G, L)
     model = (g.sum(axis=1), (g * g).sum(axis=1), 1.0 / d, c, d - c)
     tau = np.empty(pixels)
     amp = np.empty(pixels)
     status = np.empty(pixels, np.int8)
     for start in range(0, pixels, _CHUNK):
         part = slice(start, min(start + _CHUNK, pixels))
-        tau[part], amp[part], status[part] = _fit_chunk(corr[:, part] - a / c, grid, g, model, n)
+        tau[part], amp[part], status[part] = _fit_chunk(corr[:, part] - a / c, grid, g, model, n, lags)
     return tau, amp, status
 
 
-def _exact_residual(y: np.ndarray, tau: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Residual and w of the profiled fit at a τ per pixel (y: Ĉ - a/c, (K, P))."""
+def _exact_residual(y: np.ndarray, tau: np.ndarray, n: int, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual and w of the profiled fit at a τ per pixel (y: Ĉ - a/c at ``lags``, (L, P))."""
     a, c = -1.0 / n, 1.0 - 1.0 / n
-    b, d = _biased_terms(tau, n, np.arange(1, y.shape[0] + 1))
+    b, d = _biased_terms(tau, n, lags)
     g = b - a * d / c
     sum_gg = np.einsum("kp,kp->p", g, g)
     g_y = np.einsum("kp,kp->p", g, y)
@@ -149,13 +200,13 @@ def _parabola(left: np.ndarray, mid: np.ndarray, right: np.ndarray) -> np.ndarra
 
 def _fit_chunk(y: np.ndarray, grid: np.ndarray, g: np.ndarray,
                model: tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray], n: int,
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least squares over w at every grid τ (y: Ĉ - a/c, (K, P)), best grid point, then a
+               lags: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least squares over w at every grid τ (y: Ĉ - a/c at ``lags``, (L, P)), best grid point, then a
     parabola through its neighbours in log τ, then one more parabola through exact residuals
     a quarter step apart. w is kept in [0, 1/d], i.e. A in [0, 1]."""
     _, sum_gg, w_top, c, delta = model
     sum_yy = np.einsum("kp,kp->p", y, y)[:, None]  # (P, 1)
-    g_y = y.T @ g.T  # (P, G): Σ_k g_k(τ_g)·y_k, the one O(K·G) step
+    g_y = y.T @ g.T  # (P, G): Σ_k g_k(τ_g)·y_k, the one O(L·G) step
     w = np.clip(g_y / sum_gg, 0.0, w_top)
     resid = sum_yy + w * (w * sum_gg - 2.0 * g_y)
     best = np.argmin(resid, axis=1)
@@ -169,11 +220,11 @@ def _fit_chunk(y: np.ndarray, grid: np.ndarray, g: np.ndarray,
     middle = ~on_grid_edge
     if middle.any():
         yy, centre = y[:, middle], tau[middle]
-        steps = [_exact_residual(yy, centre * fine**j, n)[0] for j in (-1, 0, 1)]
+        steps = [_exact_residual(yy, centre * fine**j, n, lags)[0] for j in (-1, 0, 1)]
         tau[middle] = centre * fine ** _parabola(*steps)
     w_best = w[rows, best]
     fitted_amp = w_best * c / (1.0 - w_best * delta[best])  # A = w·c/(1 - w·δ)
-    lag_max = float(g.shape[1])
+    lag_max = float(lags[-1])
     status = np.full(y.shape[1], MEASURED, np.int8)
     # nothing to time: the fitted correlation left at lag 1 is within noise (2/sqrt(N) is two
     # standard errors of a white-noise sample correlation) or below LAG1_MIN
@@ -187,31 +238,33 @@ def _fit_chunk(y: np.ndarray, grid: np.ndarray, g: np.ndarray,
 
 # ----------------------------------------------------------------------------- sums
 def covariances_from_sums(n: int, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
-                          edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                          edges: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Lagged covariances and variance of N-frame windows from exact integer sums:
-    (cov (K, P), var (P,)), cov[k-1] = Σ_{t<=N-k}(I_t - Ī)(I_{t+k} - Ī)/(N-k), var = Σ(I_t - Ī)²/N.
+    (cov (L, P), var (P,)), cov[j] = Σ_{t<=N-k}(I_t - Ī)(I_{t+k} - Ī)/(N-k) at k = lags[j],
+    var = Σ(I_t - Ī)²/N.
 
-    total = ΣI, total_sq = ΣI², products[k-1] = Σ_{t=1}^{N-k} I_t·I_{t+k}, edges[k-1] = sum of
-    the first k and the last k frames; all int64, (P,) or (K, P). The sums are re-centred on
+    total = ΣI, total_sq = ΣI², products[j] = Σ_{t=1}^{N-k} I_t·I_{t+k}, edges[j] = sum of
+    the first k and the last k frames, k = lags[j]; all int64, (P,) or (L, P). The sums are re-centred on
     the integer c = round(ΣI/N) in int64 (modulo 2^64: exact whenever the centred result fits,
     which it does while N·(2^bits - 1)² < 2^63), then the float64 steps are the same for the
     batch and streaming engines, so both give bit-identical results. var is exactly 0 where
     σ = 0.
     """
-    lags_count, pixels = products.shape
-    cov = np.empty((lags_count, pixels))
+    rows, pixels = products.shape
+    lags = _default_lags(lags, rows)
+    cov = np.empty((rows, pixels))
     var = np.empty(pixels)
-    step = max(1, _CHUNK // 4)  # pixels per chunk: the (K, chunk) temporaries stay in cache
+    step = max(1, _CHUNK // 4)  # pixels per chunk: the (L, chunk) temporaries stay in cache
     for start in range(0, pixels, step):
         part = slice(start, start + step)
         cov[:, part], var[part] = _covariances_chunk(n, total[part], total_sq[part], products[:, part],
-                                                     edges[:, part])
+                                                     edges[:, part], lags)
     return cov, var
 
 
 def _covariances_chunk(n: int, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
-                       edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    k = np.arange(1, products.shape[0] + 1, dtype=np.int64)[:, None]
+                       edges: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    k = lags[:, None]
     total = total.astype(np.int64)
     centre = np.floor(total / n + 0.5).astype(np.int64)  # c
     rest = total - centre * n  # r = Σ(I - c), |r| <= N/2 + 1
@@ -231,33 +284,35 @@ def normalise(cov: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return cov * np.where(valid, 1.0 / np.where(valid, var, 1.0), 0.0), valid
 
 
-def _integer_sums(stack: np.ndarray, max_lag: int) -> tuple[np.ndarray, ...]:
-    """ΣI, ΣI², the lag products and the edge sums (see correlations_from_sums), int64 exact."""
+def _integer_sums(stack: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, ...]:
+    """ΣI, ΣI², the lag products and the edge sums at ``lags`` (see covariances_from_sums),
+    int64 exact."""
     n = stack.shape[0]
+    top = int(lags[-1])
     flat = stack.reshape(n, -1).astype(np.int64)
     total = flat.sum(axis=0)
     total_sq = np.einsum("tp,tp->p", flat, flat)
-    products = np.empty((max_lag, flat.shape[1]), np.int64)
+    products = np.empty((lags.size, flat.shape[1]), np.int64)
     edges = np.empty_like(products)
-    head = np.cumsum(flat[:max_lag], axis=0)  # first k frames
-    tail = np.cumsum(flat[::-1][:max_lag], axis=0)  # last k frames
-    for k in range(1, max_lag + 1):
-        products[k - 1] = np.einsum("tp,tp->p", flat[:-k], flat[k:])
-        edges[k - 1] = head[k - 1] + tail[k - 1]
+    head = np.cumsum(flat[:top], axis=0)  # first k frames, k = 1..K
+    tail = np.cumsum(flat[::-1][:top], axis=0)  # last k frames
+    for j, k in enumerate(lags.tolist()):
+        products[j] = np.einsum("tp,tp->p", flat[:-k], flat[k:])
+        edges[j] = head[k - 1] + tail[k - 1]
     return total, total_sq, products, edges
 
 
-def _float_covariances(stack: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
-    """cov (K, P) and var (P,) of float data, two-pass and mean-centred in float64."""
+def _float_covariances(stack: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cov (L, P) at ``lags`` and var (P,) of float data, two-pass and mean-centred in float64."""
     n = stack.shape[0]
     flat = stack.reshape(n, -1).astype(np.float64)
     centred = flat - flat.mean(axis=0)
     var = np.einsum("tp,tp->p", centred, centred) / n
     # constant pixels: the centred values are rounding residue, far below the data's scale
     var[var <= (64.0 * np.finfo(np.float64).eps * np.abs(flat).max(axis=0)) ** 2] = 0.0
-    cov = np.empty((max_lag, flat.shape[1]))
-    for k in range(1, max_lag + 1):
-        cov[k - 1] = np.einsum("tp,tp->p", centred[:-k], centred[k:]) / (n - k)
+    cov = np.empty((lags.size, flat.shape[1]))
+    for j, k in enumerate(lags.tolist()):
+        cov[j] = np.einsum("tp,tp->p", centred[:-k], centred[k:]) / (n - k)
     return cov, var
 
 
@@ -269,15 +324,17 @@ def _fits_int64(stack: np.ndarray) -> bool:
 
 
 def covariances(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG) -> tuple[np.ndarray, np.ndarray]:
-    """Lagged covariances (K, H, W) and variance (H, W) of every pixel over the stack (see
-    covariances_from_sums); integer data use exact integer sums, as the streaming engine."""
+    """Lagged covariances (L, H, W) at the lags ``tau_lags(max_lag)`` and variance (H, W) of
+    every pixel over the stack (see covariances_from_sums); integer data use exact integer
+    sums, as the streaming engine."""
     stack = _check(frames, max_lag)
     n, h, w = stack.shape
+    lags = tau_lags(max_lag)
     if _fits_int64(stack):
-        cov, var = covariances_from_sums(n, *_integer_sums(stack, max_lag))
+        cov, var = covariances_from_sums(n, *_integer_sums(stack, lags), lags)
     else:
-        cov, var = _float_covariances(stack, max_lag)
-    return cov.reshape(max_lag, h, w), var.reshape(h, w)
+        cov, var = _float_covariances(stack, lags)
+    return cov.reshape(lags.size, h, w), var.reshape(h, w)
 
 
 # ----------------------------------------------------------------------------- public
@@ -308,20 +365,20 @@ def _check_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return region
 
 
-def fit_region(cov: np.ndarray, var: np.ndarray, mask: np.ndarray, n: int) -> TauC:
-    """τc of a region (cov (K, H, W), var and mask (H, W)) from its pooled correlation
+def fit_region(cov: np.ndarray, var: np.ndarray, mask: np.ndarray, n: int, lags: np.ndarray) -> TauC:
+    """τc of a region (cov (L, H, W) at ``lags``, var and mask (H, W)) from its pooled correlation
     Σ_p cov_p(k) / Σ_p var_p: averaging before dividing keeps the ratio's own bias (of order
     τ/N per pixel) out; pixels with σ = 0 add nothing."""
-    return fit_pooled(np.ascontiguousarray(cov[:, mask]), var[mask], n)
+    return fit_pooled(np.ascontiguousarray(cov[:, mask]), var[mask], n, lags)
 
 
-def fit_pooled(cov: np.ndarray, var: np.ndarray, n: int) -> TauC:
-    """τc of the pixels given as cov (K, M) and var (M,), pooled (see fit_region)."""
+def fit_pooled(cov: np.ndarray, var: np.ndarray, n: int, lags: np.ndarray) -> TauC:
+    """τc of the pixels given as cov (L, M) at ``lags`` and var (M,), pooled (see fit_region)."""
     pooled_var = float(np.ascontiguousarray(var).sum())
     if pooled_var <= 0.0:
         return TauC(0.0, NO_SIGNAL)
     pooled = np.ascontiguousarray(cov).sum(axis=1)[:, None] / pooled_var  # one summation order
-    tau, _, status = fit_correlations(pooled, n)
+    tau, _, status = fit_correlations(pooled, n, lags)
     return TauC(float(tau[0]), int(status[0]))
 
 
@@ -340,16 +397,17 @@ def median_unbiased(tau: np.ndarray, n: int) -> np.ndarray:
     return 2.0 * tau / (1.0 + root)
 
 
-def fit_map(cov: np.ndarray, var: np.ndarray, n: int) -> TauC:
-    """Per-pixel τc and status from cov (K, H, W) and var (H, W); measured values are
-    median-unbiased (:func:`median_unbiased`), which may move a pixel to ABOVE."""
-    lags_count, h, w = cov.shape
-    corr, valid = normalise(cov.reshape(lags_count, h * w), var.reshape(-1))
-    tau, _, status = fit_correlations(corr, n)
+def fit_map(cov: np.ndarray, var: np.ndarray, n: int, lags: np.ndarray) -> TauC:
+    """Per-pixel τc and status from cov (L, H, W) at ``lags`` and var (H, W); measured values
+    are median-unbiased (:func:`median_unbiased`), which may move a pixel to ABOVE."""
+    rows, h, w = cov.shape
+    corr, valid = normalise(cov.reshape(rows, h * w), var.reshape(-1))
+    tau, _, status = fit_correlations(corr, n, lags)
     measured = status == MEASURED
     tau[measured] = median_unbiased(tau[measured], n)
-    above = measured & (tau > lags_count)
-    tau[above] = float(lags_count)
+    longest = float(lags[-1])
+    above = measured & (tau > longest)
+    tau[above] = longest
     status[above] = ABOVE
     tau[~valid] = 0.0
     status[~valid] = NO_SIGNAL
@@ -363,18 +421,19 @@ def tau_c_bounds(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG, mask: np.nd
     stack = _check(frames, max_lag)
     region = None if mask is None else _check_mask(mask, stack.shape[1:])
     cov, var = covariances(stack, max_lag)
-    n = stack.shape[0]
+    n, lags = stack.shape[0], tau_lags(max_lag)
     if region is None:
-        return fit_map(cov, var, n)
-    return fit_region(cov, var, region, n)
+        return fit_map(cov, var, n, lags)
+    return fit_region(cov, var, region, n, lags)
 
 
 def tau_c(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG, mask: np.ndarray | None = None) -> np.ndarray | float:
     """Correlation time τc in frames (Δt) from an (N, H, W) stack: an (H, W) float64 map, or
     with a boolean (H, W) ``mask`` the region's τc from its averaged correlations.
 
-    Fits A·exp(-k/τ) with the finite-N bias of the window mean corrected, over lags 1..K
-    (K = ``max_lag``, 1 <= K < N-1). Degenerate values: see :func:`tau_c_bounds` (which also
-    tells which values are bounds rather than measurements).
+    Fits A·exp(-k/τ) with the finite-N bias of the window mean corrected, at the lags
+    ``tau_lags(K)`` (1, 2, 3, 4, then spaced by about 1.4, up to K = ``max_lag``, 1 <= K < N-1).
+    Degenerate values: see :func:`tau_c_bounds` (which also tells which values are bounds
+    rather than measurements).
     """
     return tau_c_bounds(frames, max_lag, mask).tau

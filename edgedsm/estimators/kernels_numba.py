@@ -218,12 +218,13 @@ PRODUCTS_BLOCK = 2048  # pixels per block of the lag-product kernel: its rows st
 
 @functools.cache
 def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
-    """Lag products of τc (sliding and tumbling), all pixels: Σ I_t·I_{t+k}, k = 1..K.
+    """Lag products of τc (sliding and tumbling), all pixels: Σ I_t·I_{t+k}, one row per lag.
 
     ``kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags)``: ``products`` is
-    (K, P), int32 or int64; per pixel it adds I_i·I_{i-k} for k = 1..``lags`` (frame i-k in
-    ring row ``lag_slots[k-1]``) and, with ``remove``, subtracts I_{i-N}·I_{i-N+k} for
-    k = 1..K (frame i-N in row ``old_slot``, frame i-N+k in row ``leave_slots[k-1]``). Reads
+    (L, P), int32 or int64, row j for the lag k_j the caller chose (``tau_lags``); per pixel it
+    adds I_i·I_{i-k_j} to rows j < ``lags`` (frame i-k_j in ring row ``lag_slots[j]``) and,
+    with ``remove``, subtracts I_{i-N}·I_{i-N+k_j} from every row (frame i-N in row
+    ``old_slot``, frame i-N+k_j in row ``leave_slots[j]``). Reads
     the ring only: the window kernel writes frame i afterwards. Pixels go in blocks (one per
     task) and, inside a block, lag by lag along contiguous rows, so the loop vectorises and
     the block's frames stay in cache. Integer arithmetic, exact: int64, or with ``narrow``
@@ -266,10 +267,11 @@ def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callab
     """Lag products of several frames at once (tumbling τc): fewer passes over the sums.
 
     ``kernel(ring, frame_slots, lag_slots, lag_counts, products)``: for each b, adds
-    I_b·I_{b-k} for k = 1..``lag_counts[b]``, frame b in ring row ``frame_slots[b]`` and frame
-    b-k in row ``lag_slots[b, k-1]``. Per block of pixels, each lag's row of sums is read and
-    written once for all the frames (it stays in L1), so the sums move once per batch instead
-    of once per frame. Exact integer arithmetic, as products_kernel.
+    I_b·I_{b-k_j} to the rows j < ``lag_counts[b]`` (row j for the lag k_j, ``tau_lags``),
+    frame b in ring row ``frame_slots[b]`` and frame b-k_j in row ``lag_slots[b, j]``. Per
+    block of pixels, each lag's row of sums is read and written once for all the frames (it
+    stays in L1), so the sums move once per batch instead of once per frame. Exact integer
+    arithmetic, as products_kernel.
     """
     wide = np.int32 if narrow else np.int64
 
@@ -315,10 +317,10 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
     """Sliding τc: the lag products of several frames at once (see batch_products_kernel).
 
     ``kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
-    products)``: for each pending frame b and k = 1..K, adds I_b·I_{b-k} (ring rows
-    ``new_slots[b]``, ``lag_slots[b, k-1]``) and subtracts I_{b-N}·I_{b-N+k} (frame b-N in row
-    ``old_slots[b]`` of ``retired``, frame b-N+k in row ``leave_slots[b, k-1]`` of ``retired``
-    where ``leave_retired[b, k-1]``, else of ``ring``). Exact integer arithmetic.
+    products)``: for each pending frame b and each row j (lag k_j), adds I_b·I_{b-k_j} (ring
+    rows ``new_slots[b]``, ``lag_slots[b, j]``) and subtracts I_{b-N}·I_{b-N+k_j} (frame b-N in
+    row ``old_slots[b]`` of ``retired``, frame b-N+k_j in row ``leave_slots[b, j]`` of
+    ``retired`` where ``leave_retired[b, j]``, else of ``ring``). Exact integer arithmetic.
     """
     wide = np.int32 if narrow else np.int64
 

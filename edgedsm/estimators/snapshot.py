@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edgedsm.estimators import tau_stream
+from edgedsm.estimators.correlation_time import tau_lags
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,8 @@ def maps_from(snapshot: EngineSnapshot) -> dict[str, np.ndarray]:
 class TauSnapshot:
     """The integer sums τc of one window is formed from, at one moment (copies; see
     :meth:`SlidingWindow.tau_snapshot`): ΣI and ΣI² (P,), the lag products Σ_t I_t·I_{t+k}
-    (K, P), and either the edge sums (K, P) (tumbling: accumulated during the block) or the
+    (L, P) at the lags k of ``tau_lags(max_lag)`` (:attr:`lags`), and either the edge sums
+    (L, P) (tumbling: accumulated during the block) or the
     first K and last K frames of the window in time order (2K, P) (sliding: the edge sums are
     formed from them by :func:`tau_covariances`, off the pipeline thread)."""
 
@@ -83,13 +85,18 @@ class TauSnapshot:
     ends: np.ndarray | None
 
     @property
+    def lags(self) -> np.ndarray:
+        """The lags (frames) of the rows of ``products`` and ``edges``."""
+        return tau_lags(self.max_lag)
+
+    @property
     def nbytes(self) -> int:
         arrays = (self.total, self.total_sq, self.products, self.edges, self.ends)
         return sum(array.nbytes for array in arrays if array is not None)
 
 
 def tau_covariances(snapshot: TauSnapshot, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """cov (K, P) and var (P,) of the snapshot's window for all pixels or the flat indices
+    """cov (L, P) and var (P,) of the snapshot's window for all pixels or the flat indices
     ``pixels`` (pure; any thread): the same integers and float64 steps as
     :meth:`SlidingWindow.region_tau_c` and ``maps()["tau_c"]``, so the same τc."""
     every = slice(None) if pixels is None else pixels
@@ -98,5 +105,5 @@ def tau_covariances(snapshot: TauSnapshot, pixels: np.ndarray | None = None) -> 
     else:
         assert snapshot.ends is not None
         edges = tau_stream.edges_of(list(snapshot.ends[:, every]), snapshot.max_lag)
-    return tau_stream.covariances(snapshot.window, snapshot.total[every], snapshot.total_sq[every],
+    return tau_stream.covariances(snapshot.window, snapshot.max_lag, snapshot.total[every], snapshot.total_sq[every],
                                   snapshot.products[:, every], edges)

@@ -33,7 +33,7 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.correlation_time import TauC, _check_mask
+from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags
 from edgedsm.estimators.fixed_point import _NO_LUT, ratio_kind, ratio_lut, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
 
@@ -46,7 +46,7 @@ KernelName = Literal["auto", "numba", "numpy"]
 MODES: tuple[str, ...] = ("sliding", "exponential", "tumbling")
 KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
 _ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c")
-_DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(K) per pixel: only when asked
+_DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 _MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 _INT32_MAX = 2**31 - 1
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
@@ -99,8 +99,10 @@ class SlidingWindow:
             and so do frames under PARALLEL_MIN_PIXELS (65 536) pixels, run on one thread.
         resync_every: sliding mode only: recompute the sums from the ring every this many
             frames (None: never; the sums are exact, this only guards against bad memory).
-        max_lag: K, the lags 1..K of "tau_c" (None: min(2m, N-2)); 1 <= K <= N-2. "tau_c"
-            needs mode "sliding" or "tumbling" (its bias model is that of a finite window).
+        max_lag: K, the longest lag of "tau_c" (None: min(2m, N-2)); 1 <= K <= N-2. τc is
+            fitted at the multi-tau lags ``tau_lags(K)`` (1, 2, 3, 4, 6, 8, 11, 15, 20 for
+            K = 20), one row of lag products each. "tau_c" needs mode "sliding" or "tumbling"
+            (its bias model is that of a finite window).
 
     Exactness, bounds, memory per pixel and the degenerate cases: see the module docstring.
     """
@@ -151,6 +153,7 @@ class SlidingWindow:
         default_lag = max(1, min(2 * self.lag, self.window - 2))
         self.max_lag = default_lag if max_lag is None else _check_int("max_lag K", max_lag, 1,
                                                                       max(1, self.window - 2))
+        self.tau_lags = tau_lags(self.max_lag)  # the lags τc keeps products for (frames)
         if self._do_tau and self.window < 3:
             raise EstimatorError("estimator 'tau_c' needs a window of at least 3 frames (K < N-1)")
         self.bits: int | None = None
@@ -221,7 +224,8 @@ class SlidingWindow:
                 "abs": ((n_px if self._do_abs else 0,), np.float64),
                 "ratio": ((n_px if self._do_ratio else 0,), np.float64),
             }
-        lags = self.max_lag if self._do_tau else 0
+        lags = self.tau_lags.size if self._do_tau else 0  # rows of lag products
+        longest = self.max_lag if self._do_tau else 0
         sums = {
             "abs": ((n_px if self._do_abs else 0,), _sum_dtype(self.pairs * top)),
             "ratio": ((n_px if self._do_ratio else 0,), np.int64),
@@ -235,7 +239,7 @@ class SlidingWindow:
         # sliding τc: the last TAU_BATCH frames that left the ring (their pairs leave in a batch)
         sums["retired"] = ((TAU_BATCH if batched else 0, n_px if batched else 0), frame_dtype)
         layout: dict[str, tuple[tuple[int, ...], Any]] = {
-            "ring": ((n if self.mode == "sliding" else max(m, lags + TAU_BATCH if lags else 0) + 1, n_px),
+            "ring": ((n if self.mode == "sliding" else max(m, longest + TAU_BATCH if lags else 0) + 1, n_px),
                      frame_dtype)}
         layout.update(sums)
         if self.mode == "tumbling":
@@ -310,8 +314,8 @@ class SlidingWindow:
         # new frame and frame i-m read, a ring slot written; sliding also reads frames i-N
         # (from the slot it overwrites) and i-N+m
         frames = (5 if self.mode == "sliding" else 3) * frame_bytes
-        if self._do_tau:  # frames i-k and, sliding, i-N+k for k = 1..K
-            frames += (2 if self.mode == "sliding" else 1) * self.max_lag * frame_bytes
+        if self._do_tau:  # frames i-k and, sliding, i-N+k for each lag k
+            frames += (2 if self.mode == "sliding" else 1) * self.tau_lags.size * frame_bytes
         sums = sum(math.prod(shape) * np.dtype(dtype).itemsize for name, (shape, dtype)
                    in layout.items() if name not in ("ring", "edges", "retired") and not name.startswith("done_"))
         return frames + 2 * sums / n_px
@@ -359,14 +363,14 @@ class SlidingWindow:
         if batched:  # frame i-N leaves the ring now; its pairs leave with the next batch
             self._arrays["retired"][(i - n) % TAU_BATCH] = ring[i % n]
         elif self._do_tau:  # reads the ring only: before the window kernel writes frame i
-            steps = np.arange(1, self.max_lag + 1)
+            steps = self.tau_lags
             lag_slots = (i - steps) % n  # frames i-k
             if i >= n:  # frame i-N (in frame i's slot) and frames i-N+k leave with their pairs
                 self._products_slide(new, ring, i % n, lag_slots, (i - n + steps) % n,
-                                     self._arrays["products"], self.max_lag)
-            else:
+                                     self._arrays["products"], steps.size)
+            else:  # the lags k <= i have a frame i-k
                 self._products_grow(new, ring, 0, lag_slots, lag_slots, self._arrays["products"],
-                                    min(self.max_lag, i))
+                                    int(np.searchsorted(steps, i, side="right")))
         if i >= n:  # slot holds frame i-N: the kernel reads it, then writes frame i there
             self._window_step(self._step_slide, new, slot, lagged, ring[(i - n + m) % n])
         else:
@@ -385,7 +389,7 @@ class SlidingWindow:
         """Sliding τc: add and remove the pairs of the pending frames last-pending+1..last."""
         n = self.window
         frames = np.arange(last - self._pending + 1, last + 1)[:, None]
-        steps = np.arange(1, self.max_lag + 1)[None, :]
+        steps = self.tau_lags[None, :]
         leaving = frames - n + steps  # frame j-N+k: in the ring unless it already left
         retired = leaving <= last - n
         leave_slots = np.ascontiguousarray(np.where(retired, leaving % TAU_BATCH, leaving % n))
@@ -410,7 +414,7 @@ class SlidingWindow:
         lagged = ring[(i - m) % slots] if position >= m else new  # no pair across blocks
         arrays = self._arrays
         if self._do_tau and position < self.max_lag:  # frame i is among the first k frames, k > position
-            arrays["edges"][position:] += new
+            arrays["edges"][int(np.searchsorted(self.tau_lags, position, side="right")):] += new
         self._window_step(self._step_grow, new, slot, lagged, lagged)
         if self._do_tau:
             self._pending += 1
@@ -419,9 +423,12 @@ class SlidingWindow:
         if position == n - 1:  # block complete: it becomes the one maps() reports
             if self._do_tau:  # the last k frames of the block, k = 1..K, are in the ring
                 tail = np.zeros(new.size, np.int64)
-                for k in range(self.max_lag):
-                    tail += ring[(i - k) % slots]
-                    arrays["edges"][k] += tail
+                row = 0
+                for k in range(1, self.max_lag + 1):
+                    tail += ring[(i - k + 1) % slots]
+                    if k == self.tau_lags[row]:
+                        arrays["edges"][row] += tail
+                        row += 1
             for name in ("abs", "ratio", "total", "total_sq", "products", "edges"):
                 arrays[name], arrays["done_" + name] = arrays["done_" + name], arrays[name]
                 arrays[name].fill(0)
@@ -432,9 +439,9 @@ class SlidingWindow:
         the ring, which keeps K + TAU_BATCH frames) in one pass over the sums."""
         slots, n = self._arrays["ring"].shape[0], self.window
         frames = np.arange(last - self._pending + 1, last + 1)
-        steps = np.arange(1, self.max_lag + 1)
+        steps = self.tau_lags
         lag_slots = np.ascontiguousarray((frames[:, None] - steps[None, :]) % slots)
-        lag_counts = np.minimum(self.max_lag, frames % n)  # no pair across blocks
+        lag_counts = np.searchsorted(steps, frames % n, side="right")  # lags k <= position: no pair across blocks
         self._products_batch(self._arrays["ring"], frames % slots, lag_slots, lag_counts,
                              self._arrays["products"])
         self._pending = 0
@@ -482,10 +489,10 @@ class SlidingWindow:
                              self._lut, float(2**self.scale_bits), self.q)
         if self._do_tau:
             wide = [frame.astype(np.int64) for frame in frames]
-            products = np.zeros((self.max_lag, frames[0].size), np.int64)
-            for k in range(1, min(self.max_lag, len(wide) - 1) + 1):
+            products = np.zeros((self.tau_lags.size, frames[0].size), np.int64)
+            for row, k in enumerate(self.tau_lags.tolist()):
                 for j in range(len(wide) - k):
-                    products[k - 1] += wide[j] * wide[j + k]
+                    products[row] += wide[j] * wide[j + k]
             fresh["products"][:] = products
             fresh["retired"][:] = self._arrays["retired"]
             self._pending = 0  # the rebuilt sums hold every frame of the window
@@ -513,7 +520,7 @@ class SlidingWindow:
 
     # ----------------------------------------------------------------- τc
     def _tau_covariances(self, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """cov (K, P) and var (P,) of the current window from the exact sums, for all pixels or
+        """cov (L, P) and var (P,) of the current window from the exact sums, for all pixels or
         the flat indices ``pixels`` (a region costs its own size only)."""
         if not self._do_tau:
             raise EstimatorError("τc needs 'tau_c' among the estimators")
@@ -532,14 +539,14 @@ class SlidingWindow:
             ends = [ring[j % n, every] for j in range(seen - n, seen - n + lags)]
             ends += [ring[j % n, every] for j in range(seen - lags, seen)]
             edges = tau_stream.edges_of(ends, lags)
-        return tau_stream.covariances(n, arrays[prefix + "total"][every], arrays[prefix + "total_sq"][every],
+        return tau_stream.covariances(n, lags, arrays[prefix + "total"][every], arrays[prefix + "total_sq"][every],
                                       arrays[prefix + "products"][:, every], edges)
 
     def tau_c_bounds(self) -> TauC:
         """Per-pixel τc (frames) and status of the current window, equal to
         :func:`edgedsm.estimators.tau_c_bounds` on it with ``max_lag`` K."""
         cov, var = self._tau_covariances()
-        return tau_stream.tau_map(self.window, self.shape, cov, var)
+        return tau_stream.tau_map(self.window, self.max_lag, self.shape, cov, var)
 
     def region_tau_c(self, mask: np.ndarray) -> TauC:
         """A region's τc (frames) and status from its pooled correlations (boolean (H, W)
@@ -547,7 +554,7 @@ class SlidingWindow:
         the region."""
         region = _check_mask(mask, self.shape)
         cov, var = self._tau_covariances(np.flatnonzero(region))
-        return tau_stream.tau_region(self.window, cov, var)
+        return tau_stream.tau_region(self.window, self.max_lag, cov, var)
 
     def snapshot(self, estimators: Iterable[str] | None = None, into: EngineSnapshot | None = None,
                  live: bool = False) -> EngineSnapshot:
@@ -590,7 +597,7 @@ class SlidingWindow:
             weight_frames=self._weight_frames, maps_step=self._kernels.maps_kernel(*flags, False))
 
     def tau_snapshot(self, into: TauSnapshot | None = None) -> TauSnapshot:
-        """Copies of the integer sums τc is formed from (needs "tau_c"): about K+4 sums of
+        """Copies of the integer sums τc is formed from (needs "tau_c"): about L+4 sums of
         memory traffic per pixel; :func:`edgedsm.estimators.snapshot.tau_covariances` turns them
         into the covariances ``region_tau_c`` and ``maps()["tau_c"]`` fit, on any thread.
         ``into``: an older snapshot nobody reads any more, whose arrays are overwritten."""

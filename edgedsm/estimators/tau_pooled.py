@@ -10,8 +10,9 @@ a few ns per pixel and lag. Only the summation order differs from numpy's, so po
 agree to rounding (~1e-15 relative, tested), not bit for bit.
 
 Inputs as :class:`edgedsm.estimators.snapshot.TauSnapshot` holds them: ΣI and ΣI² (P,),
-products (K, P), and either the edge sums (K, P) or the window's first K and last K frames in
-time order (2K, P) from which the edge sums are formed per pixel. Units: intensity² (counts²).
+products (L, P) at the lags ``tau_lags(K)`` (``lags``), and either the edge sums (L, P) or the
+window's first K and last K frames in time order (2K, P) from which the edge sums are formed
+per pixel. Units: intensity² (counts²).
 Without numba (the optional ``fast`` extra) the same pools come from ``covariances_from_sums``
 in chunks (numpy; the slower path).
 """
@@ -41,20 +42,20 @@ def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., An
     return numba.njit(cache=True, **options)
 
 
-#: Pixels handled lag by lag at a time: each of the K + 2K sum rows is then read as one short
+#: Pixels handled lag by lag at a time: each of the L + 2K sum rows is then read as one short
 #: sequential run per chunk (pixel by pixel over all rows, the 60 streams defeat the prefetcher).
 CHUNK = 256
 
 
 @_compiled(inline="always")
-def _add_chunk(n: int, pixels: np.ndarray, slots: np.ndarray, count: int, total: np.ndarray, total_sq: np.ndarray,
-               products: np.ndarray, edges: np.ndarray, ends: np.ndarray, use_ends: bool, cov: np.ndarray,
-               var: np.ndarray, scratch: np.ndarray, head: np.ndarray, tail: np.ndarray) -> None:
-    """Add the (N-k)·cov(k) of pixels[:count] into cov[:, slots[i]] and their N·var into
-    var[slots[i]] (the divisions are the same for every pixel: the caller makes them once per
-    pool). scratch (3, CHUNK) float64, head and tail (CHUNK,) int64 are work space."""
+def _add_chunk(n: int, lag_values: np.ndarray, pixels: np.ndarray, slots: np.ndarray, count: int, total: np.ndarray,
+               total_sq: np.ndarray, products: np.ndarray, edges: np.ndarray, ends: np.ndarray, use_ends: bool,
+               cov: np.ndarray, var: np.ndarray, scratch: np.ndarray, head: np.ndarray, tail: np.ndarray) -> None:
+    """Add the (N-k)·cov(k) of pixels[:count] into cov[j, slots[i]] (k = lag_values[j]) and their
+    N·var into var[slots[i]] (the divisions are the same for every pixel: the caller makes them
+    once per pool). scratch (3, CHUNK) float64, head and tail (CHUNK,) int64 are work space."""
     lags = products.shape[0]
-    last = 2 * lags - 1
+    last = 2 * lag_values[lags - 1] - 1  # ends: the first K frames, then the last K
     for i in range(count):
         p = pixels[i]
         t = np.int64(total[p])
@@ -68,16 +69,18 @@ def _add_chunk(n: int, pixels: np.ndarray, slots: np.ndarray, count: int, total:
         scratch[2, i] = mean_c
         head[i] = 0
         tail[i] = 0
+    done = 0  # head and tail hold the first and last ``done`` frames
     for j in range(lags):
-        k = j + 1
+        k = lag_values[j]
         for i in range(count):
             p = pixels[i]
             t = np.int64(scratch[0, i])
             centre = np.int64(scratch[1, i])
             mean_c = scratch[2, i]
             if use_ends:
-                head[i] += np.int64(ends[j, p])
-                tail[i] += np.int64(ends[last - j, p])
+                for step in range(done, k):  # advance the sums of the first and last frames to k
+                    head[i] += np.int64(ends[step, p])
+                    tail[i] += np.int64(ends[last - step, p])
                 edge = head[i] + tail[i]
             else:
                 edge = np.int64(edges[j, p])
@@ -85,11 +88,13 @@ def _add_chunk(n: int, pixels: np.ndarray, slots: np.ndarray, count: int, total:
             inner_c = inner - 2 * (n - k) * centre
             products_c = np.int64(products[j, p]) - centre * inner + (n - k) * centre * centre
             cov[j, slots[i]] += products_c - mean_c * inner_c + (n - k) * mean_c * mean_c
+        done = k
 
 
 @_compiled(parallel=True, nogil=True)
-def _pooled_indices(n: int, pixels: np.ndarray, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
-                    edges: np.ndarray, ends: np.ndarray, use_ends: bool, parts: int) -> tuple[np.ndarray, np.ndarray]:
+def _pooled_indices(n: int, lag_values: np.ndarray, pixels: np.ndarray, total: np.ndarray, total_sq: np.ndarray,
+                    products: np.ndarray, edges: np.ndarray, ends: np.ndarray, use_ends: bool,
+                    parts: int) -> tuple[np.ndarray, np.ndarray]:
     lags = products.shape[0]
     cov = np.zeros((lags, parts))
     var = np.zeros(parts)
@@ -102,14 +107,15 @@ def _pooled_indices(n: int, pixels: np.ndarray, total: np.ndarray, total_sq: np.
         stop = min(pixels.size, (part + 1) * size)
         for lo in range(part * size, stop, CHUNK):
             count = min(CHUNK, stop - lo)
-            _add_chunk(n, pixels[lo:lo + count], slots, count, total, total_sq, products, edges, ends, use_ends,
-                       cov, var, scratch, head, tail)
+            _add_chunk(n, lag_values, pixels[lo:lo + count], slots, count, total, total_sq, products, edges, ends,
+                       use_ends, cov, var, scratch, head, tail)
     return cov, var
 
 
 @_compiled(parallel=True, nogil=True)
-def _pooled_blocks(n: int, width: int, block: int, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
-                   edges: np.ndarray, ends: np.ndarray, use_ends: bool) -> tuple[np.ndarray, np.ndarray]:
+def _pooled_blocks(n: int, lag_values: np.ndarray, width: int, block: int, total: np.ndarray, total_sq: np.ndarray,
+                   products: np.ndarray, edges: np.ndarray, ends: np.ndarray,
+                   use_ends: bool) -> tuple[np.ndarray, np.ndarray]:
     lags = products.shape[0]
     height = total.size // width
     rows, cols = (height + block - 1) // block, (width + block - 1) // block
@@ -127,76 +133,86 @@ def _pooled_blocks(n: int, width: int, block: int, total: np.ndarray, total_sq: 
                 for i in range(count):
                     pixels[i] = y * width + x0 + i
                     slots[i] = row_block * cols + (x0 + i) // block
-                _add_chunk(n, pixels, slots, count, total, total_sq, products, edges, ends, use_ends,
+                _add_chunk(n, lag_values, pixels, slots, count, total, total_sq, products, edges, ends, use_ends,
                            cov, var, scratch, head, tail)
     return cov, var
 
 
-def _edge_inputs(edges: np.ndarray | None, ends: np.ndarray | None, lags: int) -> tuple[np.ndarray, np.ndarray, bool]:
+def _edge_inputs(edges: np.ndarray | None, ends: np.ndarray | None,
+                 lags: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
     if edges is not None:
-        return edges, np.zeros((2 * lags, 1), np.uint8), False
-    if ends is None or ends.shape[0] != 2 * lags:
-        raise ValueError("give the edge sums (K, P) or the window's first and last K frames (2K, P)")
-    return np.zeros((lags, 1), np.int64), ends, True
+        return edges, np.zeros((2 * int(lags[-1]), 1), np.uint8), False
+    if ends is None or ends.shape[0] != 2 * int(lags[-1]):
+        raise ValueError("give the edge sums (L, P) or the window's first and last K frames (2K, P)")
+    return np.zeros((lags.size, 1), np.int64), ends, True
+
+
+def _check_lags(products: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    lags = np.ascontiguousarray(lags, np.int64)
+    if lags.shape != (products.shape[0],):
+        raise ValueError(f"{lags.size} lags for {products.shape[0]} rows of lag products")
+    return lags
 
 
 def pooled_covariances(window: int, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
                        edges: np.ndarray | None, ends: np.ndarray | None,
-                       pixels: np.ndarray) -> tuple[np.ndarray, float]:
-    """Σ_p cov_p(k) (K,) and Σ_p var_p over the flat indices ``pixels`` (counts²)."""
-    lags = products.shape[0]
+                       pixels: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, float]:
+    """Σ_p cov_p(k) (L,) at ``lags`` and Σ_p var_p over the flat indices ``pixels`` (counts²)."""
+    lags = _check_lags(products, lags)
     index = np.ascontiguousarray(pixels, np.int64)
     if numba is None:
-        cov_sum, var_sum = np.zeros(lags), 0.0
+        cov_sum, var_sum = np.zeros(lags.size), 0.0
         for start in range(0, index.size, _CHUNK):
-            cov, var = _numpy_covariances(window, total, total_sq, products, edges, ends, index[start:start + _CHUNK])
+            cov, var = _numpy_covariances(window, total, total_sq, products, edges, ends, index[start:start + _CHUNK],
+                                          lags)
             cov_sum += cov.sum(axis=1)
             var_sum += float(var.sum())
         return cov_sum, var_sum
     edge_sums, end_frames, use_ends = _edge_inputs(edges, ends, lags)
     parts = max(1, min(numba.get_num_threads(), index.size // 4096))
-    cov, var = _pooled_indices(window, index, total, total_sq, products, edge_sums, end_frames, use_ends, parts)
+    cov, var = _pooled_indices(window, lags, index, total, total_sq, products, edge_sums, end_frames, use_ends, parts)
     return cov.sum(axis=1) / _pairs(window, lags), float(var.sum()) / window
 
 
 def block_covariances(window: int, shape: tuple[int, int], block: int, total: np.ndarray, total_sq: np.ndarray,
                       products: np.ndarray, edges: np.ndarray | None,
-                      ends: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Pooled cov (K, ceil(H/b), ceil(W/b)) and var (ceil(H/b), ceil(W/b)) over b×b blocks
-    (edge blocks hold what is left of the frame), counts²."""
+                      ends: np.ndarray | None, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pooled cov (L, ceil(H/b), ceil(W/b)) at ``lags`` and var (ceil(H/b), ceil(W/b)) over b×b
+    blocks (edge blocks hold what is left of the frame), counts²."""
     if block < 1:
         raise ValueError(f"block must be >= 1, not {block}")
-    lags = products.shape[0]
+    lags = _check_lags(products, lags)
     rows, cols = -(-shape[0] // block), -(-shape[1] // block)
     if numba is None:
-        pooled_cov, pooled_var = np.zeros((lags, rows, cols)), np.zeros((rows, cols))
+        pooled_cov, pooled_var = np.zeros((lags.size, rows, cols)), np.zeros((rows, cols))
         labels = (np.arange(shape[0])[:, None] // block * cols + np.arange(shape[1])[None, :] // block).ravel()
         for start in range(0, labels.size, _CHUNK):
             index = np.arange(start, min(labels.size, start + _CHUNK))
-            cov, var = _numpy_covariances(window, total, total_sq, products, edges, ends, index)
-            for j in range(lags):
+            cov, var = _numpy_covariances(window, total, total_sq, products, edges, ends, index, lags)
+            for j in range(lags.size):
                 np.add.at(pooled_cov[j].reshape(-1), labels[index], cov[j])
             np.add.at(pooled_var.reshape(-1), labels[index], var)
         return pooled_cov, pooled_var
     edge_sums, end_frames, use_ends = _edge_inputs(edges, ends, lags)
-    cov, var = _pooled_blocks(window, shape[1], block, total, total_sq, products, edge_sums, end_frames, use_ends)
-    return cov.reshape(lags, rows, cols) / _pairs(window, lags)[:, None, None], var.reshape(rows, cols) / window
+    cov, var = _pooled_blocks(window, lags, shape[1], block, total, total_sq, products, edge_sums, end_frames, use_ends)
+    return cov.reshape(lags.size, rows, cols) / _pairs(window, lags)[:, None, None], var.reshape(rows, cols) / window
 
 
-def _pairs(window: int, lags: int) -> np.ndarray:
-    """N - k for k = 1..K: the pairs each lag's products sum over."""
-    return window - np.arange(1, lags + 1, dtype=np.float64)
+def _pairs(window: int, lags: np.ndarray) -> np.ndarray:
+    """N - k for each lag k: the pairs each lag's products sum over."""
+    return window - lags.astype(np.float64)
 
 
 def _numpy_covariances(window: int, total: np.ndarray, total_sq: np.ndarray, products: np.ndarray,
                        edges: np.ndarray | None, ends: np.ndarray | None,
-                       index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel cov (K, len(index)) and var of the pixels ``index`` (numpy path)."""
-    lags = products.shape[0]
+                       index: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel cov (L, len(index)) and var of the pixels ``index`` (numpy path)."""
     if edges is not None:
         edge_sums = edges[:, index].astype(np.int64)
     else:
         _, ends, _ = _edge_inputs(None, ends, lags)
         picked = ends[:, index].astype(np.int64)
-        edge_sums = np.cumsum(picked[:lags], axis=0) + np.cumsum(picked[::-1][:lags], axis=0)
-    return covariances_from_sums(window, total[index], total_sq[index], products[:, index], edge_sums)
+        top = int(lags[-1])
+        cumulative = np.cumsum(picked[:top], axis=0) + np.cumsum(picked[::-1][:top], axis=0)
+        edge_sums = cumulative[lags - 1]  # first k plus last k frames at each lag k
+    return covariances_from_sums(window, total[index], total_sq[index], products[:, index], edge_sums, lags)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from edgedsm.estimators.correlation_time import (
     fit_correlations,
     median_unbiased,
     normalise,
+    tau_lags,
 )
 from edgedsm.sim import Simulator, scene_from_dict
 
@@ -103,7 +105,7 @@ def test_finite_window_bias_is_corrected():
     # the naive model A·exp(-k/τ) on the same correlations is far off
     cov, var = covariances(frames, 100)
     pooled = cov.sum(axis=(1, 2)) / var.sum()
-    lags = np.arange(1, 101)
+    lags = tau_lags(100)
     good = pooled > 0.05
     slope = np.polyfit(lags[good], np.log(pooled[good]), 1)[0]
     assert -1.0 / slope < 0.6 * 50
@@ -121,13 +123,43 @@ def test_expected_correlation_matches_monte_carlo():
         x[t] = r * x[t - 1] + np.sqrt(1 - r * r) * rng.standard_normal(series)
     x = np.sqrt(amp) * x + np.sqrt(1 - amp) * rng.standard_normal((n, series)) + 5.0
     cov, var = covariances(x.reshape(n, series, 1), 16)
-    cov, var = cov.reshape(16, series), var.reshape(series)
+    lags = tau_lags(16)
+    cov, var = cov.reshape(lags.size, series), var.reshape(series)
     pooled = cov.sum(axis=1) / var.sum()
-    model = expected_correlation(tau, amp, n, np.arange(1, 17))
-    naive = amp * np.exp(-np.arange(1, 17) / tau)
+    model = expected_correlation(tau, amp, n, lags)
+    naive = amp * np.exp(-lags / tau)
     spread = (cov / var.mean()).std(axis=1) / np.sqrt(series)
     assert np.all(np.abs(pooled - model) < 3 * spread + 1e-4)
     assert np.abs(pooled - naive).max() > 10 * spread.max()  # the bias is real
+
+
+def test_multi_tau_lags():
+    """Every lag up to 4, then spaced by about 1.4, K always the last (issue 9: τc at about the
+    cost of S1+S2+S3 needs fewer rows of lag products than K)."""
+    assert tau_lags(20).tolist() == [1, 2, 3, 4, 6, 8, 11, 15, 20]
+    assert tau_lags(10).tolist() == [1, 2, 3, 4, 6, 8, 10]
+    assert tau_lags(3).tolist() == [1, 2, 3]
+    assert tau_lags(1).tolist() == [1]
+    for top in range(1, 400):
+        lags = tau_lags(top)
+        assert lags.dtype == np.int64 and lags[0] == 1 and lags[-1] == top
+        steps = lags[1:] / lags[:-1]
+        assert np.all(np.diff(lags) > 0) and np.all(steps[3:] <= 1.4**1.5 + 1e-12)
+        assert lags.size <= 4 + math.ceil(math.log(max(top / 4, 1.0)) / math.log(1.18)) + 1
+    assert tau_lags(200).size == 16  # about log(K/4)/log(1.4) + 5 rows, not K
+
+
+def test_fit_at_multi_tau_lags_recovers_the_model_exactly():
+    lags = tau_lags(30)
+    for tau, amp in [(0.7, 0.9), (3.0, 0.5), (12.5, 1.0), (25.0, 0.3)]:
+        curve = expected_correlation(tau, amp, 300, lags)[:, None]
+        fitted, fitted_amp, status = fit_correlations(curve, 300, lags)
+        assert status[0] == MEASURED
+        assert fitted[0] == pytest.approx(tau, rel=2e-3)
+        assert fitted_amp[0] == pytest.approx(amp, rel=0.02)
+    curve = expected_correlation(40.0, 1.0, 300, lags)[:, None]
+    fitted, _, status = fit_correlations(curve, 300, lags)
+    assert status[0] == ABOVE and fitted[0] == 30.0  # K is the longest lag, not the row count
 
 
 def test_fit_recovers_the_model_exactly():
@@ -198,7 +230,7 @@ def test_integer_and_float_data_agree():
     as_float = tau_c(frames.astype(np.float64), 15)
     np.testing.assert_allclose(as_float, as_int, rtol=1e-9)
     cov, var = covariances(frames, 15)
-    corr, valid = normalise(cov.reshape(15, -1), var.reshape(-1))
+    corr, valid = normalise(cov.reshape(cov.shape[0], -1), var.reshape(-1))
     assert valid.all() and np.abs(corr).max() <= 1.0
 
 

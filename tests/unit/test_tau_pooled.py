@@ -36,7 +36,7 @@ def _snapshot(mode: str, window: int = 60, bits: int = 8) -> tuple[TauSnapshot, 
 
 def _pooled(snapshot: TauSnapshot, pixels: np.ndarray) -> tuple[np.ndarray, float]:
     return tau_pooled.pooled_covariances(snapshot.window, snapshot.total, snapshot.total_sq, snapshot.products,
-                                         snapshot.edges, snapshot.ends, pixels)
+                                         snapshot.edges, snapshot.ends, pixels, snapshot.lags)
 
 
 @pytest.fixture(params=["compiled", "numpy"])
@@ -67,9 +67,10 @@ def test_a_block_pool_is_the_sum_over_its_blocks_pixels(path: str, block: int) -
     cov, var = tau_covariances(snapshot)
     pooled_cov, pooled_var = tau_pooled.block_covariances(snapshot.window, snapshot.shape, block, snapshot.total,
                                                           snapshot.total_sq, snapshot.products, snapshot.edges,
-                                                          snapshot.ends)
+                                                          snapshot.ends, snapshot.lags)
     rows = cols = -(-SIZE // block)
-    assert pooled_cov.shape == (MAX_LAG, rows, cols) and pooled_var.shape == (rows, cols)
+    assert snapshot.lags.tolist() == [1, 2, 3, 4, 6, 8]  # multi-tau: the first and last k frames skip 5 and 7
+    assert pooled_cov.shape == (snapshot.lags.size, rows, cols) and pooled_var.shape == (rows, cols)
     for r, c in [(0, 0), (rows - 1, cols - 1), (rows // 2, 1)]:  # inner and edge (partial) blocks
         inside = np.zeros((SIZE, SIZE), bool)
         inside[r * block:(r + 1) * block, c * block:(c + 1) * block] = True

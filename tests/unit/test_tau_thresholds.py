@@ -56,7 +56,7 @@ def series(window: int, mode: str) -> list[tuple[float, float, float]]:
             continue
         # as the daemon: the sums copied, covariances of the region's pixels, one pooled fit
         cov, var = tau_covariances(engine.tau_snapshot(), pixels)
-        tau = tau_region(window, cov, var)
+        tau = tau_region(window, MAX_LAG, cov, var)
         out.append(((seen - window / 2) * dt, float(tau.tau) * dt, float(engine.maps()["s3"].mean())))
     return out
 
@@ -130,7 +130,7 @@ def test_the_daemon_path_equals_the_engine_region_tau(window: int, mode: str) ->
     mask = np.zeros((SIZE, SIZE), bool)
     mask[5:30, 8:40] = True
     cov, var = tau_covariances(engine.tau_snapshot(), np.flatnonzero(mask))
-    assert tau_region(window, cov, var) == engine.region_tau_c(mask)
+    assert tau_region(window, MAX_LAG, cov, var) == engine.region_tau_c(mask)
     assert engine.region_tau_c(mask).status == 0  # measured: a real value is compared
 
 
