@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from edgedsm.config import DaemonConfig
@@ -74,24 +74,25 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def tau_range(config: DaemonConfig) -> dict[str, float | int | None] | None:
+def tau_range(config: DaemonConfig) -> dict[str, Any] | None:
     """What τc can measure with this config (None: τc off): K, Δt and the range Δt/3 ... K·Δt in
     seconds (None while Δt is known only from the frames)."""
-    from edgedsm.estimators.correlation_time import TAU_FLOOR
+    from edgedsm.estimators.correlation_time import TAU_FLOOR, tau_lags
 
     if not config.tau_c_on:
         return None
     lags, dt = config.estimator.lags, config.camera.frame_interval_s
-    return {"max_lag": lags, "frame_interval_s": dt, "shortest_s": TAU_FLOOR * dt if dt else None,
-            "longest_s": lags * dt if dt else None}
+    return {"max_lag": lags, "lags": [int(k) for k in tau_lags(lags)], "frame_interval_s": dt,
+            "shortest_s": TAU_FLOOR * dt if dt else None, "longest_s": lags * dt if dt else None}
 
 
-def tau_line(tau: dict[str, float | int | None]) -> str:
+def tau_line(tau: dict[str, Any]) -> str:
+    lags = f"lags {','.join(str(k) for k in tau['lags'])} (longest K = {tau['max_lag']})"
     if tau["frame_interval_s"] is None:
-        return (f"τc: K = {tau['max_lag']} lags, measured from Δt/3 to {tau['max_lag']}·Δt (Δt from the frames' "
-                "timestamps at start; thresholds checked then)")
-    return (f"τc: K = {tau['max_lag']} lags at Δt = {tau['frame_interval_s']:g} s: measured from "
-            f"{tau['shortest_s']:.3g} s to {tau['longest_s']:.3g} s (beyond: reported as a bound)")
+        return (f"τc: {lags}, measured from Δt/3 to {tau['max_lag']}·Δt (Δt from the frames' timestamps at "
+                "start; thresholds checked then)")
+    return (f"τc: {lags} at Δt = {tau['frame_interval_s']:g} s: measured from {tau['shortest_s']:.3g} s to "
+            f"{tau['longest_s']:.3g} s (beyond: reported as a bound)")
 
 
 def queue_memory(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> str:

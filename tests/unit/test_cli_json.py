@@ -49,7 +49,8 @@ def test_check_config_says_what_tau_c_can_measure(tmp_path: Path, capsys: pytest
                     .replace("wet_above = 0.9\ndry_below = 0.5", "wet_below_s = 0.2\ndry_above_s = 0.5")
                     + "[estimator]\nwindow = 100\nlag = 5\nmax_lag = 20\n")
     assert main(["check-config", str(path)]) == 0
-    assert "τc: K = 20 lags at Δt = 0.05 s: measured from 0.0167 s to 1 s" in capsys.readouterr().out
+    line = "τc: lags 1,2,3,4,6,8,11,15,20 (longest K = 20) at Δt = 0.05 s: measured from 0.0167 s to 1 s"
+    assert line in capsys.readouterr().out
     assert main(["check-config", str(path), "--json"]) == 0
     tau = json.loads(capsys.readouterr().out)["tau_c"]
     assert tau["max_lag"] == 20 and tau["longest_s"] == pytest.approx(1.0)
