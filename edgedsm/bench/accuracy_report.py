@@ -280,7 +280,7 @@ def how_to_choose(results: Results) -> list[str]:
         f"{_f(beta['clean', 's1', big])} to {_f(beta['noisy', 's1', big])}; at short N τc is unreliable |",
         "| uneven laser light | S2 or τc | S1 follows the light; S2 and τc are normalised |",
         "| a τc map per pixel | N ≥ 20·τc, K ≥ 2·τc | median of the (median-unbiased) map within 20 % of "
-        "τc at N = 20·τc, -17 … +10 % for τc = 2…50 with and without noise, -9 … -1 % at 80·τc; region "
+        "τc at N = 20·τc, -18 … +7 % for τc = 2…50 with and without noise, -8 … -1 % at 80·τc; region "
         "values within 5 % (docs/tau_c.md, per-pixel validation) |",
         "| least memory at large N | exponential (S1-S3) or tumbling | an m-frame or (m+1)-frame ring instead "
         "of N frames (docs/bench-engine.md) |",
