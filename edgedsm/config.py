@@ -128,7 +128,7 @@ class EstimatorSection(StrictModel):
     mode: Literal["sliding", "exponential", "tumbling"] = Field("sliding", description="window mode of the engine")
     tau_c: bool = Field(
         False, description="also estimate the correlation time τc (docs/tau_c.md): a push of S1+S2+S3+τc "
-                           "costs about 1.7-2.3x one of S1+S2+S3 at 2048², so off unless asked for here or "
+                           "costs about 1.6-2.0x one of S1+S2+S3 at 2048², so off unless asked for here or "
                            "needed (activity = 'tau_c', or a region with wet_below_s / dry_above_s); needs mode "
                            "'sliding' or 'tumbling'")
     max_lag: int | None = Field(None, ge=1, le=99_998,

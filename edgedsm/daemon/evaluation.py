@@ -42,7 +42,7 @@ from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
 from edgedsm.estimators.region_stats import Moments, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, maps_from
-from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
+from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
 from edgedsm.estimators.tau_pooled import pooled_covariances
 from edgedsm.frames import Frame
 from edgedsm.messages import (
@@ -176,13 +176,13 @@ class Evaluation:
         deep = self.config.camera.pixel_format not in (None, "Mono8")
         side = 256  # at least PARALLEL_MIN_PIXELS: the parallel kernels real frames use
         window = est.lag + 2
-        if self.tau.on:  # long enough for every τc kernel (sliding batches need N >= K + 8)
-            window = max(window, est.lags + 10)
+        if self.tau.on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
+            window = max(window, est.lags + TAU_BATCH + 2)
         engine = SlidingWindow((side, side), window=window, lag=est.lag, q=est.q, bits=16 if deep else 8,
                                estimators=engine_estimators(self.config), mode=est.mode, threads=est.threads,
                                max_lag=est.lags if self.tau.on else None)
         frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
-        for _ in range(window + 9):
+        for _ in range(window + TAU_BATCH + 1):  # past a full batch of lag products
             engine.push(frame)
         mask = np.zeros((side, side), bool)
         mask[1:-1, 1:-1] = True

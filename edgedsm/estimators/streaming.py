@@ -50,7 +50,7 @@ _DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) p
 _MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 _INT32_MAX = 2**31 - 1
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
-TAU_BATCH = 8  # tumbling τc: frames whose lag products are added in one pass over the sums
+TAU_BATCH = 16  # τc: frames whose lag products are added (sliding: and removed) in one pass over the sums
 
 
 def _load_kernels(kernel: str) -> ModuleType:
