@@ -22,9 +22,10 @@ WORKER_POLL_S = 0.25
 
 
 class LatestWorker(Generic[Job]):
-    """Runs ``handle(key, job)`` on its own thread for the latest job of each key, in the order the
-    keys were first handed over. ``handle`` raising is logged (``what`` names it) and reported to
-    ``on_error``; the worker goes on with the next job."""
+    """Runs ``handle(key, job)`` on its own thread for the latest job of each key, the keys in
+    turn (a replaced job keeps its key's place, so no key starves another). ``handle`` raising
+    is logged (``what`` names it) and reported to ``on_error``; the worker goes on with the
+    next job."""
 
     def __init__(self, name: str, what: str, handle: Callable[[str, Job], None],
                  on_error: Callable[[str], None] | None = None) -> None:
@@ -55,7 +56,10 @@ class LatestWorker(Generic[Job]):
     def submit(self, key: str, job: Job) -> bool:
         """Hand a job over (returns at once); True if it replaced one of the same key not yet taken."""
         with self._lock:
-            replaced = self._jobs.pop(key, None) is not None
+            # a replaced job keeps its key's place in the line: re-queued at the end, a key
+            # replaced faster than the worker takes it would go first every time and starve
+            # the others
+            replaced = key in self._jobs
             self._jobs[key] = job
         self._wake.set()
         return replaced
