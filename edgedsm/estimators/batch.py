@@ -20,19 +20,25 @@ import numpy as np
 from edgedsm.errors import EstimatorError
 
 
-def check_stack(frames: np.ndarray, lag: int) -> np.ndarray:
-    """Validate a (N, H, W) stack and a lag; returns the stack as an ndarray."""
+def check_frames(frames: np.ndarray) -> np.ndarray:
+    """Validate a (N, H, W) stack of finite, non-negative intensities; returns it as an ndarray."""
     stack = np.asarray(frames)
     if stack.ndim != 3:
         raise EstimatorError(f"frames must be a (N, H, W) stack, got shape {stack.shape}")
     if not (np.issubdtype(stack.dtype, np.integer) or np.issubdtype(stack.dtype, np.floating)):
         raise EstimatorError(f"frames must be integer or float, got {stack.dtype}")
+    check_intensities(stack)
+    return stack
+
+
+def check_stack(frames: np.ndarray, lag: int) -> np.ndarray:
+    """Validate a (N, H, W) stack and a lag; returns the stack as an ndarray."""
+    stack = check_frames(frames)
     if isinstance(lag, bool) or not isinstance(lag, int | np.integer):
         raise EstimatorError(f"lag must be an integer number of frames, got {lag!r}")
     n = stack.shape[0]
     if not 1 <= lag <= n - 1:
         raise EstimatorError(f"lag m={lag} does not fit a window of N={n} frames (need 1 <= m <= N-1)")
-    check_intensities(stack)
     return stack
 
 

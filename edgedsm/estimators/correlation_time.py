@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators.batch import check_intensities
+from edgedsm.estimators.batch import check_frames
 
 MEASURED, ABOVE, BELOW, NO_SIGNAL = 0, 1, -1, 2
 TAU_FLOOR = 1.0 / 3.0  # frames: e^-3 = 5 % correlation left after one frame
@@ -339,18 +339,13 @@ def covariances(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG) -> tuple[np.
 
 # ----------------------------------------------------------------------------- public
 def _check(frames: np.ndarray, max_lag: int) -> np.ndarray:
-    stack = np.asarray(frames)
-    if stack.ndim != 3:
-        raise EstimatorError(f"frames must be a (N, H, W) stack, got shape {stack.shape}")
-    if not (np.issubdtype(stack.dtype, np.integer) or np.issubdtype(stack.dtype, np.floating)):
-        raise EstimatorError(f"frames must be integer or float, got {stack.dtype}")
+    stack = check_frames(frames)
     if isinstance(max_lag, bool) or not isinstance(max_lag, int | np.integer):
         raise EstimatorError(f"max_lag must be an integer number of frames, got {max_lag!r}")
     n = stack.shape[0]
     if not 1 <= max_lag < n - 1:
         raise EstimatorError(f"max_lag K={max_lag} does not fit a window of N={n} frames "
                              "(need 1 <= K < N-1)")
-    check_intensities(stack)
     return stack
 
 
