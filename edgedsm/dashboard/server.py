@@ -144,32 +144,15 @@ class Handler(BaseHTTPRequestHandler):
     # -- routing ----------------------------------------------------------------------------
 
     def do_GET(self) -> None:
-        url = urlsplit(self.path)
-        path = url.path
+        self._answer(self._get)
+
+    def do_POST(self) -> None:
+        self._answer(self._post)
+
+    def _answer(self, route: Callable[[], None]) -> None:
+        """Run a route; a bad request answers 400, a bug 500 (logged), a vanished client nothing."""
         try:
-            try:
-                query = {key: values[0] for key, values in parse_qs(url.query, max_num_fields=20).items()}
-            except ValueError:
-                raise BadRequest("too many query fields") from None
-            if path in ("/", "/index.html"):
-                self._static("index.html")
-            elif path.startswith("/static/"):
-                self._static(path[len("/static/"):])
-            elif path == "/api/info":
-                self._json({"read_only": self.server.token is None, "prefix": self.server.plant.prefix,
-                            "broker_connected": self.server.broker_connected()})
-            elif path == "/api/devices":
-                self._json(self.server.plant.snapshot())
-            elif path == "/api/events":
-                self._events()
-            elif path == "/api/map.png":
-                self._map(query)
-            elif path == "/api/colorbar.png":
-                self._send(HTTPStatus.OK, maps.colour_bar_png(), "image/png", cache=True)
-            elif path == "/api/history":
-                self._history(query)
-            else:
-                self._error(HTTPStatus.NOT_FOUND, "no such page")
+            route()
         except BadRequest as exc:
             self._error(HTTPStatus.BAD_REQUEST, str(exc))
         except (BrokenPipeError, ConnectionResetError):
@@ -178,23 +161,42 @@ class Handler(BaseHTTPRequestHandler):
             log.exception("dashboard: %s %s failed", self.command, self.path[:200])
             self._error(HTTPStatus.INTERNAL_SERVER_ERROR, "internal error (logged)")
 
-    def do_POST(self) -> None:
-        path = urlsplit(self.path).path
+    def _get(self) -> None:
+        url = urlsplit(self.path)
+        path = url.path
         try:
-            body = self._body()
-            if path == "/api/region-stats":
-                self._region_stats(body)
-            elif path == "/api/command":
-                self._command(body)
-            else:
-                self._error(HTTPStatus.NOT_FOUND, "no such page")
-        except BadRequest as exc:
-            self._error(HTTPStatus.BAD_REQUEST, str(exc))
-        except (BrokenPipeError, ConnectionResetError):
-            pass
-        except Exception:  # a bug answers 500 and is logged; the server goes on
-            log.exception("dashboard: %s %s failed", self.command, self.path[:200])
-            self._error(HTTPStatus.INTERNAL_SERVER_ERROR, "internal error (logged)")
+            query = {key: values[0] for key, values in parse_qs(url.query, max_num_fields=20).items()}
+        except ValueError:
+            raise BadRequest("too many query fields") from None
+        if path in ("/", "/index.html"):
+            self._static("index.html")
+        elif path.startswith("/static/"):
+            self._static(path[len("/static/"):])
+        elif path == "/api/info":
+            self._json({"read_only": self.server.token is None, "prefix": self.server.plant.prefix,
+                        "broker_connected": self.server.broker_connected()})
+        elif path == "/api/devices":
+            self._json(self.server.plant.snapshot())
+        elif path == "/api/events":
+            self._events()
+        elif path == "/api/map.png":
+            self._map(query)
+        elif path == "/api/colorbar.png":
+            self._send(HTTPStatus.OK, maps.colour_bar_png(), "image/png", cache=True)
+        elif path == "/api/history":
+            self._history(query)
+        else:
+            self._error(HTTPStatus.NOT_FOUND, "no such page")
+
+    def _post(self) -> None:
+        path = urlsplit(self.path).path
+        body = self._body()
+        if path == "/api/region-stats":
+            self._region_stats(body)
+        elif path == "/api/command":
+            self._command(body)
+        else:
+            self._error(HTTPStatus.NOT_FOUND, "no such page")
 
     # -- pages ------------------------------------------------------------------------------
 
