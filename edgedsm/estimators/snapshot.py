@@ -104,6 +104,6 @@ def tau_covariances(snapshot: TauSnapshot, pixels: np.ndarray | None = None) -> 
         edges = snapshot.edges[:, every]
     else:
         assert snapshot.ends is not None
-        edges = tau_stream.edges_of(list(snapshot.ends[:, every]), snapshot.max_lag)
+        edges = tau_stream.edges_of(list(snapshot.ends[:, every]), snapshot.lags)
     return tau_stream.covariances(snapshot.window, snapshot.max_lag, snapshot.total[every], snapshot.total_sq[every],
                                   snapshot.products[:, every], edges)

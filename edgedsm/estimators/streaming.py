@@ -538,7 +538,7 @@ class SlidingWindow:
             ring, seen = arrays["ring"], self.frames_seen
             ends = [ring[j % n, every] for j in range(seen - n, seen - n + lags)]
             ends += [ring[j % n, every] for j in range(seen - lags, seen)]
-            edges = tau_stream.edges_of(ends, lags)
+            edges = tau_stream.edges_of(ends, self.tau_lags)
         return tau_stream.covariances(n, lags, arrays[prefix + "total"][every], arrays[prefix + "total_sq"][every],
                                       arrays[prefix + "products"][:, every], edges)
 

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.estimators.correlation_time import covariances_from_sums
+from edgedsm.estimators.tau_stream import edges_of
 
 try:
     import numba
@@ -211,8 +212,5 @@ def _numpy_covariances(window: int, total: np.ndarray, total_sq: np.ndarray, pro
         edge_sums = edges[:, index].astype(np.int64)
     else:
         _, ends, _ = _edge_inputs(None, ends, lags)
-        picked = ends[:, index].astype(np.int64)
-        top = int(lags[-1])
-        cumulative = np.cumsum(picked[:top], axis=0) + np.cumsum(picked[::-1][:top], axis=0)
-        edge_sums = cumulative[lags - 1]  # first k plus last k frames at each lag k
+        edge_sums = edges_of(list(ends[:, index]), lags)
     return covariances_from_sums(window, total[index], total_sq[index], products[:, index], edge_sums, lags)

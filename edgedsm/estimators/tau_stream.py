@@ -27,10 +27,9 @@ def product_dtype(window: int, bits: int) -> type[np.signedinteger]:
     return np.int32 if (window - 1) * top * top <= _INT32_MAX else np.int64
 
 
-def edges_of(frames: list[np.ndarray], max_lag: int) -> np.ndarray:
+def edges_of(frames: list[np.ndarray], lags: np.ndarray) -> np.ndarray:
     """Sum of the first k plus the last k of ``frames`` (the window in time order, views of the
-    ring; at least its first K and last K frames), k in ``tau_lags(max_lag)``: (L, P) int64."""
-    lags = tau_lags(max_lag)
+    ring; at least its first K and last K frames), k in ``lags`` (increasing): (L, P) int64."""
     edges = np.empty((lags.size, frames[0].size), np.int64)
     head = np.zeros(frames[0].size, np.int64)
     tail = np.zeros(frames[0].size, np.int64)
