@@ -16,12 +16,15 @@ over the whole trial.
 
 Measured, in one run, per size:
 
-1. **Bare engine**: ``SlidingWindow.push`` alone on the same frames (the upper bound).
+1. **Bare engine**: ``SlidingWindow.push`` alone on the same frames (the upper bound), for the
+   trial's seconds before the first trial and for a few seconds after each later one: the
+   machine's speed drifts (by 2x on a shared virtual machine), so each trial is compared with
+   the mean of the bare runs just before and just after it.
 2. **Capacity**: the replay at rate 0 is a source that can wait; the pipeline holds it back when
    its queue is full, so frames/s is what the daemon processes at most.
 3. **Highest paced rate with zero drops** on the default queue: the replay paced into the
-   daemon's drop-oldest queue; bisection from 90 % of the bare engine's rate. Each of the three
-   is also given as a ratio to the bare engine measured minutes apart in the same run.
+   daemon's drop-oldest queue; bisection from 90 % of the bare engine's rate. Capacity and paced
+   rates are given as ratios to the bare engine around each trial.
 4. **Latency**: from a frame entering the queue to the drying states that include it being
    judged and their alerts handed to the sink (frame → alert), and to the stats message that
    counts it (frame → stats), p50 and p99, frames after the window filled.
@@ -68,6 +71,7 @@ TILE = 256
 WINDOW, LAG = 200, 10
 STATS_S, MAPS_S = 1.0, 10.0
 RECORDED_FRAMES = 240
+BARE_RUN_S = 6.0  # the bare engine's run after each trial (plus filling its window)
 FILL_LIMIT_S = 120.0  # a trial gives up when the window has not filled in this (plus its seconds)
 PIXEL_FORMATS = {"Mono8": 8, "Mono12p": 12, "Mono16": 16}
 COVERED = (1.0, 0.25, 0.0625, 0.01)  # fractions of the sensor the one region covers (area trials)
@@ -230,6 +234,12 @@ class Trial:
     evaluate_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the evaluator thread
     covered: float = 1.0  # fraction of the sensor the engine sees
     stall_s: float = float("nan")  # the pipeline thread's longest gap between two frames taken
+    bare_fps: float = float("nan")  # the bare engine around this trial: mean of the runs just before and after
+
+    @property
+    def bare_ratio(self) -> float:
+        """Frames/s processed (capacity) or requested (paced) ÷ the bare engine around the trial."""
+        return (self.fps if self.rate is None else self.rate) / self.bare_fps
 
     @property
     def fps(self) -> float:
@@ -366,7 +376,7 @@ class SizeResult:
 
     shape: tuple[int, int]
     pixel_format: str
-    bare_fps: float
+    bare_runs: list[float]  # frames/s of every bare-engine run, in order (one before the first trial, one after each)
     unpack_ms: float
     capacity: Trial
     paced: list[Trial]
@@ -375,6 +385,11 @@ class SizeResult:
     @property
     def best(self) -> Trial | None:
         return best_zero_drop(self.paced)
+
+    @property
+    def bare_fps(self) -> float:
+        """The bare engine's rate over the run (median of its runs)."""
+        return statistics.median(self.bare_runs)
 
 
 @contextlib.contextmanager
@@ -397,25 +412,36 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     recording = make_recording(workdir / f"{name}-{bits}.npy", shape, bits)
     trial_id = itertools.count()
 
+    bare_runs: list[float] = []
+
+    def bare(run_seconds: float) -> float:
+        bare_runs.append(bare_engine(recording, run_seconds, bits))
+        return bare_runs[-1]
+
     def trial(label: str, rate: float | None, covered: float | None = None) -> Trial:
         config = daemon_config(recording, port, workdir / f"state-{next(trial_id)}", rate or 0, bits, shape, covered)
+        before = bare_runs[-1]
         result = run_trial(label, config, rate=rate, seconds=seconds, covered=covered or 1.0)
-        say(f"  {label}: rate {result.rate or 'max'}, {result.fps:.1f} frames/s processed, {result.drops} dropped")
+        if covered is not None:  # the area trials compare with each other, not with the bare engine
+            return result
+        result.bare_fps = (before + bare(BARE_RUN_S)) / 2  # the machine's speed drifts: the engine around the trial
+        say(f"  {label}: rate {result.rate or 'max'}, {result.fps:.1f} frames/s processed, {result.drops} dropped; "
+            f"bare engine around it {result.bare_fps:.1f} frames/s")
         return result
 
     say(f"  bare engine, {seconds:g} s ...")
-    bare = bare_engine(recording, seconds, bits)
-    say(f"  bare engine: {bare:.1f} frames/s")
+    say(f"  bare engine: {bare(seconds):.1f} frames/s")
     capacity = trial("capacity", None)
     # the first paced trial is at the target, 90 % of the bare engine rounded up (so that passing
     # it shows the target met), on a grid fine enough to tell 87 % from 90 % at any size
-    step = 5.0 if bare >= 100 else 1.0
-    paced = search_rate(lambda rate: trial("paced", rate), start=step * max(1, math.ceil(0.9 * bare / step)),
-                        ceiling=max(bare, capacity.fps) * 1.05, max_trials=max_trials, resolution=2 * step,
+    rate_now = statistics.fmean(bare_runs)
+    step = 5.0 if rate_now >= 100 else 1.0
+    paced = search_rate(lambda rate: trial("paced", rate), start=step * max(1, math.ceil(0.9 * rate_now / step)),
+                        ceiling=max(rate_now, capacity.fps) * 1.05, max_trials=max_trials, resolution=2 * step,
                         step=step)
     covered = [trial(f"area, {100 * c:g} %", None, c) for c in COVERED] if areas else []
     recording.unlink()
-    return SizeResult(shape, pixel_format, bare, unpack_ms(shape, pixel_format), capacity,
+    return SizeResult(shape, pixel_format, bare_runs, unpack_ms(shape, pixel_format), capacity,
                       sorted(paced, key=lambda t: t.rate or 0.0), covered)
 
 

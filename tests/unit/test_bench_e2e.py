@@ -89,3 +89,24 @@ def test_search_rate_on_a_fine_grid() -> None:
                          resolution=2.0, step=1.0)
     assert [t.rate for t in trials] == [62, 31, 46, 54, 58, 60]
     assert best_zero_drop(trials).rate == 60  # the budget ran out before 61
+
+
+def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None:
+    """The machine drifts: a trial run while the bare engine did 50 frames/s is judged on 50, not on the
+    run's median (100 here), and the report says so."""
+    from edgedsm.bench.e2e import SizeResult
+    from edgedsm.bench.e2e_report import summary_row, write_report
+
+    capacity = Trial("capacity", None, 16, 1.0, 10.0, 460, 460, 0, 1.0, 100.0, bare_fps=50.0)
+    fast, slow = _trial(95.0, 0), _trial(46.0, 0)
+    fast.bare_fps, slow.bare_fps = 100.0, 50.0
+    for trial in (capacity, fast, slow):
+        trial.latency = {"alert": (0.4, 0.9), "stats": (0.7, 1.5)}
+    result = SizeResult((64, 64), "Mono8", [100.0, 100.0, 50.0, 50.0], 0.0, capacity, [slow, fast], [])
+    assert result.bare_fps == 75.0 and capacity.bare_ratio == pytest.approx(0.92)
+    assert slow.bare_ratio == pytest.approx(0.92) and fast.bare_ratio == pytest.approx(0.95)
+    row = summary_row(result)
+    assert row[1] == "75 (50–100)" and row[2] == "46 (92%)" and row[3] == "95 (95%)"
+    args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None)
+    text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
+    assert "zero drops up to 95% of the bare engine's rate: meets the target" in text
