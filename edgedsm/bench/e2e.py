@@ -237,9 +237,14 @@ class Trial:
     bare_fps: float = float("nan")  # the bare engine around this trial: mean of the runs just before and after
 
     @property
+    def judged_fps(self) -> float:
+        """What the trial is judged on: frames/s processed (capacity) or requested (paced)."""
+        return self.fps if self.rate is None else self.rate
+
+    @property
     def bare_ratio(self) -> float:
-        """Frames/s processed (capacity) or requested (paced) ÷ the bare engine around the trial."""
-        return (self.fps if self.rate is None else self.rate) / self.bare_fps
+        """``judged_fps`` ÷ the bare engine around the trial."""
+        return self.judged_fps / self.bare_fps
 
     @property
     def fps(self) -> float:
@@ -420,10 +425,10 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
 
     def trial(label: str, rate: float | None, covered: float | None = None) -> Trial:
         config = daemon_config(recording, port, workdir / f"state-{next(trial_id)}", rate or 0, bits, shape, covered)
-        before = bare_runs[-1]
         result = run_trial(label, config, rate=rate, seconds=seconds, covered=covered or 1.0)
         if covered is not None:  # the area trials compare with each other, not with the bare engine
             return result
+        before = bare_runs[-1]
         result.bare_fps = (before + bare(BARE_RUN_S)) / 2  # the machine's speed drifts: the engine around the trial
         say(f"  {label}: rate {result.rate or 'max'}, {result.fps:.1f} frames/s processed, {result.drops} dropped; "
             f"bare engine around it {result.bare_fps:.1f} frames/s")

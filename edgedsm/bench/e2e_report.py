@@ -22,8 +22,8 @@ def _size(result: SizeResult) -> str:
     return f"{result.shape[1]}×{result.shape[0]} {result.pixel_format}"
 
 
-def _ratio(fps: float, trial: Trial) -> str:
-    return f"{fps:.0f} ({trial.bare_ratio:.0%})"
+def _ratio(trial: Trial) -> str:
+    return f"{trial.judged_fps:.0f} ({trial.bare_ratio:.0%})"
 
 
 def _bare(result: SizeResult) -> str:
@@ -34,8 +34,8 @@ def _bare(result: SizeResult) -> str:
 def summary_row(result: SizeResult) -> list[str]:
     best, capacity = result.best, result.capacity
     latency_from = best or capacity
-    return [_size(result), _bare(result), _ratio(capacity.fps, capacity),
-            _ratio(float(best.rate or 0), best) if best else "none tried was clean",
+    return [_size(result), _bare(result), _ratio(capacity),
+            _ratio(best) if best else "none tried was clean",
             str(latency_from.queue_frames), f"{capacity.cpu_ms:.1f}", _pair(capacity.push_ms, 1.0, 1),
             _pair(capacity.snapshot_ms, 1.0, 1), _pair(capacity.evaluate_ms, 1.0),
             _pair(latency_from.latency["alert"], 1.0, 2), _pair(latency_from.latency["stats"], 1.0, 2),

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edgedsm.analysis import contrast, histogram, region_mean, region_means, region_stats
+from edgedsm.analysis import contrast, histogram, percentiles, region_mean, region_means, region_stats
 from edgedsm.errors import EstimatorError
 
 
@@ -93,3 +93,13 @@ def test_region_moments_match_numpy_on_views_without_copies(kernel: str) -> None
     assert std == pytest.approx(exact_std, rel=1e-12)
     stride = -(-selected.size // 1000)
     assert np.array_equal(sample, selected[::stride]) and sample.size <= 1000
+
+
+@pytest.mark.parametrize("size", [1, 2, 7, 1000, 1 << 18])
+def test_percentiles_from_the_sorted_sample_equal_numpy_s(size: int) -> None:
+    """Sorting first is only faster: the same numbers as np.percentile on the unsorted sample, ties
+    included."""
+    rng = np.random.default_rng(size)
+    for sample in (rng.random(size), rng.integers(0, 5, size).astype(float)):
+        expected = np.percentile(sample, [5, 50, 95])
+        assert percentiles(sample) == tuple(float(v) for v in expected)
