@@ -40,7 +40,7 @@ from edgedsm.daemon.tau import TauRegions, engine_estimators, map_block
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
-from edgedsm.estimators.region_stats import Moments, RegionPlan, region_moments
+from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
 from edgedsm.estimators.tau_pooled import pooled_covariances
@@ -153,7 +153,7 @@ class Evaluation:
         self.engine: SlidingWindow | None = None
         self.frame_shape: tuple[int, int] | None = None  # fixed by the first frame
         self.regions: dict[str, RegionBox] = {}  # in the engine's coordinates
-        self._plans: dict[str, RegionPlan] = {}  # the same, prepared for region_moments
+        self._layout = RegionLayout.of({})  # the same, prepared for region_moments
         self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
         self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
         self.monitor_lock = threading.Lock()
@@ -186,8 +186,8 @@ class Evaluation:
             engine.push(frame)
         mask = np.zeros((side, side), bool)
         mask[1:-1, 1:-1] = True
-        plans = {name: RegionPlan.of(RegionBox.of(region), (side, side))
-                 for name, region in (("all", np.ones_like(mask)), ("inner", mask))}
+        plans = RegionLayout.of({name: RegionPlan.of(RegionBox.of(region), (side, side))
+                                 for name, region in (("all", np.ones_like(mask)), ("inner", mask))})
         maps_from(engine.snapshot(ESTIMATORS))
         wanted = [ESTIMATORS] + ([[est.activity]] if est.activity in ESTIMATORS else [])
         for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
@@ -258,7 +258,7 @@ class Evaluation:
                                     estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
                                     max_lag=est.lags if self.tau.on else None)
         self.regions = regions
-        self._plans = {name: RegionPlan.of(box, shape) for name, box in regions.items()}
+        self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in regions.items()})
         self.tau.prepare(regions, shape)
         self.frame_shape = frame.shape
 
@@ -312,7 +312,7 @@ class Evaluation:
             wanted = self._snapshot_estimators(stats_due)
             if wanted:
                 # the live sums, read between two pushes on the thread that pushes: no copy
-                moments = region_moments(self.engine.snapshot(wanted, live=True), self._plans, wanted,
+                moments = region_moments(self.engine.snapshot(wanted, live=True), self._layout, wanted,
                                          spread=stats_due, parallel=self.engine.shape[0] * self.engine.shape[1]
                                          >= PARALLEL_MIN_PIXELS)
             if publish_maps:

@@ -215,6 +215,37 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
 
 PRODUCTS_BLOCK = 2048  # pixels per block of the lag-product kernel: its rows stay in L1
 
+# Row helpers of the lag-product kernels: module-level, with the sums' integer type ``wide``
+# (np.int32 or np.int64) as an argument the kernels pass as a constant. (As closures inside the
+# kernel factories they made the kernels' disk-cache key differ in every process: each start
+# compiled them again.) Contiguous 1-D slices: the loops vectorise.
+
+
+@numba.njit(inline="always", nogil=True, cache=True)
+def _slide_rows(wide, row, old, leaving, new, lagged):  # pragma: no cover - compiled
+    for p in range(row.size):
+        row[p] = wide(row[p]) - wide(old[p]) * wide(leaving[p]) + wide(new[p]) * wide(lagged[p])
+
+
+@numba.njit(inline="always", nogil=True, cache=True)
+def _slide_two(wide, row, o0, v0, n0, l0, o1, v1, n1, l1):  # pragma: no cover - compiled
+    for p in range(row.size):  # two frames per load and store of the sums
+        row[p] = (wide(row[p]) - wide(o0[p]) * wide(v0[p]) + wide(n0[p]) * wide(l0[p])
+                  - wide(o1[p]) * wide(v1[p]) + wide(n1[p]) * wide(l1[p]))
+
+
+@numba.njit(inline="always", nogil=True, cache=True)
+def _add_rows(wide, row, first, second):  # pragma: no cover - compiled
+    for p in range(row.size):
+        row[p] = wide(row[p]) + wide(first[p]) * wide(second[p])
+
+
+@numba.njit(inline="always", nogil=True, cache=True)
+def _add_four(wide, row, a0, c0, a1, c1, a2, c2, a3, c3):  # pragma: no cover - compiled
+    for p in range(row.size):  # four frames per load and store of the sums
+        row[p] = (wide(row[p]) + wide(a0[p]) * wide(c0[p]) + wide(a1[p]) * wide(c1[p])
+                  + wide(a2[p]) * wide(c2[p]) + wide(a3[p]) * wide(c3[p]))
+
 
 @functools.cache
 def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -> Callable[..., None]:
@@ -233,16 +264,6 @@ def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -
     """
     wide = np.int32 if narrow else np.int64
 
-    @numba.njit(inline="always", nogil=True)
-    def slide_rows(row, old, leaving, new, lagged):  # pragma: no cover - compiled
-        for p in range(row.size):  # contiguous 1-D slices: the loop vectorises
-            row[p] = wide(row[p]) - wide(old[p]) * wide(leaving[p]) + wide(new[p]) * wide(lagged[p])
-
-    @numba.njit(inline="always", nogil=True)
-    def grow_rows(row, new, lagged):  # pragma: no cover - compiled
-        for p in range(row.size):
-            row[p] = wide(row[p]) + wide(new[p]) * wide(lagged[p])
-
     @numba.njit(parallel=parallel, cache=True, nogil=True)
     def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags):  # pragma: no cover
         size = new.size
@@ -254,10 +275,10 @@ def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -
             x = new[start:stop]
             for k in range(count):
                 if remove:
-                    slide_rows(products[k, start:stop], ring[old_slot, start:stop],
+                    _slide_rows(wide, products[k, start:stop], ring[old_slot, start:stop],
                                ring[leave_slots[k], start:stop], x, ring[lag_slots[k], start:stop])
                 else:
-                    grow_rows(products[k, start:stop], x, ring[lag_slots[k], start:stop])
+                    _add_rows(wide, products[k, start:stop], x, ring[lag_slots[k], start:stop])
 
     return kernel
 
@@ -275,17 +296,6 @@ def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callab
     """
     wide = np.int32 if narrow else np.int64
 
-    @numba.njit(inline="always", nogil=True)
-    def add_rows(row, first, second):  # pragma: no cover - compiled
-        for p in range(row.size):
-            row[p] = wide(row[p]) + wide(first[p]) * wide(second[p])
-
-    @numba.njit(inline="always", nogil=True)
-    def add_four(row, a0, c0, a1, c1, a2, c2, a3, c3):  # pragma: no cover - compiled
-        for p in range(row.size):  # four frames per load and store of the sums
-            row[p] = (wide(row[p]) + wide(a0[p]) * wide(c0[p]) + wide(a1[p]) * wide(c1[p])
-                      + wide(a2[p]) * wide(c2[p]) + wide(a3[p]) * wide(c3[p]))
-
     @numba.njit(parallel=parallel, cache=True, nogil=True)
     def kernel(ring, frame_slots, lag_slots, lag_counts, products):  # pragma: no cover
         size = ring.shape[1]
@@ -299,14 +309,14 @@ def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callab
                 b = 0
                 while b + 4 <= count and k < lag_counts[b] and k < lag_counts[b + 1] \
                         and k < lag_counts[b + 2] and k < lag_counts[b + 3]:
-                    add_four(row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop],
+                    _add_four(wide, row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop],
                              ring[frame_slots[b + 1], start:stop], ring[lag_slots[b + 1, k], start:stop],
                              ring[frame_slots[b + 2], start:stop], ring[lag_slots[b + 2, k], start:stop],
                              ring[frame_slots[b + 3], start:stop], ring[lag_slots[b + 3, k], start:stop])
                     b += 4
                 while b < count:
                     if k < lag_counts[b]:
-                        add_rows(row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
+                        _add_rows(wide, row, ring[frame_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
                     b += 1
 
     return kernel
@@ -324,17 +334,6 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
     """
     wide = np.int32 if narrow else np.int64
 
-    @numba.njit(inline="always", nogil=True)
-    def slide_rows(row, old, leaving, new, lagged):  # pragma: no cover - compiled
-        for p in range(row.size):
-            row[p] = wide(row[p]) - wide(old[p]) * wide(leaving[p]) + wide(new[p]) * wide(lagged[p])
-
-    @numba.njit(inline="always", nogil=True)
-    def slide_two(row, o0, v0, n0, l0, o1, v1, n1, l1):  # pragma: no cover - compiled
-        for p in range(row.size):  # two frames per load and store of the sums
-            row[p] = (wide(row[p]) - wide(o0[p]) * wide(v0[p]) + wide(n0[p]) * wide(l0[p])
-                      - wide(o1[p]) * wide(v1[p]) + wide(n1[p]) * wide(l1[p]))
-
     @numba.njit(parallel=parallel, cache=True, nogil=True)
     def kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
                products):  # pragma: no cover - compiled
@@ -350,14 +349,14 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
                 while b + 2 <= count:
                     s0 = retired if leave_retired[b, k] else ring
                     s1 = retired if leave_retired[b + 1, k] else ring
-                    slide_two(row, retired[old_slots[b], start:stop], s0[leave_slots[b, k], start:stop],
+                    _slide_two(wide, row, retired[old_slots[b], start:stop], s0[leave_slots[b, k], start:stop],
                               ring[new_slots[b], start:stop], ring[lag_slots[b, k], start:stop],
                               retired[old_slots[b + 1], start:stop], s1[leave_slots[b + 1, k], start:stop],
                               ring[new_slots[b + 1], start:stop], ring[lag_slots[b + 1, k], start:stop])
                     b += 2
                 while b < count:
                     source = retired if leave_retired[b, k] else ring
-                    slide_rows(row, retired[old_slots[b], start:stop], source[leave_slots[b, k], start:stop],
+                    _slide_rows(wide, row, retired[old_slots[b], start:stop], source[leave_slots[b, k], start:stop],
                                ring[new_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
                     b += 1
 

@@ -3,22 +3,30 @@
 The daemon needs, per region and map, the pixel count, mean, standard deviation and 5/50/95 %
 percentiles (:func:`edgedsm.analysis.region_stats`), and for the drying states only the activity
 map's mean. Computing whole float maps first (:func:`edgedsm.estimators.snapshot.maps_from`)
-writes 32 bytes per pixel and reads them back per region and map; here one fused pass over each
-region's bounding box reads the engine's sums and evaluates each pixel's S1, S2 and S3 with the
-arithmetic of the engine's maps kernel (``kernels_numba.maps_kernel``, Eq. 1-4; equality tested),
-so it can run on the pipeline thread between two pushes, from the live sums (the pushes are on
-that thread too), at about the cost of one push.
+writes 32 bytes per pixel and reads them back per region and map. Here one pass over the rows
+the regions cover (:class:`RegionLayout`) reads the engine's sums once: each pixel of the
+regions' union gets its S1, S2 and S3 (Eq. 1-4) computed once into a row buffer, whatever the
+regions holding it, and each region sums its column runs of that buffer. It runs on the
+pipeline thread between two pushes, from the live sums (the pushes are on that thread too).
 
 Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 relative, tested):
 
 - the sample for percentiles is the same pixels as ``masked_moments`` takes (every k-th selected
   pixel in row-major order, k = ⌈pixels / samples⌉): their flat indices are fixed with the mask,
-  found once (:class:`RegionPlan`), and the values there are computed exactly as the map's;
+  found once (:class:`RegionPlan`), and the values there are computed with the arithmetic of the
+  engine's maps kernel (``kernels_numba.maps_kernel``), so they equal the map's bit for bit;
 - mean and deviation come from one pass of sums shifted by the sample's mean c: Σ(x-c) and
-  Σ(x-c)², compensated (Neumaier) per block of rows and over the blocks. With c within a few
-  deviations of the mean, var = Σ(x-c)²/n - (Σ(x-c)/n)² loses nothing to cancellation, and one
-  pass replaces the two a centred sum needs. Blocks are fixed by the box's shape (not by the
-  thread count), so the result is the same whatever the threads.
+  Σ(x-c)². With c within a few deviations of the mean, var = Σ(x-c)²/n - (Σ(x-c)/n)² loses
+  nothing to cancellation, and one pass replaces the two a centred sum needs. The sums along a
+  row run in vector lanes (reassociated: a few ulps), rows are added with Neumaier compensation
+  per block of rows and the blocks likewise. Blocks are fixed by the layout (not by the thread
+  count), so the result is the same whatever the threads. In the pass, each pixel's values take
+  products by reciprocals computed once (a few ulps from the map's) and, where the engine's
+  ΣI² is int32, N²σ² = N·ΣI² − (ΣI)² in float64, exact since both products stay below 2^53.
+
+The kernels are module-level functions, or closures over plain constants only, so numba's disk
+cache finds them again in the next process (a closure over another compiled closure gets a new
+cache key in every process: seconds of compiling at every start).
 
 Without numba (the optional extra ``fast``) the maps are computed from the sums and reduced by
 :func:`edgedsm.analysis_kernels.masked_moments` (slower, same numbers).
@@ -36,21 +44,42 @@ from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, percent
 from edgedsm.analysis_kernels import masked_moments
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
 
+try:
+    import numba
+except ImportError:  # numba is the optional 'fast' extra
+    numba = None
+
 #: Map names in the order of the kernels' outputs.
 MAPS = ("s1", "s2", "s3")
 #: Pixels per block of rows: one task of the parallel pass, and one compensated partial sum.
 BLOCK_PIXELS = 1 << 16
+#: Below this window length, N·ΣI² and (ΣI)² of int32 sums stay under 2^53 (exact in float64).
+DIRECT_SPREAD_MAX_WINDOW = 1 << 22
+
+
+def mask_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row, first column and end column (exclusive) of each horizontal run of True in ``mask``
+    (int64, row-major order)."""
+    height, width = mask.shape
+    padded = np.zeros((height, width + 2), np.int8)
+    padded[:, 1:-1] = mask
+    steps = np.diff(padded, axis=1)
+    rows, starts = np.nonzero(steps == 1)
+    _, stops = np.nonzero(steps == -1)
+    return rows.astype(np.int64), starts.astype(np.int64), stops.astype(np.int64)
 
 
 @dataclass(frozen=True)
 class RegionPlan:
     """A region prepared for :func:`region_moments` in an engine of ``shape``: its box and mask,
-    and the flat indices (engine pixels) of the pixels its percentile sample takes."""
+    its column runs and the flat indices (engine pixels) of the pixels its percentile sample
+    takes."""
 
     box: RegionBox
     width: int  # the engine's row length, pixels
     pixels: int  # selected pixels
     sample_index: np.ndarray  # int64, every k-th selected pixel, row-major
+    runs: np.ndarray  # int64 (k, 3): engine row, first column, end column of each run of pixels
 
     @classmethod
     def of(cls, box: RegionBox, shape: tuple[int, int], samples: int = PERCENTILE_SAMPLES) -> RegionPlan:
@@ -61,7 +90,66 @@ class RegionPlan:
         box_width = box.cols.stop - box.cols.start
         rows, cols = np.divmod(local, box_width)
         index = (rows + box.rows.start) * shape[1] + cols + box.cols.start
-        return cls(box, shape[1], pixels, np.ascontiguousarray(index, np.int64))
+        run_rows, starts, stops = mask_runs(box.mask)
+        runs = np.stack([run_rows + box.rows.start, starts + box.cols.start, stops + box.cols.start], axis=1)
+        return cls(box, shape[1], pixels, np.ascontiguousarray(index, np.int64), np.ascontiguousarray(runs))
+
+
+@dataclass(frozen=True)
+class RegionLayout:
+    """Regions of one engine prepared for one pass: the band of rows they cover and, per row
+    (relative to ``row0``), the merged column runs of their union (``cover``) and each region's
+    own runs (``runs``), columns relative to ``col0``. Build it once per set of regions."""
+
+    plans: dict[str, RegionPlan]
+    width: int
+    row0: int
+    col0: int
+    cols: int  # the union's bounding-box width
+    cover_ptr: np.ndarray  # int64 (rows+1,): row i's merged runs are cover[cover_ptr[i]:cover_ptr[i+1]]
+    cover: np.ndarray  # int64 (k, 2): first and end column
+    run_ptr: np.ndarray  # int64 (regions, rows+1): region r's runs on row i, as cover_ptr
+    runs: np.ndarray  # int64 (m, 2)
+
+    @property
+    def rows(self) -> int:
+        return self.cover_ptr.size - 1
+
+    @classmethod
+    def of(cls, plans: Mapping[str, RegionPlan]) -> RegionLayout:
+        plans = dict(plans)
+        widths = {plan.width for plan in plans.values()}
+        if len(widths) > 1:
+            raise ValueError(f"regions of engines of different widths {sorted(widths)}")
+        width = widths.pop() if widths else 0
+        every = np.concatenate([plan.runs for plan in plans.values()]) if plans else np.zeros((0, 3), np.int64)
+        if every.shape[0] == 0:
+            empty = np.zeros((0, 2), np.int64)
+            return cls(plans, width, 0, 0, 0, np.zeros(1, np.int64), empty,
+                       np.zeros((len(plans), 1), np.int64), empty)
+        row0, col0 = int(every[:, 0].min()), int(every[:, 1].min())
+        rows, cols = int(every[:, 0].max()) + 1 - row0, int(every[:, 2].max()) - col0
+        lines = np.arange(rows + 1)
+        run_ptr = np.empty((len(plans), rows + 1), np.int64)
+        offset = 0
+        for r, plan in enumerate(plans.values()):
+            run_ptr[r] = offset + np.searchsorted(plan.runs[:, 0] - row0, lines)
+            offset += plan.runs.shape[0]
+        runs = every[:, 1:] - col0
+        # the union: runs in (row, start) order, merged where one starts before the reach of
+        # the ones before it on its row (keys row·(W+1)+column keep rows apart)
+        order = np.lexsort((every[:, 1], every[:, 0]))
+        rel_rows, starts, stops = every[order, 0] - row0, every[order, 1] - col0, every[order, 2] - col0
+        base = rel_rows * (width + 1)
+        reach = np.maximum.accumulate(base + stops)
+        first = np.ones(order.size, bool)
+        first[1:] = base[1:] + starts[1:] > reach[:-1]
+        heads = np.flatnonzero(first)
+        ends = np.maximum.reduceat(base + stops, heads) - base[heads]
+        cover = np.stack([starts[heads], ends], axis=1)
+        cover_ptr = np.searchsorted(rel_rows[heads], lines).astype(np.int64)
+        return cls(plans, width, row0, col0, cols, cover_ptr, np.ascontiguousarray(cover, np.int64), run_ptr,
+                   np.ascontiguousarray(runs, np.int64))
 
 
 @dataclass(frozen=True)
@@ -79,54 +167,64 @@ class Moments:
         return RegionStats(self.pixels, self.mean, self.std, *percentiles(self.sample))
 
 
-def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], maps: Sequence[str],
+def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | RegionLayout, maps: Sequence[str],
                    spread: bool = True, parallel: bool = True) -> dict[str, dict[str, Moments]]:
     """Moments of ``maps`` (among s1, s2, s3) over each region, from a window's sums.
 
     ``sums``: an engine snapshot, or the live sums (``SlidingWindow.snapshot(live=True)``; then on
-    the thread that pushes, before the next push). Without ``spread`` only the means (std 0, no
-    sample). ``parallel``: the pass over each box uses numba's threads (the caller's setting).
+    the thread that pushes, before the next push). ``regions``: plans by name, or their
+    :class:`RegionLayout` (built once: cheaper per call). Without ``spread`` only the means (std
+    0, no sample). ``parallel``: the pass uses numba's threads (the caller's setting).
     """
     wanted = tuple(name for name in MAPS if name in maps)
     if sums.mode not in ("sliding", "tumbling", "exponential") or not wanted:
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
-    kernels = _kernels(*(name in wanted for name in MAPS), sums.mode == "exponential", parallel)
-    if kernels is None:
-        return _moments_from_maps(sums, regions, wanted, spread)
-    block_sums, sample_values = kernels
+    layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
     exponential = sums.mode == "exponential"
     arrays = sums.sums
     second = arrays["m2"] if exponential else arrays["total"]
     fourth = arrays["m2"] if exponential else arrays["total_sq"]
+    kind = "exponential" if exponential else "direct" if _direct_spread(fourth, sums.window) else "integer"
+    kernels = _kernels(*(name in wanted for name in MAPS), kind, parallel)
+    if kernels is None:
+        return _moments_from_maps(sums, layout.plans, wanted, spread)
+    block_sums, sample_values = kernels
     common = (arrays["abs"], arrays["ratio"], second, fourth, sums.pairs, sums.ratio_unit, sums.window,
               sums.weight_frames)
-    result: dict[str, dict[str, Moments]] = {}
-    for name, plan in regions.items():
-        box = plan.box
+    count = len(layout.plans)
+    shift = np.zeros((count, len(MAPS)))
+    samples = []
+    for r, plan in enumerate(layout.plans.values()):
+        sample = np.empty((len(MAPS), plan.sample_index.size if spread else 0))
         if spread:
-            sample = np.empty((len(MAPS), plan.sample_index.size))
             sample_values(*common, plan.sample_index, sample)
-            shift = sample.mean(axis=1)
-        else:
-            sample = np.empty((len(MAPS), 0))
-            shift = np.zeros(len(MAPS))
-        box_width = box.cols.stop - box.cols.start
-        block_rows = max(1, BLOCK_PIXELS // box_width)
-        blocks = -(-(box.rows.stop - box.rows.start) // block_rows)
-        partials = np.empty((blocks, len(MAPS), 4))
-        block_sums(*common, plan.width, box.rows.start, box.cols.start, box.mask, block_rows, shift, partials)
+            shift[r] = sample.mean(axis=1)
+        samples.append(sample)
+    block_rows = max(1, BLOCK_PIXELS // max(layout.cols, 1))
+    blocks = -(-layout.rows // block_rows)
+    partials = np.zeros((blocks, count, len(MAPS), 4))
+    block_sums(*common, layout.width, layout.row0, layout.col0, layout.cols, block_rows, layout.cover_ptr,
+               layout.cover, layout.run_ptr, layout.runs, shift, partials)
+    result: dict[str, dict[str, Moments]] = {}
+    for r, (name, plan) in enumerate(layout.plans.items()):
         per_map = {}
         for k, key in enumerate(MAPS):
             if key not in wanted:
                 continue
-            first, squares = _combine(partials[:, k, 0], partials[:, k, 1]), _combine(partials[:, k, 2],
-                                                                                        partials[:, k, 3])
+            first = _combine(partials[:, r, k, 0], partials[:, r, k, 1])
+            squares = _combine(partials[:, r, k, 2], partials[:, r, k, 3])
             offset = first / plan.pixels
-            mean = float(shift[k] + offset)
+            mean = float(shift[r, k] + offset)
             std = float(np.sqrt(max(squares / plan.pixels - offset * offset, 0.0))) if spread else 0.0
-            per_map[key] = Moments(plan.pixels, mean, std, sample[k] if spread else sample[k, :0])
+            per_map[key] = Moments(plan.pixels, mean, std, samples[r][k])
         result[name] = per_map
     return result
+
+
+def _direct_spread(total_sq: np.ndarray, window: int) -> bool:
+    """N²σ² = N·ΣI² − (ΣI)² is exact in float64: ΣI² fits int32 and N < 2^22, so both
+    products stay below 2^53 ((ΣI)² <= N·ΣI², Cauchy-Schwarz)."""
+    return total_sq.dtype.itemsize <= 4 and window < DIRECT_SPREAD_MAX_WINDOW
 
 
 def _combine(totals: np.ndarray, carries: np.ndarray) -> float:
@@ -154,49 +252,33 @@ def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], 
     return result
 
 
-@functools.cache
-def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, exponential: bool,
-             parallel: bool) -> tuple[Callable[..., None], Callable[..., None]] | None:
-    """The compiled (block sums, sample values) pair for one set of maps, or None without numba.
+# -- compiled kernels (numba) ---------------------------------------------------------------------
+# Module-level functions (found again by numba's disk cache); the map choices are arguments that
+# the closures of _kernels pass as constants, so the branches on them fold away.
 
-    The choices are compile-time constants (closure), as in the engine's kernels: no branch on
-    them in the loops.
-    """
-    try:
-        import numba
-    except ImportError:  # numba is the optional 'fast' extra
-        return None
-    do_abs = want_s1 or want_s3
-
-    @numba.njit(inline="always", nogil=True)
-    def exponential_pixel(p, abs_sum, ratio_sum, second, weight):  # pragma: no cover - compiled
-        """(S1, S2, S3) of flat pixel p from the exponential window's float means, as its maps."""
-        value = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        if do_abs:
-            value = abs_sum[p]
-        if want_s2:
-            s2 = ratio_sum[p]
-        if want_s3:
-            deviation = np.sqrt(second[p] / weight)
-            s3 = value / deviation if deviation > 0.0 else 0.0
-        return value, s2, s3
-
-    @numba.njit(inline="always", nogil=True)
-    def pixel(p, abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight):  # pragma: no cover
-        """(S1, S2, S3) of flat pixel p; the arithmetic of maps_kernel (window modes) or of the
+if numba is not None:
+    @numba.njit(inline="always", nogil=True, cache=True)
+    def _exact_values(exponential, do_abs, do_s2, do_s3, p, abs_sum, ratio_sum, second, fourth, pairs,
+                      ratio_unit, n, weight):  # pragma: no cover - compiled
+        """(S1, S2, S3) of flat pixel p with the arithmetic of maps_kernel (window modes) or of the
         exponential maps: every operation as there, in the same order (the same float64)."""
-        if exponential:
-            return exponential_pixel(p, abs_sum, ratio_sum, second, weight)
         value = 0.0
         s2 = 0.0
         s3 = 0.0
+        if exponential:
+            if do_abs:
+                value = abs_sum[p]
+            if do_s2:
+                s2 = ratio_sum[p]
+            if do_s3:
+                deviation = np.sqrt(second[p] / weight)
+                s3 = value / deviation if deviation > 0.0 else 0.0
+            return value, s2, s3
         if do_abs:
             value = np.float64(abs_sum[p]) / pairs
-        if want_s2:
+        if do_s2:
             s2 = np.float64(ratio_sum[p]) * ratio_unit / pairs
-        if want_s3:
+        if do_s3:
             limit = np.int64(9223372036854775807) // n
             s = np.int64(second[p])
             k = np.int64(np.floor(np.float64(s) / n + 0.5))
@@ -210,99 +292,146 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, exponential: bool,
             s3 = value / deviation if deviation > 0.0 else 0.0
         return value, s2, s3
 
-    @numba.njit(inline="always", nogil=True)
-    def add(total, carry, x):  # pragma: no cover - compiled
-        t = total + x
-        carry += (total - t) + x if abs(total) >= abs(x) else (x - t) + total
-        return t, carry
+    @numba.njit(inline="always", nogil=True, cache=True)
+    def _row_values(kind, do_abs, do_s2, do_s3, size, abs_sum, ratio_sum, second, fourth, out1, out2, out3,
+                    inv_pairs, s2_unit, n, s3_unit, weight):  # pragma: no cover - compiled
+        """One run of a row (views starting at index 0, so the loops vectorise): S1, S2, S3 into
+        out1..3, within a few ulps of maps_kernel (products by reciprocals; for ``kind``
+        "direct" N²σ² = N·ΣI² − (ΣI)² in float64, exact; "integer" centred in int64 as
+        maps_kernel, any round(ΣI/N) +- 1 being exact too)."""
+        if kind == "exponential":
+            for j in range(size):
+                value = abs_sum[j] if do_abs else 0.0
+                if do_abs:
+                    out1[j] = value
+                if do_s2:
+                    out2[j] = ratio_sum[j]
+                if do_s3:
+                    deviation = np.sqrt(second[j] / weight)
+                    out3[j] = value / deviation if deviation > 0.0 else 0.0
+            return
+        if do_abs:
+            for j in range(size):
+                out1[j] = np.float64(abs_sum[j]) * inv_pairs
+        if do_s2:
+            for j in range(size):
+                out2[j] = np.float64(ratio_sum[j]) * s2_unit
+        if do_s3:
+            fn = np.float64(n)
+            if kind == "direct":
+                for j in range(size):
+                    s = np.float64(second[j])
+                    spread = fn * np.float64(fourth[j]) - s * s
+                    deviation = np.sqrt(spread)
+                    out3[j] = np.float64(abs_sum[j]) * s3_unit / deviation if spread > 0.0 else 0.0
+            else:
+                inv_n = 1.0 / fn
+                limit = np.int64(9223372036854775807) // n
+                for j in range(size):
+                    s = np.int64(second[j])
+                    k = np.int64(np.floor(np.float64(s) * inv_n + 0.5))
+                    r = s - k * n
+                    centred = np.int64(fourth[j]) - k * (s + r)
+                    if centred <= limit:
+                        spread = np.float64(n * centred - r * r)
+                    else:
+                        spread = n * np.float64(centred) - np.float64(r * r)
+                    out3[j] = np.float64(abs_sum[j]) * s3_unit / np.sqrt(spread) if spread > 0.0 else 0.0
 
-    @numba.njit(nogil=True, cache=True)
+    @numba.njit(nogil=True, fastmath={"reassoc", "nsz"}, cache=True)
+    def _run_moments(values, shift):  # pragma: no cover - compiled
+        """Σ(x-c) and Σ(x-c)² of a run (reassociated: the loop runs in vector lanes)."""
+        first = 0.0
+        squares = 0.0
+        for j in range(values.size):
+            d = values[j] - shift
+            first += d
+            squares += d * d
+        return first, squares
+
+    @numba.njit(inline="always", nogil=True, cache=True)
+    def _neumaier(partials, block, r, k, slot, x):  # pragma: no cover - compiled
+        """Add x to the compensated partial (total at ``slot``, carry at ``slot`` + 1)."""
+        total = partials[block, r, k, slot]
+        t = total + x
+        if abs(total) >= abs(x):
+            partials[block, r, k, slot + 1] += (total - t) + x
+        else:
+            partials[block, r, k, slot + 1] += (x - t) + total
+        partials[block, r, k, slot] = t
+
+    @numba.njit(inline="always", nogil=True, cache=True)
+    def _region_row(values, k, r, i, run_ptr, runs, shift, partials, block):  # pragma: no cover - compiled
+        """Region r's runs on row i of the row buffer ``values`` (map k), into the block's partials."""
+        if run_ptr[r, i + 1] == run_ptr[r, i]:
+            return
+        first = 0.0
+        squares = 0.0
+        for q in range(run_ptr[r, i], run_ptr[r, i + 1]):
+            a, b = _run_moments(values[runs[q, 0]:runs[q, 1]], shift[r, k])
+            first += a
+            squares += b
+        _neumaier(partials, block, r, k, 0, first)
+        _neumaier(partials, block, r, k, 2, squares)
+
+    @numba.njit(inline="always", nogil=True, cache=True)
+    def _block(kind, do_abs, do_s2, do_s3, want_s1, block, abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
+               weight, width, row0, col0, cols, block_rows, cover_ptr, cover, run_ptr, runs, shift,
+               partials):  # pragma: no cover - compiled
+        """One block of rows: the union's values into row buffers, each region's runs summed."""
+        inv_pairs = 1.0 / pairs
+        s2_unit = ratio_unit / pairs
+        s3_unit = np.float64(n) / pairs
+        buffer1 = np.empty(cols if do_abs else 0)
+        buffer2 = np.empty(cols if do_s2 else 0)
+        buffer3 = np.empty(cols if do_s3 else 0)
+        rows = cover_ptr.size - 1
+        for i in range(block * block_rows, min((block + 1) * block_rows, rows)):
+            base = (row0 + i) * width + col0
+            for c in range(cover_ptr[i], cover_ptr[i + 1]):
+                start, stop = cover[c, 0], cover[c, 1]
+                first, last = base + start, base + stop
+                _row_values(kind, do_abs, do_s2, do_s3, stop - start, abs_sum[first:last] if do_abs else abs_sum,
+                            ratio_sum[first:last] if do_s2 else ratio_sum,
+                            second[first:last] if do_s3 else second, fourth[first:last] if do_s3 else fourth,
+                            buffer1[start:stop] if do_abs else buffer1, buffer2[start:stop] if do_s2 else buffer2,
+                            buffer3[start:stop] if do_s3 else buffer3, inv_pairs, s2_unit, n, s3_unit, weight)
+            for r in range(run_ptr.shape[0]):
+                if want_s1:
+                    _region_row(buffer1, 0, r, i, run_ptr, runs, shift, partials, block)
+                if do_s2:
+                    _region_row(buffer2, 1, r, i, run_ptr, runs, shift, partials, block)
+                if do_s3:
+                    _region_row(buffer3, 2, r, i, run_ptr, runs, shift, partials, block)
+
+
+@functools.cache
+def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str,
+             parallel: bool) -> tuple[Callable[..., None], Callable[..., None]] | None:
+    """The compiled (block sums, sample values) pair for one set of maps and one ``kind`` of
+    sums ("direct", "integer", "exponential"), or None without numba. The choices are
+    compile-time constants (closure over plain values only, so the disk cache finds it)."""
+    if numba is None:
+        return None
+    do_abs = want_s1 or want_s3
+    exponential = kind == "exponential"
+
+    @numba.njit(parallel=parallel, nogil=True, cache=True)
     def sample_values(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, index,
                       out):  # pragma: no cover - compiled
-        for i in range(index.size):
-            v1, v2, v3 = pixel(index[i], abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight)
+        for i in numba.prange(index.size):
+            v1, v2, v3 = _exact_values(exponential, do_abs, want_s2, want_s3, index[i], abs_sum, ratio_sum, second,
+                                       fourth, pairs, ratio_unit, n, weight)
             out[0, i] = v1
             out[1, i] = v2
             out[2, i] = v3
 
-    @numba.njit(inline="always", nogil=True)
-    def pixel_fast(p, abs_sum, ratio_sum, second, fourth, inv_pairs, s2_unit, n, inv_n, s3_unit, limit,
-                   weight):  # pragma: no cover - compiled
-        """(S1, S2, S3) of flat pixel p within a few ulps of ``pixel``: products by reciprocals
-        computed once (``inv_pairs`` = 1/(N-m), ``s2_unit`` = 2^-K/(N-m), ``s3_unit`` =
-        N/(N-m), ``limit`` as in maps_kernel), one division and one square root per pixel instead
-        of four and one, and no integer division. The
-        centring integer k may differ from maps_kernel's by one: N²σ² is exact for every k."""
-        if exponential:
-            return exponential_pixel(p, abs_sum, ratio_sum, second, weight)
-        value = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        if do_abs:
-            value = np.float64(abs_sum[p]) * inv_pairs
-        if want_s2:
-            s2 = np.float64(ratio_sum[p]) * s2_unit
-        if want_s3:
-            s = np.int64(second[p])
-            k = np.int64(np.floor(np.float64(s) * inv_n + 0.5))
-            r = s - k * n
-            centred = np.int64(fourth[p]) - k * (s + r)
-            if centred <= limit:
-                spread = np.float64(n * centred - r * r)
-            else:
-                spread = n * np.float64(centred) - np.float64(r * r)
-            s3 = np.float64(abs_sum[p]) * s3_unit / np.sqrt(spread) if spread > 0.0 else 0.0
-        return value, s2, s3
-
     @numba.njit(parallel=parallel, nogil=True, cache=True)
-    def block_sums(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, width, row0, col0, mask,
-                   block_rows, shift, partials):  # pragma: no cover - compiled
-        rows, cols = mask.shape
-        c1, c2, c3 = shift[0], shift[1], shift[2]
-        inv_pairs = 1.0 / pairs
-        s2_unit = ratio_unit / pairs
-        inv_n = 1.0 / n
-        s3_unit = np.float64(n) / pairs
-        limit = np.int64(9223372036854775807) // n
+    def block_sums(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, width, row0, col0, cols,
+                   block_rows, cover_ptr, cover, run_ptr, runs, shift, partials):  # pragma: no cover - compiled
         for block in numba.prange(partials.shape[0]):
-            t1 = e1 = q1 = f1 = 0.0
-            t2 = e2 = q2 = f2 = 0.0
-            t3 = e3 = q3 = f3 = 0.0
-            for i in range(block * block_rows, min((block + 1) * block_rows, rows)):
-                base = (row0 + i) * width + col0
-                # plain sums along the row (no branch, independent chains), compensated across rows
-                a1 = b1 = a2 = b2 = a3 = b3 = 0.0
-                for j in range(cols):
-                    if mask[i, j]:
-                        v1, v2, v3 = pixel_fast(base + j, abs_sum, ratio_sum, second, fourth, inv_pairs, s2_unit,
-                                                n, inv_n, s3_unit, limit, weight)
-                        d1 = v1 - c1
-                        d2 = v2 - c2
-                        d3 = v3 - c3
-                        a1 += d1
-                        b1 += d1 * d1
-                        a2 += d2
-                        b2 += d2 * d2
-                        a3 += d3
-                        b3 += d3 * d3
-                t1, e1 = add(t1, e1, a1)
-                q1, f1 = add(q1, f1, b1)
-                t2, e2 = add(t2, e2, a2)
-                q2, f2 = add(q2, f2, b2)
-                t3, e3 = add(t3, e3, a3)
-                q3, f3 = add(q3, f3, b3)
-            partials[block, 0, 0] = t1
-            partials[block, 0, 1] = e1
-            partials[block, 0, 2] = q1
-            partials[block, 0, 3] = f1
-            partials[block, 1, 0] = t2
-            partials[block, 1, 1] = e2
-            partials[block, 1, 2] = q2
-            partials[block, 1, 3] = f2
-            partials[block, 2, 0] = t3
-            partials[block, 2, 1] = e3
-            partials[block, 2, 2] = q3
-            partials[block, 2, 3] = f3
+            _block(kind, do_abs, want_s2, want_s3, want_s1, block, abs_sum, ratio_sum, second, fourth, pairs,
+                   ratio_unit, n, weight, width, row0, col0, cols, block_rows, cover_ptr, cover, run_ptr, runs,
+                   shift, partials)
 
     return block_sums, sample_values
-

@@ -1,0 +1,43 @@
+"""Compile the daemon's kernels into numba's disk cache in a separate process, as a daemon's
+start does (``Evaluation.warm_up``), and say which kernels that process did not find there."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+PROBE = r"""
+import gc, json, sys
+from collections import Counter
+from numba.core.registry import CPUDispatcher
+from edgedsm.config import DaemonConfig
+from edgedsm.daemon.evaluation import Evaluation
+from edgedsm.messages import Clock
+from edgedsm.publish.sink import RecordingSink
+from edgedsm.validation import validate
+config = validate(DaemonConfig, json.loads(sys.argv[1]), "<warm start>")
+Evaluation(config, RecordingSink(), Clock(), Counter())
+missed = sorted({obj.py_func.__qualname__ for obj in gc.get_objects()
+                 if isinstance(obj, CPUDispatcher) and obj._cache.__class__.__name__ != "NullCache"
+                 and obj.stats.cache_misses})
+print(json.dumps(missed))
+"""
+
+#: Estimator settings whose kernels the integration tests' daemons use.
+ESTIMATORS = ({}, {"mode": "tumbling", "tau_c": True}, {"tau_c": True}, {"mode": "exponential"})
+
+
+def warm_start(estimator: dict, timeout_s: float = 240.0) -> list[str]:
+    """Run a daemon's warm-up for ``estimator`` settings in a new process; the kernels it compiled
+    (qualified names) because numba's disk cache did not have them."""
+    config = {"camera": {"uri": f"sim:{REPO / 'config' / 'scenes' / 'drying_demo.toml'}"},
+              "estimator": {"window": 40, "lag": 3, **estimator}}
+    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(config)], capture_output=True, text=True,
+                          timeout=timeout_s, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"the warm-up failed: {done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
