@@ -11,8 +11,9 @@ input (the frame paired with itself), see :mod:`edgedsm.estimators.streaming`.
 All functions take flat (1-D, C-contiguous) arrays, update the sums in place and write the
 new frame into its ring slot after reading the slot. ``fastmath`` stays off: every
 floating-point operation is evaluated as written (no FMA contraction, no reassociation) so
-both kernel modules round identically. Compiled code is cached on disk (``cache=True``; numba
-keys the cache on the closure constants too).
+both kernel modules round identically. Compiled code is cached on disk: numba keys the cache on
+the closure constants, and :func:`edgedsm.estimators.jit.kernel_variant` names the parallel and
+serial variants apart (numba's key leaves out the decorator's options).
 
 ``parallel=False`` compiles the same loop for the calling thread alone: for small frames,
 waking the worker threads costs more than the work (and on a loaded machine a parallel
@@ -29,6 +30,8 @@ from collections.abc import Callable
 
 import numba
 import numpy as np
+
+from edgedsm.estimators.jit import kernel_variant
 
 KERNEL = "numba"
 
@@ -82,7 +85,7 @@ def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
     distinct arguments (read-only arguments may alias each other).
     """
 
-    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    @kernel_variant(parallel)
     def kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq,
                lut, scale, q):  # pragma: no cover - compiled
         one = np.int64(scale)  # 2^K, exact
@@ -121,7 +124,7 @@ def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
     """``kernel(first, second, abs_sum, ratio_sum, lut, scale, q)``: add one pair's terms to
     Σ|ΔI| and Σ S2 term, all pixels (rebuilds the sums from the ring in ``resync``)."""
 
-    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    @kernel_variant(parallel)
     def kernel(first, second, abs_sum, ratio_sum, lut, scale, q):  # pragma: no cover
         one = np.int64(scale)
         q_int = np.int64(q) if ratio_kind == "exact" else np.int64(0)
@@ -148,7 +151,7 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     move by ``w_pair``·(term - mean); ``w_pair`` = 0 leaves them unchanged (no pair yet).
     """
 
-    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    @kernel_variant(parallel)
     def kernel(new, slot, mean, m2, abs_mean, ratio_mean, decay, w_frame, w_pair,
                q):  # pragma: no cover - compiled
         for p in numba.prange(new.size):
@@ -185,7 +188,7 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     k; k = round(ΣI/N) keeps both terms small and exact in int64 (see streaming.py).
     """
 
-    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    @kernel_variant(parallel)
     def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3,
                sigma):  # pragma: no cover - compiled
         size = s1.size if do_abs else s2.size
@@ -264,7 +267,7 @@ def products_kernel(remove: bool, parallel: bool = True, narrow: bool = False) -
     """
     wide = np.int32 if narrow else np.int64
 
-    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    @kernel_variant(parallel)
     def kernel(new, ring, old_slot, lag_slots, leave_slots, products, lags):  # pragma: no cover
         size = new.size
         blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
@@ -296,7 +299,7 @@ def batch_products_kernel(parallel: bool = True, narrow: bool = False) -> Callab
     """
     wide = np.int32 if narrow else np.int64
 
-    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    @kernel_variant(parallel)
     def kernel(ring, frame_slots, lag_slots, lag_counts, products):  # pragma: no cover
         size = ring.shape[1]
         blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
@@ -334,7 +337,7 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
     """
     wide = np.int32 if narrow else np.int64
 
-    @numba.njit(parallel=parallel, cache=True, nogil=True)
+    @kernel_variant(parallel)
     def kernel(ring, retired, new_slots, old_slots, lag_slots, leave_slots, leave_retired,
                products):  # pragma: no cover - compiled
         size = ring.shape[1]

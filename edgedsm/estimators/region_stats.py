@@ -42,6 +42,7 @@ import numpy as np
 
 from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, percentiles
 from edgedsm.analysis_kernels import masked_moments
+from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
 
 try:
@@ -416,7 +417,7 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str,
     do_abs = want_s1 or want_s3
     exponential = kind == "exponential"
 
-    @numba.njit(parallel=parallel, nogil=True, cache=True)
+    @kernel_variant(parallel)
     def sample_values(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, index,
                       out):  # pragma: no cover - compiled
         for i in numba.prange(index.size):
@@ -426,7 +427,7 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str,
             out[1, i] = v2
             out[2, i] = v3
 
-    @numba.njit(parallel=parallel, nogil=True, cache=True)
+    @kernel_variant(parallel)
     def block_sums(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, width, row0, col0, cols,
                    block_rows, cover_ptr, cover, run_ptr, runs, shift, partials):  # pragma: no cover - compiled
         for block in numba.prange(partials.shape[0]):
