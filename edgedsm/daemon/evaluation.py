@@ -2,8 +2,9 @@
 
 The pipeline thread pushes frames into the engine and, on the states and stats cadence, reduces
 the engine's live sums to region statistics between two pushes
-(:func:`edgedsm.estimators.region_stats.region_moments`: one fused pass over each region's
-bounding box, no float maps and no copy of the sums; about the cost of one push at 2048²).
+(:func:`edgedsm.estimators.region_stats.region_moments`: one pass over the rows the regions cover,
+each pixel's maps computed once whatever the regions holding it, no float maps and no copy of
+the sums; about the cost of one push, 2048² and 4096×2168 with two large regions).
 States are evaluated on their own, faster cadence from the activity map's region means only; the
 full statistics (count, mean, deviation, percentile sample of every map) on the stats cadence.
 Only on the maps cadence does it copy the sums (``engine.snapshot()``). It hands a

@@ -15,8 +15,10 @@ Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 re
   pixel in row-major order, k = ⌈pixels / samples⌉): their flat indices are fixed with the mask,
   found once (:class:`RegionPlan`), and the values there are computed with the arithmetic of the
   engine's maps kernel (``kernels_numba.maps_kernel``), so they equal the map's bit for bit;
-- mean and deviation come from one pass of sums shifted by the sample's mean c: Σ(x-c) and
-  Σ(x-c)². With c within a few deviations of the mean, var = Σ(x-c)²/n - (Σ(x-c)/n)² loses
+- the sample's values are computed in the same pass, while its rows are in cache;
+- mean and deviation come from one pass of sums shifted by c, the mean of every 256th pixel of
+  the sample (gathered before the pass): Σ(x-c) and Σ(x-c)². With c within a few deviations of
+  the mean, var = Σ(x-c)²/n - (Σ(x-c)/n)² loses
   nothing to cancellation, and one pass replaces the two a centred sum needs. The sums along a
   row run in vector lanes (reassociated: a few ulps), rows are added with Neumaier compensation
   per block of rows and the blocks likewise. Blocks are fixed by the layout (not by the thread
@@ -54,6 +56,8 @@ except ImportError:  # numba is the optional 'fast' extra
 MAPS = ("s1", "s2", "s3")
 #: Pixels per block of rows: one task of the parallel pass, and one compensated partial sum.
 BLOCK_PIXELS = 1 << 16
+#: The shift c of the one-pass sums is the mean of every SHIFT_STRIDE-th pixel of the sample.
+SHIFT_STRIDE = 256
 #: Below this window length, N·ΣI² and (ΣI)² of int32 sums stay under 2^53 (exact in float64).
 DIRECT_SPREAD_MAX_WINDOW = 1 << 22
 
@@ -81,6 +85,12 @@ class RegionPlan:
     pixels: int  # selected pixels
     sample_index: np.ndarray  # int64, every k-th selected pixel, row-major
     runs: np.ndarray  # int64 (k, 3): engine row, first column, end column of each run of pixels
+
+    @property
+    def shift_index(self) -> np.ndarray:
+        """The pixels whose mean is the shift c of the one-pass sums (every SHIFT_STRIDE-th of
+        the sample)."""
+        return np.ascontiguousarray(self.sample_index[::SHIFT_STRIDE])
 
     @classmethod
     def of(cls, box: RegionBox, shape: tuple[int, int], samples: int = PERCENTILE_SAMPLES) -> RegionPlan:
@@ -111,6 +121,9 @@ class RegionLayout:
     cover: np.ndarray  # int64 (k, 2): first and end column
     run_ptr: np.ndarray  # int64 (regions, rows+1): region r's runs on row i, as cover_ptr
     runs: np.ndarray  # int64 (m, 2)
+    sample_ptr: np.ndarray  # int64 (regions, rows+1): region r's sample pixels on row i, as run_ptr
+    sample_index: np.ndarray  # int64: the regions' sample pixels (flat engine indices), one after another
+    shift_index: tuple[np.ndarray, ...]  # per region, RegionPlan.shift_index
 
     @property
     def rows(self) -> int:
@@ -126,16 +139,20 @@ class RegionLayout:
         every = np.concatenate([plan.runs for plan in plans.values()]) if plans else np.zeros((0, 3), np.int64)
         if every.shape[0] == 0:
             empty = np.zeros((0, 2), np.int64)
-            return cls(plans, width, 0, 0, 0, np.zeros(1, np.int64), empty,
-                       np.zeros((len(plans), 1), np.int64), empty)
+            none = np.zeros((len(plans), 1), np.int64)
+            return cls(plans, width, 0, 0, 0, np.zeros(1, np.int64), empty, none, empty, none,
+                       np.zeros(0, np.int64), tuple(plan.shift_index for plan in plans.values()))
         row0, col0 = int(every[:, 0].min()), int(every[:, 1].min())
         rows, cols = int(every[:, 0].max()) + 1 - row0, int(every[:, 2].max()) - col0
         lines = np.arange(rows + 1)
         run_ptr = np.empty((len(plans), rows + 1), np.int64)
-        offset = 0
+        sample_ptr = np.empty((len(plans), rows + 1), np.int64)
+        offset = sampled = 0
         for r, plan in enumerate(plans.values()):
             run_ptr[r] = offset + np.searchsorted(plan.runs[:, 0] - row0, lines)
             offset += plan.runs.shape[0]
+            sample_ptr[r] = sampled + np.searchsorted(plan.sample_index // width - row0, lines)
+            sampled += plan.sample_index.size
         runs = every[:, 1:] - col0
         # the union: runs in (row, start) order, merged where one starts before the reach of
         # the ones before it on its row (keys row·(W+1)+column keep rows apart)
@@ -149,8 +166,10 @@ class RegionLayout:
         ends = np.maximum.reduceat(base + stops, heads) - base[heads]
         cover = np.stack([starts[heads], ends], axis=1)
         cover_ptr = np.searchsorted(rel_rows[heads], lines).astype(np.int64)
+        sample_index = np.concatenate([plan.sample_index for plan in plans.values()]).astype(np.int64)
         return cls(plans, width, row0, col0, cols, cover_ptr, np.ascontiguousarray(cover, np.int64), run_ptr,
-                   np.ascontiguousarray(runs, np.int64))
+                   np.ascontiguousarray(runs, np.int64), sample_ptr, sample_index,
+                   tuple(plan.shift_index for plan in plans.values()))
 
 
 @dataclass(frozen=True)
@@ -194,19 +213,20 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
               sums.weight_frames)
     count = len(layout.plans)
     shift = np.zeros((count, len(MAPS)))
-    samples = []
-    for r, plan in enumerate(layout.plans.values()):
-        sample = np.empty((len(MAPS), plan.sample_index.size if spread else 0))
-        if spread:
-            sample_values(*common, plan.sample_index, sample)
-            shift[r] = sample.mean(axis=1)
-        samples.append(sample)
+    if spread:
+        for r, index in enumerate(layout.shift_index):
+            some = np.empty((len(MAPS), index.size))
+            sample_values(*common, index, some)
+            shift[r] = some.mean(axis=1)
+    samples = np.empty((len(MAPS), layout.sample_index.size if spread else 0))
     block_rows = max(1, BLOCK_PIXELS // max(layout.cols, 1))
     blocks = -(-layout.rows // block_rows)
     partials = np.zeros((blocks, count, len(MAPS), 4))
     block_sums(*common, layout.width, layout.row0, layout.col0, layout.cols, block_rows, layout.cover_ptr,
-               layout.cover, layout.run_ptr, layout.runs, shift, partials)
+               layout.cover, layout.run_ptr, layout.runs, shift, partials, spread, layout.sample_ptr,
+               layout.sample_index, samples)
     result: dict[str, dict[str, Moments]] = {}
+    ends = np.cumsum([0] + [plan.sample_index.size if spread else 0 for plan in layout.plans.values()])
     for r, (name, plan) in enumerate(layout.plans.items()):
         per_map = {}
         for k, key in enumerate(MAPS):
@@ -217,7 +237,7 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
             offset = first / plan.pixels
             mean = float(shift[r, k] + offset)
             std = float(np.sqrt(max(squares / plan.pixels - offset * offset, 0.0))) if spread else 0.0
-            per_map[key] = Moments(plan.pixels, mean, std, samples[r][k])
+            per_map[key] = Moments(plan.pixels, mean, std, samples[k, ends[r]:ends[r + 1]])
         result[name] = per_map
     return result
 
@@ -378,8 +398,9 @@ if numba is not None:
     @numba.njit(inline="always", nogil=True, cache=True)
     def _block(kind, do_abs, do_s2, do_s3, want_s1, block, abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
                weight, width, row0, col0, cols, block_rows, cover_ptr, cover, run_ptr, runs, shift,
-               partials):  # pragma: no cover - compiled
-        """One block of rows: the union's values into row buffers, each region's runs summed."""
+               partials, spread, sample_ptr, sample_index, samples):  # pragma: no cover - compiled
+        """One block of rows: the union's values into row buffers, each region's runs summed, and
+        with ``spread`` the exact values of the sample pixels on these rows (in cache now)."""
         inv_pairs = 1.0 / pairs
         s2_unit = ratio_unit / pairs
         s3_unit = np.float64(n) / pairs
@@ -398,6 +419,14 @@ if numba is not None:
                             buffer1[start:stop] if do_abs else buffer1, buffer2[start:stop] if do_s2 else buffer2,
                             buffer3[start:stop] if do_s3 else buffer3, inv_pairs, s2_unit, n, s3_unit, weight)
             for r in range(run_ptr.shape[0]):
+                if spread:
+                    for q in range(sample_ptr[r, i], sample_ptr[r, i + 1]):
+                        v1, v2, v3 = _exact_values(kind == "exponential", do_abs, do_s2, do_s3, sample_index[q],
+                                                   abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
+                                                   weight)
+                        samples[0, q] = v1
+                        samples[1, q] = v2
+                        samples[2, q] = v3
                 if want_s1:
                     _region_row(buffer1, 0, r, i, run_ptr, runs, shift, partials, block)
                 if do_s2:
@@ -429,10 +458,11 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str,
 
     @kernel_variant(parallel)
     def block_sums(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, width, row0, col0, cols,
-                   block_rows, cover_ptr, cover, run_ptr, runs, shift, partials):  # pragma: no cover - compiled
+                   block_rows, cover_ptr, cover, run_ptr, runs, shift, partials, spread, sample_ptr, sample_index,
+                   samples):  # pragma: no cover - compiled
         for block in numba.prange(partials.shape[0]):
             _block(kind, do_abs, want_s2, want_s3, want_s1, block, abs_sum, ratio_sum, second, fourth, pairs,
                    ratio_unit, n, weight, width, row0, col0, cols, block_rows, cover_ptr, cover, run_ptr, runs,
-                   shift, partials)
+                   shift, partials, spread, sample_ptr, sample_index, samples)
 
     return block_sums, sample_values
