@@ -52,13 +52,30 @@ def region_mean(values: np.ndarray, mask: np.ndarray) -> float:
 PERCENTILE_SAMPLES = 1 << 18
 
 
+#: The percentiles of RegionStats (5, 50, 95 %) as fractions, as np.percentile forms them.
+_QUANTILES = np.true_divide(np.array([5, 50, 95]), 100)
+
+
 def percentiles(sample: np.ndarray) -> tuple[float, float, float]:
-    """The 5, 50 and 95 % percentiles of ``sample``, as ``np.percentile`` gives them (linear
-    interpolation): taken from the sorted sample, since numpy's vectorised sort plus a selection
-    on sorted data costs about half of the selection on unsorted data (2^18 values, measured on a
-    2-core Xeon: 3.5-5 ms vs 8.5-10.6 ms; the evaluator thread takes six per stats message)."""
-    p05, median, p95 = np.percentile(np.sort(sample), [5, 50, 95])
-    return float(p05), float(median), float(p95)
+    """The 5, 50 and 95 % percentiles of ``sample``, equal to ``np.percentile`` (linear
+    interpolation; tested): the sample sorted once (numpy's vectorised sort), then each
+    percentile read off at its virtual index (n - 1)·q and interpolated with numpy's own
+    formula. np.percentile partitions and copies the sample, sorted or not (2^18 values,
+    measured on a 2-core EPYC: 4.1 ms here, 7.7 ms for np.percentile on the sorted sample, 6.7 ms
+    on the unsorted one; the evaluator thread takes six per stats message)."""
+    ordered = np.sort(np.asarray(sample, dtype=np.float64).ravel())
+    if ordered.size == 0 or np.isnan(ordered[-1]):  # numpy's rules for the empty and the NaN cases
+        p05, median, p95 = np.percentile(ordered, [5, 50, 95])
+        return float(p05), float(median), float(p95)
+    virtual = (ordered.size - 1) * _QUANTILES
+    below = np.floor(virtual)
+    gamma = virtual - below
+    lower = below.astype(np.intp)
+    low, high = ordered[lower], ordered[np.minimum(lower + 1, ordered.size - 1)]
+    step = high - low
+    # numpy's _lerp: from the nearer end, so that gamma = 0 and 1 give the values exactly
+    values = np.where(gamma >= 0.5, high - step * (1 - gamma), low + step * gamma)
+    return float(values[0]), float(values[1]), float(values[2])
 
 
 def region_stats(values: np.ndarray, mask: np.ndarray) -> RegionStats:

@@ -2,6 +2,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from edgedsm.analysis import contrast, histogram, percentiles, region_mean, region_means, region_stats
 from edgedsm.errors import EstimatorError
@@ -95,11 +97,23 @@ def test_region_moments_match_numpy_on_views_without_copies(kernel: str) -> None
     assert np.array_equal(sample, selected[::stride]) and sample.size <= 1000
 
 
-@pytest.mark.parametrize("size", [1, 2, 7, 1000, 1 << 18])
+@pytest.mark.parametrize("size", [1, 2, 3, 7, 20, 21, 101, 1000, 4097, 1 << 18])
 def test_percentiles_from_the_sorted_sample_equal_numpy_s(size: int) -> None:
-    """Sorting first is only faster: the same numbers as np.percentile on the unsorted sample, ties
-    included."""
+    """Read off the sorted sample: the same numbers, bit for bit, as np.percentile on the
+    unsorted sample, ties, wide ranges and NaN included."""
     rng = np.random.default_rng(size)
-    for sample in (rng.random(size), rng.integers(0, 5, size).astype(float)):
+    wide = rng.standard_normal(size) * 10.0 ** rng.integers(-300, 300, size)
+    with_nan = rng.random(size)
+    with_nan[size // 2] = np.nan
+    for sample in (rng.random(size), rng.integers(0, 5, size).astype(float), wide, -rng.random(size) * 1e-3,
+                   with_nan):
         expected = np.percentile(sample, [5, 50, 95])
-        assert percentiles(sample) == tuple(float(v) for v in expected)
+        got = percentiles(sample)
+        assert np.array_equal(got, expected, equal_nan=True), (got, expected)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1, max_size=300))
+def test_percentiles_equal_numpy_s_for_any_sample(values: list[float]) -> None:
+    sample = np.asarray(values)
+    assert np.array_equal(percentiles(sample), np.percentile(sample, [5, 50, 95]))
