@@ -9,7 +9,8 @@ States are evaluated on their own, faster cadence from the activity map's region
 full statistics (count, mean, deviation, percentile sample of every map) on the stats cadence.
 Only on the maps cadence does it copy the sums (``engine.snapshot()``). It hands a
 :class:`Snapshot` of all that to one evaluator thread, which takes the percentiles, turns a copy
-of the sums into float maps (``maps_from``: the engine's maps kernel, GIL released), steps the
+of the sums into float maps (``maps_from``: the engine's maps kernel, GIL released, into arrays
+reused once the sinks let go of them), steps the
 drying states and hands typed messages to the sink, beside the next pushes, so an evaluation
 never stalls capture or the engine.
 
@@ -42,7 +43,7 @@ from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import ConfigError, FrameError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
 from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
-from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, maps_from
+from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot, maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
 from edgedsm.estimators.tau_pooled import pooled_covariances
 from edgedsm.frames import Frame
@@ -164,6 +165,7 @@ class Evaluation:
                                             initializer=yield_cores)
         self._pending: Future[None] | None = None  # the latest analysis
         self._buffers: EngineSnapshot | None = None  # the latest snapshot, overwritten by the next
+        self._map_buffers = MapBuffers()  # float maps, reused once the sinks let go of them
         self.tau = TauRegions(config)  # τc: frame interval, region pixels, snapshot (edgedsm.daemon.tau)
         self._tau_buffers: TauSnapshot | None = None
         self.warm_up()
@@ -410,7 +412,7 @@ class Evaluation:
             self.sink.publish_state(report)
             self._last_report = report
         if snapshot.publish_maps:
-            maps = maps_from(snapshot.engine) if snapshot.engine is not None else {}
+            maps = maps_from(snapshot.engine, self._map_buffers) if snapshot.engine is not None else {}
             est = self.config.estimator
             origin = {} if self.crop is None else {"origin": [self.crop[1].start, self.crop[0].start]}
             for name, values in maps.items():

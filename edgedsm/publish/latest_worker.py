@@ -94,5 +94,8 @@ class LatestWorker(Generic[Job]):
                     if self._on_error is not None:
                         self._on_error(key)
                 finally:
+                    # let go of the job now, not when the next one comes: a map is tens of MB, and
+                    # the daemon reuses its arrays once nobody holds them (snapshot.MapBuffers)
+                    del job
                     with self._lock:
                         self._busy = False

@@ -10,7 +10,7 @@ import pytest
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow
-from edgedsm.estimators.snapshot import maps_from
+from edgedsm.estimators.snapshot import MapBuffers, maps_from
 from tests.unit.test_streaming import KERNELS, MODES, feed
 
 
@@ -83,3 +83,26 @@ def test_a_snapshot_into_an_older_one_reuses_its_buffers() -> None:
     assert np.array_equal(maps_from(third)["s2"], expected["s2"])
     fourth = engine.snapshot(into=third)  # the others are fresh again
     assert fourth.sums["ratio"] is third.sums["ratio"] and np.array_equal(maps_from(fourth)["s1"], expected["s1"])
+
+
+def test_map_buffers_are_reused_only_when_nobody_holds_the_maps() -> None:
+    """maps_from into a MapBuffers pool: a map still held (by a sink, say) is never written over;
+    once let go, the next maps land in the same memory (no page faults) and equal fresh ones."""
+    rng = np.random.default_rng(5)
+    frames = rng.integers(0, 256, size=(30, 40, 50), dtype=np.uint8)
+    engine = feed(SlidingWindow((40, 50), window=12, lag=2, q=1.0, bits=8), frames[:20])
+    pool = MapBuffers()
+    held = maps_from(engine.snapshot(), pool)
+    kept = {name: values.copy() for name, values in held.items()}
+    feed(engine, frames[20:25])
+    second = maps_from(engine.snapshot(), pool)
+    assert all(not np.shares_memory(second[name], held[name]) for name in held)  # held: a new set
+    assert all(np.array_equal(held[name], kept[name]) for name in held)  # and untouched
+    memory = {name: values.__array_interface__["data"][0] for name, values in second.items()}
+    del second
+    feed(engine, frames[25:])
+    third = maps_from(engine.snapshot(), pool)
+    fresh = maps_from(engine.snapshot())
+    assert {name: values.__array_interface__["data"][0] for name, values in third.items()} == memory
+    assert all(np.array_equal(third[name], fresh[name]) for name in fresh)
+    assert all(np.array_equal(held[name], kept[name]) for name in held)
