@@ -15,16 +15,16 @@ Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 re
   pixel in row-major order, k = ⌈pixels / samples⌉): their flat indices are fixed with the mask,
   found once (:class:`RegionPlan`), and the values there are computed with the arithmetic of the
   engine's maps kernel (``kernels_numba.maps_kernel``), so they equal the map's bit for bit;
-- the sample's values are computed in the same pass, while its rows are in cache;
+  they are computed in the same pass, while their rows are in cache;
 - mean and deviation come from one pass of sums shifted by c, the mean of every 256th pixel of
   the sample (gathered before the pass): Σ(x-c) and Σ(x-c)². With c within a few deviations of
-  the mean, var = Σ(x-c)²/n - (Σ(x-c)/n)² loses
-  nothing to cancellation, and one pass replaces the two a centred sum needs. The sums along a
-  row run in vector lanes (reassociated: a few ulps), rows are added with Neumaier compensation
-  per block of rows and the blocks likewise. Blocks are fixed by the layout (not by the thread
-  count), so the result is the same whatever the threads. In the pass, each pixel's values take
-  products by reciprocals computed once (a few ulps from the map's) and, where the engine's
-  ΣI² is int32, N²σ² = N·ΣI² − (ΣI)² in float64, exact since both products stay below 2^53.
+  the mean, var = Σ(x-c)²/n - (Σ(x-c)/n)² loses nothing to cancellation, and one pass replaces
+  the two a centred sum needs. The sums along a row run in vector lanes (reassociated: a few
+  ulps), rows are added with Neumaier compensation per block of rows and the blocks likewise.
+  Blocks are fixed by the layout (not by the thread count), so the result is the same whatever
+  the threads. In the pass, each pixel's values take products by reciprocals computed once (a
+  few ulps from the map's) and, where the engine's ΣI² is int32, N²σ² = N·ΣI² − (ΣI)² in
+  float64, exact since both products stay below 2^53.
 
 The kernels are module-level functions, or closures over plain constants only, so numba's disk
 cache finds them again in the next process (a closure over another compiled closure gets a new
