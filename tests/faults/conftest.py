@@ -28,11 +28,6 @@ from helpers_mqtt import Broker
 from helpers_relay import open_pty_pair
 
 
-@pytest.fixture(autouse=True)
-def _kernels_compiled(compiled_kernels: None) -> None:
-    """Daemons started here load their kernels from numba's disk cache (tests/conftest.py)."""
-
-
 @pytest.fixture
 def broker(tmp_path: Path) -> Iterator[Broker]:
     broker = Broker(tmp_path / "broker").start()

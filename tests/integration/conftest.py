@@ -15,11 +15,6 @@ from helpers_mqtt import Broker, Subscriber
 from edgedsm.devices.laser import forget_simulated_boards
 
 
-@pytest.fixture(autouse=True)
-def _kernels_compiled(compiled_kernels: None) -> None:
-    """Daemons started here load their kernels from numba's disk cache (tests/conftest.py)."""
-
-
 @pytest.fixture
 def make_broker(tmp_path: Path) -> Iterator[Callable[..., Broker]]:
     """Start mosquitto brokers on free loopback ports; all are stopped after the test."""
