@@ -358,6 +358,7 @@ class Evaluation:
         # the window's ring is the bulk of the daemon's memory (N frames): released now, not
         # when the garbage collector gets to the pipeline (a reload builds a new one at once)
         self.engine = self._buffers = self._tau_buffers = None
+        self._map_buffers = MapBuffers()  # and the pooled maps (hundreds of MB at 4096×2168)
 
     def states_line(self) -> str:
         with self.monitor_lock:
