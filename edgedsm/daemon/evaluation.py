@@ -4,7 +4,7 @@ The pipeline thread pushes frames into the engine and, on the states and stats c
 the engine's live sums to region statistics between two pushes
 (:func:`edgedsm.estimators.region_stats.region_moments`: one pass over the rows the regions cover,
 each pixel's maps computed once whatever the regions holding it, no float maps and no copy of
-the sums; about the cost of one push, 2048² and 4096×2168 with two large regions).
+the sums; with two large regions about one push at 2048², half a push at 4096×2168).
 States are evaluated on their own, faster cadence from the activity map's region means only; the
 full statistics (count, mean, deviation, percentile sample of every map) on the stats cadence.
 Only on the maps cadence does it copy the sums (``engine.snapshot()``). It hands a
@@ -189,13 +189,13 @@ class Evaluation:
             engine.push(frame)
         mask = np.zeros((side, side), bool)
         mask[1:-1, 1:-1] = True
-        plans = RegionLayout.of({name: RegionPlan.of(RegionBox.of(region), (side, side))
-                                 for name, region in (("all", np.ones_like(mask)), ("inner", mask))})
+        layout = RegionLayout.of({name: RegionPlan.of(RegionBox.of(region), (side, side))
+                                  for name, region in (("all", np.ones_like(mask)), ("inner", mask))})
         maps_from(engine.snapshot(ESTIMATORS))
         wanted = [ESTIMATORS] + ([[est.activity]] if est.activity in ESTIMATORS else [])
         for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
             for names in wanted:
-                region_moments(engine.snapshot(names, live=True), plans, names, spread=names is ESTIMATORS,
+                region_moments(engine.snapshot(names, live=True), layout, names, spread=names is ESTIMATORS,
                                parallel=parallel)
         if self.tau.on:  # the pooled-covariance kernels of the regions and the block map
             tau = engine.tau_snapshot()
