@@ -177,6 +177,18 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     return kernel
 
 
+@numba.njit(inline="always", nogil=True, cache=True)
+def centred_spread(s, total_sq, n, k, limit):  # pragma: no cover - compiled
+    """N²σ² (Eq. 4) of a pixel from its integer sums ΣI = ``s`` and ΣI² = ``total_sq`` over N =
+    ``n`` frames: N·Σ(I-k)² - r² with r = ΣI - kN, for any integer ``k`` (round(ΣI/N) keeps both
+    terms small), exact in int64 while N·Σ(I-k)² <= ``limit`` = (2^63 - 1) // N."""
+    r = s - k * n
+    centred = total_sq - k * (s + r)
+    if centred <= limit:
+        return np.float64(n * centred - r * r)
+    return n * np.float64(centred) - np.float64(r * r)  # r² <= (N/2+1)² is negligible beside >= 2^63
+
+
 @functools.cache
 def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
                 parallel: bool = True) -> Callable[..., None]:
@@ -203,13 +215,7 @@ def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
             if do_sigma:
                 s = np.int64(total[p])
                 k = np.int64(np.floor(np.float64(s) / n + 0.5))
-                r = s - k * n
-                centred = np.int64(total_sq[p]) - k * (s + r)
-                if centred <= limit:
-                    spread = np.float64(n * centred - r * r)
-                else:  # r² <= (N/2+1)² is negligible beside N·Σ(I-k)² >= 2^63
-                    spread = n * np.float64(centred) - np.float64(r * r)
-                deviation = np.sqrt(spread) / n
+                deviation = np.sqrt(centred_spread(s, np.int64(total_sq[p]), n, k, limit)) / n
                 sigma[p] = deviation
                 s3[p] = value / deviation if deviation > 0.0 else 0.0
 

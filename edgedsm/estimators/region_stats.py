@@ -278,6 +278,8 @@ def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], 
 # the closures of _kernels pass as constants, so the branches on them fold away.
 
 if numba is not None:
+    from edgedsm.estimators.kernels_numba import centred_spread
+
     @numba.njit(inline="always", nogil=True, cache=True)
     def _exact_values(exponential, do_abs, do_s2, do_s3, p, abs_sum, ratio_sum, second, fourth, pairs,
                       ratio_unit, n, weight):  # pragma: no cover - compiled
@@ -303,13 +305,7 @@ if numba is not None:
             limit = np.int64(9223372036854775807) // n
             s = np.int64(second[p])
             k = np.int64(np.floor(np.float64(s) / n + 0.5))
-            r = s - k * n
-            centred = np.int64(fourth[p]) - k * (s + r)
-            if centred <= limit:
-                spread = np.float64(n * centred - r * r)
-            else:
-                spread = n * np.float64(centred) - np.float64(r * r)
-            deviation = np.sqrt(spread) / n
+            deviation = np.sqrt(centred_spread(s, np.int64(fourth[p]), n, k, limit)) / n
             s3 = value / deviation if deviation > 0.0 else 0.0
         return value, s2, s3
 
@@ -351,12 +347,7 @@ if numba is not None:
                 for j in range(size):
                     s = np.int64(second[j])
                     k = np.int64(np.floor(np.float64(s) * inv_n + 0.5))
-                    r = s - k * n
-                    centred = np.int64(fourth[j]) - k * (s + r)
-                    if centred <= limit:
-                        spread = np.float64(n * centred - r * r)
-                    else:
-                        spread = n * np.float64(centred) - np.float64(r * r)
+                    spread = centred_spread(s, np.int64(fourth[j]), n, k, limit)
                     out3[j] = np.float64(abs_sum[j]) * s3_unit / np.sqrt(spread) if spread > 0.0 else 0.0
 
     @numba.njit(nogil=True, fastmath={"reassoc", "nsz"}, cache=True)

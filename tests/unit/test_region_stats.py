@@ -63,7 +63,7 @@ def reference(engine: SlidingWindow, masks: dict[str, np.ndarray]) -> dict[str, 
 
 
 @pytest.mark.parametrize("mode", MODES)
-@pytest.mark.parametrize("bits", [8, 12])
+@pytest.mark.parametrize("bits", [8, 12, 16])  # 16: ΣI² in int64, the pass's integer N²σ² path
 def test_fused_statistics_equal_maps_then_region_stats(mode: str, bits: int) -> None:
     shape = (96, 130)
     frames = frames_with_degenerate_pixels(shape, 37, bits, seed=bits)
