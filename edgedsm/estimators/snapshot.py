@@ -56,6 +56,13 @@ class MapBuffers:
     sets: int = 2  # sets of arrays kept for reuse (a sink may still hold the previous one)
     _pool: list[dict[str, np.ndarray]] = field(default_factory=list)
 
+    def reserve(self, snapshot: EngineSnapshot) -> None:
+        """Pool one set of arrays for :func:`maps_from` of snapshots like this one, written once
+        now so that the first maps evaluation faults in no fresh pages (window modes)."""
+        if snapshot.mode != "exponential":
+            for array in self.take(map_sizes(snapshot)).values():
+                array.fill(0.0)
+
     def take(self, sizes: dict[str, int]) -> dict[str, np.ndarray]:
         """Arrays of these sizes nobody else holds: a pooled set, or a new one (pooled)."""
         for arrays in self._pool:
@@ -73,11 +80,19 @@ def _unshared(arrays: dict[str, np.ndarray]) -> bool:
     return all(sys.getrefcount(arrays[name]) <= 2 for name in arrays)
 
 
+def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
+    """Pixels of each array the maps kernel writes for this snapshot (0: not computed); window modes."""
+    wanted = set(snapshot.estimators)
+    pixels = snapshot.shape[0] * snapshot.shape[1]
+    do_abs, do_ratio, do_sigma = "s1" in wanted or "s3" in wanted, "s2" in wanted, "s3" in wanted
+    return {name: pixels if on else 0
+            for name, on in (("s1", do_abs), ("s2", do_ratio), ("s3", do_sigma), ("sigma", do_sigma))}
+
+
 def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> dict[str, np.ndarray]:
     """The requested maps of a snapshot as float64 (H, W) arrays (pure; any thread): new arrays,
     or with ``buffers`` arrays of that pool that nobody holds any more."""
     sums = snapshot.sums
-    n_px = snapshot.shape[0] * snapshot.shape[1]
     wanted = set(snapshot.estimators)
     if snapshot.mode == "exponential":
         flat: dict[str, np.ndarray] = {}
@@ -90,10 +105,7 @@ def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> di
             flat["s3"] = np.zeros_like(flat["s1"])
             np.divide(flat["s1"], sigma, out=flat["s3"], where=sigma > 0)
     else:
-        do_abs = "s1" in wanted or "s3" in wanted
-        do_ratio, do_sigma = "s2" in wanted, "s3" in wanted
-        sizes = {name: n_px if on else 0 for name, on in
-                 (("s1", do_abs), ("s2", do_ratio), ("s3", do_sigma), ("sigma", do_sigma))}
+        sizes = map_sizes(snapshot)
         flat = buffers.take(sizes) if buffers is not None else {name: np.empty(size) for name, size in sizes.items()}
         snapshot.maps_step(sums["abs"], sums["ratio"], sums["total"], sums["total_sq"], snapshot.pairs,
                            snapshot.ratio_unit, snapshot.window, flat["s1"], flat["s2"], flat["s3"], flat["sigma"])

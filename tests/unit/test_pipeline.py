@@ -189,8 +189,8 @@ def test_a_window_that_cannot_fit_in_memory_is_a_config_error(monkeypatch):
 
     monkeypatch.setattr(pipeline_module, "available_memory", lambda: 24 * 2**30)
     frame = Frame(np.zeros((2168, 4096), np.uint8), 0, 0, 8)
-    pipeline_module.check_engine_memory(frame, 2000, "sliding")  # 17 GiB: fits
-    with pytest.raises(ConfigError, match=r"estimator\.window: .* needs 827\.\d GiB"):
+    pipeline_module.check_engine_memory(frame, 2000, "sliding")  # 17.5 GiB: fits
+    with pytest.raises(ConfigError, match=r"estimator\.window: .* needs 828\.\d GiB"):
         pipeline_module.check_engine_memory(frame, 100_000, "sliding")
     pipeline_module.check_engine_memory(frame, 100_000, "tumbling")
 

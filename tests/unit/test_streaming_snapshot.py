@@ -106,3 +106,23 @@ def test_map_buffers_are_reused_only_when_nobody_holds_the_maps() -> None:
     assert {name: values.__array_interface__["data"][0] for name, values in third.items()} == memory
     assert all(np.array_equal(third[name], fresh[name]) for name in fresh)
     assert all(np.array_equal(held[name], kept[name]) for name in held)
+
+
+def test_buffers_reserved_before_the_window_fills_are_the_ones_the_first_maps_use() -> None:
+    """snapshot_buffers and MapBuffers.reserve, taken before frames flow (the daemon's start): the
+    first snapshot and maps land in that memory, and equal fresh ones."""
+    frames = np.random.default_rng(6).integers(0, 256, size=(14, 24, 18), dtype=np.uint8)
+    engine = SlidingWindow((24, 18), window=12, lag=2, q=1.0, bits=8)
+    reserved = engine.snapshot_buffers()
+    assert reserved.nbytes == engine.snapshot_buffers().nbytes > 0
+    assert all(not values.any() for values in reserved.sums.values())
+    pool = MapBuffers()
+    pool.reserve(reserved)
+    memory = {name: values.__array_interface__["data"][0] for name, values in maps_from(reserved, pool).items()}
+    feed(engine, frames)
+    first = engine.snapshot(into=reserved)
+    assert all(first.sums[name] is reserved.sums[name] for name in ("abs", "ratio", "total", "total_sq"))
+    maps = maps_from(first, pool)
+    assert {name: values.__array_interface__["data"][0] for name, values in maps.items()} == memory
+    expected = engine.maps()
+    assert all(np.array_equal(maps[name], expected[name]) for name in expected)
