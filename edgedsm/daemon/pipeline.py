@@ -67,6 +67,14 @@ class Cadence:
     states_every_s: float = 0.5
 
 
+def next_due(due: float, every_s: float, now: float) -> float:
+    """When a cadence is next due after it ran at ``now`` (due at ``due``): one period after the
+    time it was due, so that a loop that notices it a frame late keeps the cadence's rate (a
+    period counted from ``now`` would lose the lateness every time: 1.9 evaluations/s for 2 at
+    25 frames/s); from ``now`` when it ran more than a period late (no burst to catch up)."""
+    return due + every_s if now - due < every_s else now + every_s
+
+
 class Pipeline:
     """One camera's measurement loop (see the module docstring)."""
 
@@ -90,8 +98,8 @@ class Pipeline:
         self.lit_level: float | None = None
         self._commands: queue.Queue[tuple[str, dict[str, Any], Future[dict[str, Any]]]] = queue.Queue()
         self._last_frame_t: float | None = None  # None until the first frame
-        self._last_stats_t = float("-inf")
-        self._last_states_t = float("-inf")
+        self._stats_due = float("-inf")  # when the next stats are due (monotonic)
+        self._states_due = float("-inf")  # and the next drying states
         self._stats_owed = False  # stats were due but the evaluator was busy
         self._last_maps_t = float("-inf")
         self._frames_t: list[float] = []
@@ -253,13 +261,15 @@ class Pipeline:
                     self._push(frame)
                 if self._last_frame_t is not None and self.clock.monotonic() - self._last_frame_t < grab_timeout_s:
                     self.on_alive()
-                if now - self._last_stats_t >= self.cadence.stats_every_s:
-                    self._last_stats_t, self._stats_owed = now, True
+                cadence = self.cadence
+                if now >= self._stats_due:
+                    self._stats_due, self._stats_owed = next_due(self._stats_due, cadence.stats_every_s, now), True
                 stats = self._stats_owed or self._urgent
                 # skipped (the evaluator is busy): tried again at the next loop, nothing lost
-                if (stats or now - self._last_states_t >= self.cadence.states_every_s) \
-                        and self._evaluate(now, stats_due=stats):
-                    self._last_states_t, self._urgent, self._stats_owed = now, False, False
+                if (stats or now >= self._states_due) and self._evaluate(now, stats_due=stats):
+                    self._urgent, self._stats_owed = False, False
+                    if now >= self._states_due:  # an urgent evaluation in between leaves the grid alone
+                        self._states_due = next_due(self._states_due, cadence.states_every_s, now)
                 if max_frames is not None and self.counters["frames"] >= max_frames:
                     break
                 if capture.ended:

@@ -10,6 +10,7 @@ import pytest
 from edgedsm.analysis import region_stats
 from edgedsm.config import load_config
 from edgedsm.daemon.pipeline import Cadence, Pipeline
+from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.service import couple_simulated_laser
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.devices.laser import SimulatedRelay
@@ -293,6 +294,32 @@ def test_probes_see_every_frame_and_every_evaluation(setup):
     # the drying states are judged every 0.5 s (10 frames here) whatever the stats cadence (1 s)
     assert seen["states"] == [snapshot.status.frames for snapshot in seen["snapshots"]]
     assert len(seen["snapshots"]) >= 2 * len(publisher.stats) - 1
+
+
+def test_cadence_is_kept_on_a_grid_not_counted_from_each_late_evaluation() -> None:
+    from edgedsm.daemon.pipeline import next_due
+
+    assert next_due(float("-inf"), 0.5, 3.0) == 3.5  # the first: from now
+    assert next_due(3.5, 0.5, 3.54) == 4.0  # noticed a frame late: the grid keeps its rate
+    assert next_due(4.0, 0.5, 4.9) == 5.4  # more than a period late: from now, no burst
+
+
+def test_drying_states_are_judged_twice_a_second_at_a_frame_rate_that_does_not_divide_it(setup):
+    # 33 frames/s: the loop notices a due cadence up to 30 ms late; counted from each evaluation,
+    # the states would be judged every 0.51 s and the stats every 1.02 s
+    config, camera, relay, publisher, _ = setup
+    times: list[float] = []
+    probes = PipelineProbes(snapshot_taken=lambda snapshot, cost: times.append(snapshot.status.now))
+    box = {}
+    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), probes=probes,
+                        clock=Clock(monotonic=lambda: box["p"].counters["frames"] * 0.03 if "p" in box else 0.0))
+    box["p"] = pipeline
+    hold_back(camera, pipeline)
+    pipeline.run(lambda: False, max_frames=600)
+    gaps = np.diff(times[2:])  # after the laser went on (urgent evaluations)
+    assert len(gaps) >= 30 and float(np.mean(gaps)) <= 0.503, gaps
+    stats = np.diff([stats.t for stats in publisher.stats][2:])
+    assert len(stats) >= 14 and float(np.mean(stats)) <= 1.003, stats
 
 
 def test_rebaseline_publishes_one_reset_alert_and_the_states_start_again(setup):
