@@ -233,6 +233,7 @@ class Trial:
     snapshot_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the pipeline thread
     evaluate_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the evaluator thread
     covered: float = 1.0  # fraction of the sensor the engine sees
+    states_hz: float = float("nan")  # drying-state evaluations per second after the window filled
     stall_s: float = float("nan")  # the pipeline thread's longest gap between two frames taken
     bare_fps: float = float("nan")  # the bare engine around this trial: mean of the runs just before and after
 
@@ -335,6 +336,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
     trial = Trial(label, rate, pipeline.capture.capacity, STATS_S, wall, delivered,
                   pipeline.counters["frames"] - ready_at, pipeline.counters["dropped_queue"], cpu_s, rss,
                   covered=covered, stall_s=instruments.stall_s(ready_t))
+    trial.states_hz = sum(1 for _, t in instruments.states if t >= ready_t) / wall
     trial.latency = {"alert": latency(instruments, instruments.states),
                      "stats": latency(instruments, instruments.stats)}
     if instruments.push_s:

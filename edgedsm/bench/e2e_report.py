@@ -39,7 +39,7 @@ def summary_row(result: SizeResult) -> list[str]:
             str(latency_from.queue_frames), f"{capacity.cpu_ms:.1f}", _pair(capacity.push_ms, 1.0, 1),
             _pair(capacity.snapshot_ms, 1.0, 1), _pair(capacity.evaluate_ms, 1.0),
             _pair(latency_from.latency["alert"], 1.0, 2), _pair(latency_from.latency["stats"], 1.0, 2),
-            f"{result.unpack_ms:.1f}"]
+            f"{latency_from.states_hz:.2f}", f"{result.unpack_ms:.1f}"]
 
 
 def paced_row(result: SizeResult, trial: Trial) -> list[str]:
@@ -77,7 +77,7 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
                   "highest paced rate, zero drops (÷ bare)", "queue frames", "CPU ms/frame",
                   "push ms mean / p99", "region stats ms mean / max (pipeline thread)",
                   "evaluation ms mean / max (evaluator thread)", "frame → alert p50 / p99 (s)",
-                  "frame → stats p50 / p99 (s)", "unpack ms/frame"],
+                  "frame → stats p50 / p99 (s)", "drying states judged per s", "unpack ms/frame"],
                  [summary_row(result) for result in results])
     report.line()
     for result in results:
@@ -98,7 +98,9 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
                 "thread (the *evaluation* column) beside the next pushes. Frame → alert is the time from a frame "
                 "entering the queue to the drying states that include it being judged and their alerts handed "
                 "to the MQTT sink (states every 0.5 s: p99 ≈ 0.5 s + one evaluation); frame → stats, to the "
-                "stats message that counts it (every 1 s). Mono12p and Mono16 frames are replayed unpacked; "
+                "stats message that counts it (every 1 s); the latencies and the states judged per second are "
+                "those of the highest zero-drop trial (the capacity trial's when none was clean). Mono12p and "
+                "Mono16 frames are replayed unpacked; "
                 "*unpack* is what a real camera's packed frames add on the capture thread.")
     report.line()
     report.line("## Paced trials")
