@@ -25,7 +25,6 @@ thread, a step from the evaluator): a lock guards it.
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from collections import Counter
@@ -59,6 +58,7 @@ from edgedsm.messages import (
     StateReport,
     Stats,
 )
+from edgedsm.priority import lower_priority
 from edgedsm.publish.sink import Sink
 
 log = logging.getLogger(__name__)
@@ -69,19 +69,16 @@ EVALUATION_TIMEOUT_S = 1.0
 SMALL_FRAME_PIXELS = 1 << 18
 
 
-#: Niceness of the evaluator thread (Linux: per thread): on a machine with few cores the engine's
-#: kernel threads should not wait for a core the evaluator holds (a parallel pass waits for its
-#: slowest thread). 5 weighs it at a third of a normal thread when all contend, which still
-#: covers an evaluation's ~15 % of a core at 2048²; it runs at full speed when they idle.
+#: Niceness of the evaluator thread (edgedsm.priority), relative to the process: 5 weighs it at a
+#: third of a normal thread when all contend, which still covers an evaluation's CPU at 4096×2168
+#: (states twice a second, the longest evaluation 0.4 s); at 10 an evaluation took up to 1.1 s
+#: and at 15 up to 2.9 s, the states judged late (2-core EPYC, bench e2e at the engine's capacity).
 EVALUATOR_NICE = 5
 
 
 def yield_cores() -> None:
-    """Lower the calling thread's priority to EVALUATOR_NICE (where the system allows)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), EVALUATOR_NICE)
-    except (OSError, AttributeError):  # not Linux, or not allowed: the default priority
-        log.debug("the evaluator thread keeps the default priority")
+    """The evaluator thread's priority (its executor's initializer)."""
+    lower_priority(EVALUATOR_NICE)
 
 
 def available_memory() -> int | None:

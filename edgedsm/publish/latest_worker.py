@@ -13,12 +13,17 @@ import time
 from collections.abc import Callable
 from typing import Generic, TypeVar
 
+from edgedsm.priority import lower_priority
+
 log = logging.getLogger(__name__)
 
 Job = TypeVar("Job")
 
 #: How often an idle worker looks at its stop flag (s).
 WORKER_POLL_S = 0.25
+#: Niceness of the worker's thread (edgedsm.priority): a map on a 10 s cadence can wait for the
+#: engine's kernel threads (encoding one 4096×2168 map takes ~20 ms of CPU).
+WORKER_NICE = 10
 
 
 class LatestWorker(Generic[Job]):
@@ -77,6 +82,7 @@ class LatestWorker(Generic[Job]):
             time.sleep(0.02)
 
     def _work(self) -> None:
+        lower_priority(WORKER_NICE)
         while not self._stop.is_set():
             self._wake.wait(WORKER_POLL_S)
             self._wake.clear()
