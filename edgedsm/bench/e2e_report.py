@@ -87,7 +87,7 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
         report.line(f"- {_size(result)}: zero drops up to {ratio:.0%} of the bare engine's rate: {met} the "
                     f"target of {TARGET_RATIO:.0%}; capacity {result.capacity.bare_ratio:.0%}.")
     report.line()
-    report.line("Each ratio is to the bare engine measured around that trial (the mean of its runs just before "
+    report.line("Each ratio is to the bare engine measured around that trial (the faster of its runs just before "
                 "and just after): the machine's own speed drifts during a run, by up to 2x on a shared virtual "
                 "machine, and a ratio to a rate measured minutes earlier would measure the drift.")
     report.line()
