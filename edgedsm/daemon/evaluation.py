@@ -93,22 +93,34 @@ def available_memory() -> int | None:
     return None
 
 
-#: Bytes per pixel beside the ring: the engine's sums (24 at most), their copy for the maps (24)
-#: and two sets of float64 maps (S1, S2, S3, σ: 2 × 32; a second set while a sink holds the first).
-SUMS_BYTES_PER_PIXEL = 24 + 24 + 64
+#: Pixels of the probe engine whose arrays give the per-pixel memory of the real one.
+PROBE_PIXELS = 8
+#: Bytes per pixel of the float maps: two sets of S1, S2, S3 and σ (float64; a second set while
+#: a sink still holds the first).
+MAP_BYTES_PER_PIXEL = 2 * 4 * 8
 
 
-def check_engine_memory(frame: Frame, window: int, mode: str, pixels: int | None = None) -> None:
-    """Refuse, with the config key to change, a window whose ring cannot fit in memory
-    (``pixels``: what the engine sees, when not the whole frame)."""
-    if mode != "sliding":
-        return  # tumbling and exponential keep m frames only
-    needed = (pixels or frame.pixels.size) * (window * frame.pixels.itemsize + SUMS_BYTES_PER_PIXEL)
+def engine_bytes_per_pixel(probe: SlidingWindow) -> float:
+    """Bytes per pixel the daemon keeps for an engine like ``probe`` (any size, its bit depth
+    known): the engine's own arrays (ring and sums, τc's included), the copy of the sums for the
+    maps, the float maps, and τc's copy of its sums (estimated as large as the engine's)."""
+    own = probe.array_bytes()
+    tau = sum(size for name, size in own.items() if name in ("products", "edges", "retired", "total", "total_sq"))
+    copies = probe.snapshot_buffers().nbytes + (tau if "tau_c" in probe.estimators else 0)
+    pixels = probe.shape[0] * probe.shape[1]
+    return (sum(own.values()) + copies) / pixels + MAP_BYTES_PER_PIXEL
+
+
+def check_engine_memory(frame: Frame, bytes_per_pixel: float, pixels: int | None = None) -> None:
+    """Refuse, with the config keys to change, an engine that cannot fit in memory (``pixels``:
+    what the engine sees, when not the whole frame; ``bytes_per_pixel``: engine_bytes_per_pixel)."""
+    needed = (pixels or frame.pixels.size) * bytes_per_pixel
     free = available_memory()
     if free is not None and needed > 0.8 * free:
-        raise ConfigError(f"estimator.window: a sliding window of {window} frames of {frame.shape[1]}x{frame.shape[0]} "
-                          f"needs {needed / 2**30:.1f} GiB; this machine has {free / 2**30:.1f} GiB available "
-                          "(use a shorter window, or mode = 'tumbling' or 'exponential')")
+        raise ConfigError(f"estimator.window: the estimator for {frame.shape[1]}x{frame.shape[0]} frames needs "
+                          f"{needed / 2**30:.1f} GiB (its window, sums and their copies); this machine has "
+                          f"{free / 2**30:.1f} GiB available (use a shorter window or max_lag, mode = 'tumbling' "
+                          "or 'exponential', or area = 'regions')")
 
 
 @dataclass(frozen=True)
@@ -258,10 +270,15 @@ class Evaluation:
             rows, cols = self.crop = bounding_box(list(masks.values()))
             regions = {name: box.shifted(rows, cols) for name, box in regions.items()}
             shape = (rows.stop - rows.start, cols.stop - cols.start)
-        check_engine_memory(frame, est.window, est.mode, pixels=shape[0] * shape[1])
-        self.engine = SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
-                                    estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
-                                    max_lag=est.lags if self.tau.on else None)
+        def engine(shape: tuple[int, int]) -> SlidingWindow:
+            return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
+                                 estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
+                                 max_lag=est.lags if self.tau.on else None)
+
+        # the same arrays for a few pixels first: a window too big for memory is refused before
+        # anything large is allocated
+        check_engine_memory(frame, engine_bytes_per_pixel(engine((1, PROBE_PIXELS))), pixels=shape[0] * shape[1])
+        self.engine = engine(shape)
         # the arrays of the maps evaluation (a copy of the sums, the float maps) written once now,
         # before frames flow: at the first maps their fresh pages would stall both threads
         # (0.35 s on the pipeline thread, 0.3 s on the evaluator at 4096×2168, 2-core EPYC)

@@ -288,6 +288,11 @@ class SlidingWindow:
         if self._bits_given is not None:
             self._allocate(self._bits_given)
 
+    def array_bytes(self) -> dict[str, int]:
+        """Bytes of each array the engine keeps (the ring, each sum), as allocated for its frames'
+        bit depth (empty before the first frame when no ``bits`` was given)."""
+        return {name: array.nbytes for name, array in self._arrays.items()}
+
     @property
     def ready(self) -> bool:
         """True once N frames were pushed: ``maps()`` describes a whole window."""

@@ -186,14 +186,29 @@ def test_bad_frames_are_dropped_and_counted(setup):
 def test_a_window_that_cannot_fit_in_memory_is_a_config_error(monkeypatch):
     from edgedsm.daemon import evaluation as pipeline_module
     from edgedsm.errors import ConfigError
+    from edgedsm.estimators import SlidingWindow
     from edgedsm.frames import Frame
 
     monkeypatch.setattr(pipeline_module, "available_memory", lambda: 24 * 2**30)
     frame = Frame(np.zeros((2168, 4096), np.uint8), 0, 0, 8)
-    pipeline_module.check_engine_memory(frame, 2000, "sliding")  # 17.5 GiB: fits
+
+    def per_pixel(window: int, **options) -> float:
+        probe = SlidingWindow((1, 8), window=window, lag=10, q=1.0, bits=8, **options)
+        return pipeline_module.engine_bytes_per_pixel(probe)
+
+    # the ring (1 byte per frame), the sums (20), their copy (20) and two sets of maps (64)
+    assert per_pixel(2000) == 2000 + 20 + 20 + 64
+    pipeline_module.check_engine_memory(frame, per_pixel(2000))  # 17.5 GiB: fits
     with pytest.raises(ConfigError, match=r"estimator\.window: .* needs 828\.\d GiB"):
-        pipeline_module.check_engine_memory(frame, 100_000, "sliding")
-    pipeline_module.check_engine_memory(frame, 100_000, "tumbling")
+        pipeline_module.check_engine_memory(frame, per_pixel(100_000))
+    pipeline_module.check_engine_memory(frame, per_pixel(100_000, mode="tumbling"))  # m frames only
+    # τc's lag products (and their copy) count: 17 lags at max_lag 300, 4 bytes each, 8 for the edges
+    with_tau = per_pixel(2000, estimators=("s1", "s2", "s3", "tau_c"), mode="tumbling", max_lag=300)
+    assert with_tau > per_pixel(2000, mode="tumbling") + 2 * 17 * 4
+    monkeypatch.setattr(pipeline_module, "available_memory", lambda: 8 * 2**30)
+    pipeline_module.check_engine_memory(frame, per_pixel(2000, mode="tumbling"))  # 1.1 GiB
+    with pytest.raises(ConfigError, match=r"needs 8\.\d GiB .* max_lag"):  # the lag products: 8.8 GiB
+        pipeline_module.check_engine_memory(frame, with_tau)
 
 
 def test_a_source_that_can_wait_is_held_back_not_dropped(repo, tmp_path):
