@@ -49,7 +49,7 @@ def hold_back(camera, pipeline, depth=8):
     camera._do_grab = waiting_grab
 
 
-def make_pipeline(config, camera, relay, publisher, dt=0.05):
+def make_pipeline(config, camera, relay, publisher, dt=0.05, probes=None):
     box = {}
 
     def frame_clock() -> float:
@@ -58,7 +58,7 @@ def make_pipeline(config, camera, relay, publisher, dt=0.05):
     # the wall clock follows the simulated one: with the real one beside it, to_wall() would
     # depend on how far the evaluator thread lags behind, in frames
     clock = Clock(monotonic=frame_clock, wall=lambda: 1.7e9 + frame_clock())
-    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), clock=clock)
+    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), clock=clock, probes=probes)
     box["p"] = pipeline
     return pipeline
 
@@ -282,8 +282,6 @@ def test_a_sink_is_added_without_touching_the_pipeline(setup):
 
 
 def test_probes_see_every_frame_and_every_evaluation(setup):
-    from edgedsm.daemon.probes import PipelineProbes
-
     config, camera, relay, publisher, _ = setup
     seen: dict[str, list] = {"queued": [], "taken": [], "pushed": [], "snapshots": [], "evaluated": [], "states": []}
     probes = PipelineProbes(frame_queued=lambda frame, t: seen["queued"].append(frame.seq),
@@ -292,10 +290,7 @@ def test_probes_see_every_frame_and_every_evaluation(setup):
                             snapshot_taken=lambda snapshot, cost: seen["snapshots"].append(snapshot),
                             evaluated=lambda stats, seconds: seen["evaluated"].append(stats.frames),
                             states_evaluated=lambda frames, t: seen["states"].append(frames))
-    box = {}
-    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), probes=probes,
-                        clock=Clock(monotonic=lambda: box["p"].counters["frames"] * 0.05 if "p" in box else 0.0))
-    box["p"] = pipeline
+    pipeline = make_pipeline(config, camera, relay, publisher, probes=probes)
     hold_back(camera, pipeline)
     pipeline.run(lambda: False, max_frames=400)
     dark = config.acquisition.dark_frames + 1
@@ -325,10 +320,7 @@ def test_drying_states_are_judged_twice_a_second_at_a_frame_rate_that_does_not_d
     config, camera, relay, publisher, _ = setup
     times: list[float] = []
     probes = PipelineProbes(snapshot_taken=lambda snapshot, cost: times.append(snapshot.status.now))
-    box = {}
-    pipeline = Pipeline(config, camera, publisher, relay=relay, cadence=Cadence(1.0, 10.0), probes=probes,
-                        clock=Clock(monotonic=lambda: box["p"].counters["frames"] * 0.03 if "p" in box else 0.0))
-    box["p"] = pipeline
+    pipeline = make_pipeline(config, camera, relay, publisher, dt=0.03, probes=probes)
     hold_back(camera, pipeline)
     pipeline.run(lambda: False, max_frames=600)
     gaps = np.diff(times[2:])  # after the laser went on (urgent evaluations)
