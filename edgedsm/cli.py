@@ -14,6 +14,7 @@ import sys
 
 from edgedsm import __version__
 from edgedsm.errors import ConfigError, DataError, DeviceError, EdgedsmError
+from edgedsm.estimators.jit import configure_threading
 
 COMMANDS = ("demo", "simulate", "analyze", "reproduce", "bench", "run", "check-config", "laser", "watch", "cmd",
             "probe", "init", "dashboard")
@@ -49,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    configure_threading()  # before any kernel starts numba's threads
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from edgedsm.bench.e2e import make_recording, parse_size
 from edgedsm.bench.report import Report, load_average
+from edgedsm.estimators.jit import configure_threading
 
 
 def child(args: argparse.Namespace) -> int:
@@ -62,6 +63,7 @@ def run_fleet(count: int, threads: int, args: argparse.Namespace, recording: Pat
 
 
 def main(argv: list[str] | None = None) -> int:
+    configure_threading()  # each child stands for a daemon: the command line's threading settings
     parser = argparse.ArgumentParser(prog="python -m edgedsm.bench.e2e_fleet", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--size", type=parse_size, default=(1024, 1024), metavar="WxH")

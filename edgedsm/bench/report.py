@@ -51,7 +51,8 @@ def cpu_model() -> str:
 
 
 def versions(*modules: str) -> str:
-    """'Python x, numpy y, <module> z, ...'; numba also says its thread count."""
+    """'Python x, numpy y, <module> z, ...'; numba also says its thread count and how its
+    OpenMP threads wait (``OMP_WAIT_POLICY``, edgedsm.estimators.jit)."""
     parts = [f"Python {platform.python_version()}", f"numpy {np.__version__}"]
     for module in modules:
         try:
@@ -61,7 +62,8 @@ def versions(*modules: str) -> str:
             continue
         text = f"{module} {imported.__version__}"
         if module == "numba":
-            text += f" ({imported.config.NUMBA_NUM_THREADS} threads)"
+            policy = os.environ.get("OMP_WAIT_POLICY", "unset")
+            text += f" ({imported.config.NUMBA_NUM_THREADS} threads, OpenMP wait policy {policy})"
         parts.append(text)
     return ", ".join(parts)
 

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 from edgedsm.cli import main
 from edgedsm.estimators import s2
+from edgedsm.estimators.jit import configure_threading
 
 SMALL = """
 [scene]
@@ -99,3 +104,29 @@ def test_help_lists_commands(capsys):
     text = capsys.readouterr().out
     for command in ("demo", "simulate", "analyze"):
         assert command in text
+
+
+
+def test_openmp_threads_sleep_between_passes(tmp_path):
+    """The CLI's process starts numba's OpenMP threads with OMP_WAIT_POLICY = PASSIVE: no spin
+    after a parallel pass (libgomp's default, also reported as 'PASSIVE', spins 300,000 times,
+    holding a core the daemon's other threads need). libgomp reports what it started with."""
+    frames = np.random.default_rng(1).integers(0, 256, (48, 512, 512), np.uint8)
+    np.save(tmp_path / "frames.npy", frames)
+    env = {key: value for key, value in os.environ.items() if not key.startswith(("OMP_", "GOMP_"))}
+    env["OMP_DISPLAY_ENV"] = "VERBOSE"
+    done = subprocess.run([sys.executable, "-m", "edgedsm", "analyze", str(tmp_path / "frames.npy"),
+                           "--timeline", str(tmp_path / "out"), "--window", "30", "--lag", "2"],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "OMP_WAIT_POLICY = 'PASSIVE'" in done.stderr
+    assert "GOMP_SPINCOUNT = '0'" in done.stderr
+
+
+def test_openmp_wait_policy_set_outside_is_kept(monkeypatch):
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    configure_threading()
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+    monkeypatch.delenv("OMP_WAIT_POLICY")
+    configure_threading()
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
