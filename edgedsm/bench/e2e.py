@@ -25,7 +25,9 @@ Measured, in one run, per size:
    its queue is full, so frames/s is what the daemon processes at most.
 3. **Highest paced rate with zero drops** on the default queue: the replay paced into the
    daemon's drop-oldest queue; bisection from 90 % of the bare engine's rate. Capacity and paced
-   rates are given as ratios to the bare engine around each trial.
+   rates are given as ratios to the bare engine around each trial. The daemon postpones its
+   statistics while the queue is half full (frames first): each trial gives the stats messages
+   per second it published and how often they waited.
 4. **Latency**: from a frame entering the queue to the drying states that include it being
    judged and their alerts handed to the sink (frame → alert), and to the stats message that
    counts it (frame → stats), p50 and p99, frames after the window filled.
@@ -235,6 +237,8 @@ class Trial:
     evaluate_ms: tuple[float, float] = (float("nan"), float("nan"))  # mean, max: on the evaluator thread
     covered: float = 1.0  # fraction of the sensor the engine sees
     states_hz: float = float("nan")  # drying-state evaluations per second after the window filled
+    stats_hz: float = float("nan")  # stats messages per second after the window filled
+    postponed: int = 0  # times the statistics waited for a half-full queue (frames first)
     stall_s: float = float("nan")  # the pipeline thread's longest gap between two frames taken
     bare_fps: float = float("nan")  # the bare engine around this trial: the faster of the runs just before and after
 
@@ -338,6 +342,8 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
                   pipeline.counters["frames"] - ready_at, pipeline.counters["dropped_queue"], cpu_s, rss,
                   covered=covered, stall_s=instruments.stall_s(ready_t))
     trial.states_hz = sum(1 for _, t in instruments.states if t >= ready_t) / wall
+    trial.stats_hz = sum(1 for _, t in instruments.stats if t >= ready_t) / wall
+    trial.postponed = pipeline.counters["stats_postponed"]
     trial.latency = {"alert": latency(instruments, instruments.states),
                      "stats": latency(instruments, instruments.stats)}
     if instruments.push_s:

@@ -39,13 +39,14 @@ def summary_row(result: SizeResult) -> list[str]:
             str(latency_from.queue_frames), f"{capacity.cpu_ms:.1f}", _pair(capacity.push_ms, 1.0, 1),
             _pair(capacity.snapshot_ms, 1.0, 1), _pair(capacity.evaluate_ms, 1.0),
             _pair(latency_from.latency["alert"], 1.0, 2), _pair(latency_from.latency["stats"], 1.0, 2),
-            f"{latency_from.states_hz:.2f}", f"{result.unpack_ms:.1f}"]
+            f"{latency_from.states_hz:.2f}", f"{latency_from.stats_hz:.2f}", f"{result.unpack_ms:.1f}"]
 
 
 def paced_row(result: SizeResult, trial: Trial) -> list[str]:
     return [_size(result), f"{trial.rate:g}", f"{trial.bare_fps:.0f}", f"{trial.bare_ratio:.0%}",
             f"{trial.delivered_fps:.1f}", f"{trial.fps:.1f}", f"**{trial.drops}**", str(trial.queue_frames),
-            f"{1e3 * trial.stall_s:.0f}", f"{trial.rss:.0f}", "yes" if trial.sustained else "no"]
+            f"{1e3 * trial.stall_s:.0f}", f"{trial.stats_hz:.2f} ({trial.postponed})", f"{trial.rss:.0f}",
+            "yes" if trial.sustained else "no"]
 
 
 def area_row(result: SizeResult, trial: Trial, full: Trial) -> list[str]:
@@ -77,7 +78,8 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
                   "highest paced rate, zero drops (÷ bare)", "queue frames", "CPU ms/frame",
                   "push ms mean / p99", "region stats ms mean / max (pipeline thread)",
                   "evaluation ms mean / max (evaluator thread)", "frame → alert p50 / p99 (s)",
-                  "frame → stats p50 / p99 (s)", "drying states judged per s", "unpack ms/frame"],
+                  "frame → stats p50 / p99 (s)", "drying states judged per s", "stats messages per s",
+                  "unpack ms/frame"],
                  [summary_row(result) for result in results])
     report.line()
     for result in results:
@@ -99,7 +101,10 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
                 "entering the queue to the drying states that include it being judged and their alerts handed "
                 "to the MQTT sink (states every 0.5 s: p99 ≈ 0.5 s + one evaluation); frame → stats, to the "
                 "stats message that counts it (every 1 s); the latencies and the states judged per second are "
-                "those of the highest zero-drop trial (the capacity trial's when none was clean). Mono12p and "
+                "those of the highest zero-drop trial (the capacity trial's when none was clean). While a paced "
+                "camera's queue is half full the statistics and maps wait, up to four intervals (frames "
+                "first; the drying states go on): *stats messages per s* below 1 and *times postponed* "
+                "show how often a trial needed that. Mono12p and "
                 "Mono16 frames are replayed unpacked; "
                 "*unpack* is what a real camera's packed frames add on the capture thread.")
     report.line()
@@ -107,8 +112,8 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     report.line()
     report.table(["size", "requested frames/s", "bare engine around it, frames/s", "÷ bare", "delivered frames/s",
                   "processed frames/s",
-                  "queue drops", "queue frames", "longest gap between frames taken (ms)", "RSS anon MiB",
-                  "sustained"],
+                  "queue drops", "queue frames", "longest gap between frames taken (ms)",
+                  "stats messages per s (times postponed)", "RSS anon MiB", "sustained"],
                  [paced_row(result, trial) for result in results for trial in result.paced])
     report.line()
     if any(result.areas for result in results):

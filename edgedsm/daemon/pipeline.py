@@ -12,6 +12,10 @@ from the MQTT thread by :meth:`Pipeline.submit`) and owns the stats and maps cad
 evaluator thread analyses snapshots and publishes. The drying monitor, which commands reset and
 the evaluator steps, is guarded by a lock; everything else has a single owning thread.
 
+Frames come first: while a paced camera's queue is half full, the statistics and maps wait (up
+to ``POSTPONE_MAX_INTERVALS`` stats intervals; the drying states go on), so that a machine
+slower for a while catches up instead of dropping frames.
+
 Every time published is wall-clock UTC, converted once from the monotonic clock
 (:meth:`edgedsm.messages.Clock.to_wall`).
 
@@ -55,6 +59,12 @@ AMBIENT_S2_WARNING = 0.1
 FPS_FRAMES = 64
 #: How long frames must flow again after a camera outage before the laser goes back on (s).
 CAMERA_STABLE_S = 1.0
+#: A paced camera's queue at least this full (fraction of its length) makes the statistics and
+#: maps wait, the frames first (drying states go on): an evaluation is worth less than a frame.
+POSTPONE_QUEUE_FILL = 0.5
+#: ... for at most this many stats intervals: an overloaded daemon still publishes its statistics
+#: (and with them its drop counters).
+POSTPONE_MAX_INTERVALS = 4
 
 
 @dataclass
@@ -100,7 +110,10 @@ class Pipeline:
         self._last_frame_t: float | None = None  # None until the first frame
         self._stats_due = float("-inf")  # when the next stats are due (monotonic)
         self._states_due = float("-inf")  # and the next drying states
-        self._stats_owed = False  # stats were due but the evaluator was busy
+        self._stats_owed = False  # stats were due but the evaluator was busy (or frames came first)
+        self._last_stats_t = float("-inf")  # when stats were last handed over
+        self._postponing = False  # statistics wait for the queue to drain (_frames_first)
+        self._postpone_logged_t = float("-inf")
         self._last_maps_t = float("-inf")
         self._frames_t: list[float] = []
         self._losses_seen = 0
@@ -264,11 +277,13 @@ class Pipeline:
                 cadence = self.cadence
                 if now >= self._stats_due:
                     self._stats_due, self._stats_owed = next_due(self._stats_due, cadence.stats_every_s, now), True
-                stats = self._stats_owed or self._urgent
+                stats = self._urgent or (self._stats_owed and not self._frames_first(now))
+                states_due = now >= self._states_due
                 # skipped (the evaluator is busy): tried again at the next loop, nothing lost
-                if (stats or now >= self._states_due) and self._evaluate(now, stats_due=stats):
-                    self._urgent, self._stats_owed = False, False
-                    if now >= self._states_due:  # an urgent evaluation in between leaves the grid alone
+                if (stats or states_due) and self._evaluate(now, stats_due=stats):
+                    if stats:
+                        self._urgent, self._stats_owed, self._last_stats_t = False, False, now
+                    if states_due:  # an urgent evaluation in between leaves the grid alone
                         self._states_due = next_due(self._states_due, cadence.states_every_s, now)
                 if max_frames is not None and self.counters["frames"] >= max_frames:
                     break
@@ -284,6 +299,31 @@ class Pipeline:
             acq.switch_off("stop")
             self.evaluation.finish()
             capture.stop(timeout_s=1.0)
+
+    def _frames_first(self, now: float) -> bool:
+        """Whether the statistics (and maps) owed wait: a paced camera's queue is at least
+        ``POSTPONE_QUEUE_FILL`` full, and the last ones are less than ``POSTPONE_MAX_INTERVALS``
+        stats intervals old. Their
+        region pass and percentiles are most of an evaluation's cost; the drying states (their
+        means only) are judged on their cadence meanwhile."""
+        capture = self.capture
+        backlog = self.camera.paced and capture.frames.qsize() >= POSTPONE_QUEUE_FILL * capture.capacity
+        late = now - self._last_stats_t >= POSTPONE_MAX_INTERVALS * self.cadence.stats_every_s
+        if backlog and not late:
+            if not self._postponing:
+                self._postponing = True
+                self.counters["stats_postponed"] += 1
+                # once a minute at most: a queue hovering at the mark would flood the journal
+                level = logging.WARNING if now - self._postpone_logged_t >= 60.0 else logging.DEBUG
+                self._postpone_logged_t = now if level == logging.WARNING else self._postpone_logged_t
+                log.log(level, "frame queue %d of %d: statistics and maps wait (up to %.0f s) until it drains; "
+                        "drying states go on (%d times so far)", capture.frames.qsize(), capture.capacity,
+                        POSTPONE_MAX_INTERVALS * self.cadence.stats_every_s, self.counters["stats_postponed"])
+            return True
+        if self._postponing and not backlog:
+            self._postponing = False
+            log.debug("frame queue drained: statistics resume")
+        return False
 
     def _watch_camera(self, now: float) -> bool:
         """Whether the camera is up. Down (lost, or silent for ``grab_timeout_s``): the laser goes

@@ -103,12 +103,14 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
     for trial in (capacity, fast, slow):
         trial.latency = {"alert": (0.4, 0.9), "stats": (0.7, 1.5)}
     capacity.states_hz, fast.states_hz = 1.8, 2.0
+    fast.stats_hz, fast.postponed = 0.75, 3  # the statistics waited three times for the queue
     result = SizeResult((64, 64), "Mono8", [100.0, 100.0, 50.0, 50.0], 0.0, capacity, [slow, fast], [])
     assert result.bare_fps == 75.0 and capacity.bare_ratio == pytest.approx(0.92)
     assert slow.bare_ratio == pytest.approx(0.92) and fast.bare_ratio == pytest.approx(0.95)
     row = summary_row(result)
     assert row[1] == "75 (50–100)" and row[2] == "46 (92%)" and row[3] == "95 (95%)"
-    assert row[-2] == "2.00"  # the states of the best zero-drop trial
+    assert row[-3] == "2.00" and row[-2] == "0.75"  # the states and stats of the best zero-drop trial
     args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None)
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
     assert "zero drops up to 95% of the bare engine's rate: meets the target" in text
+    assert "| 0.75 (3) |" in text  # its paced row: stats messages per s (times postponed)

@@ -356,3 +356,33 @@ def test_rebaseline_publishes_one_reset_alert_and_the_states_start_again(setup):
     assert after and after[0].from_state == "warming_up"  # the states start again from warming up
     later = [s for s in publisher.states if s.t >= reset[0].t]
     assert later and later[0].regions["plate"].state == "warming_up"
+
+
+class PacedSimulatedCamera(SimulatedCamera):
+    """The simulator as fast as it runs, but a camera that cannot wait (a real one's contract)."""
+
+    paced = True  # type: ignore[assignment]
+
+
+@pytest.mark.parametrize(("paced", "depth", "stats_every_s"), [(True, 7, 4.0), (True, 2, 1.0), (False, 7, 1.0)])
+def test_statistics_wait_while_a_paced_cameras_queue_is_half_full_and_the_states_go_on(setup, paced, depth,
+                                                                                        stats_every_s):
+    # frames come first: with a paced camera's queue at 7 of 8 the statistics (region pass,
+    # percentiles, maps) wait, at most POSTPONE_MAX_INTERVALS = 4 intervals, and the drying states
+    # are judged twice a second meanwhile; a queue at 2 of 8, or a source that can wait, changes nothing
+    config, _camera, relay, publisher, scene = setup
+    config.acquisition.queue_frames = 8
+    camera = (PacedSimulatedCamera if paced else SimulatedCamera)(scene, time_scale=0)
+    couple_simulated_laser(camera, relay)
+    judged: list[int] = []
+    probes = PipelineProbes(frame_taken=lambda frame, count: time.sleep(0.004),  # slower than the camera
+                            states_evaluated=lambda frames, t: judged.append(frames))
+    pipeline = make_pipeline(config, camera, relay, publisher, dt=0.05, probes=probes)
+    hold_back(camera, pipeline, depth=depth)  # the queue stays that full, nothing dropped
+    pipeline.run(lambda: False, max_frames=700)
+    assert pipeline.counters["dropped_queue"] == 0
+    assert (pipeline.counters["stats_postponed"] > 0) == (stats_every_s > 1.0)
+    gaps = np.diff([stats.t for stats in publisher.stats][2:])  # after the laser went on
+    assert len(gaps) >= 28 / stats_every_s - 2 and np.median(gaps) == pytest.approx(stats_every_s, abs=0.06), gaps
+    states = np.diff(judged[2:])  # frames between two judgements: 0.5 s is 10 frames
+    assert len(states) >= 40 and np.median(states) == 10, states
