@@ -19,9 +19,10 @@ from typing import Any
 #: How numba's OpenMP worker threads wait for the next parallel region. libgomp's default spins
 #: for up to 300,000 iterations (milliseconds) after every region before it sleeps: a worker
 #: then holds a core the daemon's other threads need between two pushes (evaluator, capture,
-#: sinks). Measured with the daemon at its capacity (2-core EPYC, 2048², six A/B trials each):
-#: 81-92 % of the bare engine spinning, 92-100 % passive; an evaluation's CPU 104-141 ms
-#: spinning, 74-87 ms passive.
+#: sinks). Measured with the daemon at its capacity (2-core EPYC, A/B trials in separate
+#: processes, 6 at 2048² and 3 at 4096×2168 each): 81-93 % of the bare engine spinning, 82-100 %
+#: passive (medians 91 and 95 %); an evaluation took 104-141 ms on the evaluator thread
+#: spinning, 74-99 ms passive (wall time: it waits for a core).
 OMP_WAIT_POLICY = "PASSIVE"
 
 
