@@ -12,7 +12,6 @@ Example:
 from __future__ import annotations
 
 import argparse
-import os
 
 NAME = "run"
 HELP = "run the measurement daemon (systemd service)"
@@ -30,9 +29,6 @@ def configure_logging(level: str, json_lines: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    # idle OpenMP workers of the numba kernels would otherwise spin between frames: at 60
-    # frames/s of 2048² this halves the CPU time (docs/bench-e2e.md); must precede numba's start
-    os.environ.setdefault("OMP_WAIT_POLICY", "passive")
     from edgedsm.config import load_config
     from edgedsm.daemon.service import Service
 

@@ -28,8 +28,9 @@ OMP_WAIT_POLICY = "PASSIVE"
 
 def configure_threading() -> None:
     """Set the OpenMP wait policy (``OMP_WAIT_POLICY``) numba's threads will use, unless the
-    environment sets one. Call it at the process's start: OpenMP reads it once, when numba
-    first starts its threads."""
+    environment sets one. The command line calls it first, for every command (``edgedsm run``
+    and the benchmarks that measure the daemon alike): OpenMP reads it once, when numba first
+    starts its threads."""
     os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY)
 
 

@@ -433,12 +433,16 @@ def test_cli_hold_ends_on_signal_with_laser_off(signum: int, pty_pair: PtyPair,
                 os.kill(os.getpid(), signum)
 
         sender = threading.Thread(target=signal_once_on, daemon=True)
+        # a shell without job control starts background commands with SIGINT ignored (and Python
+        # then installs no KeyboardInterrupt handler): Ctrl-C as a terminal delivers it
+        interrupt = signal.signal(signal.SIGINT, signal.default_int_handler)
         sender.start()
         try:
             assert main(["laser", "on", rig.uri, "--for", "120"]) == 0
         finally:
             done.set()
             sender.join(BOUND_S)
+            signal.signal(signal.SIGINT, interrupt)
         assert signalled, "the laser never went on"
         assert time.monotonic() - signalled[0] < 3 * BOUND_S
         out = capsys.readouterr().out
