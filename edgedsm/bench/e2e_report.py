@@ -86,8 +86,10 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
         best = result.best
         ratio = best.bare_ratio if best else 0.0
         met = "meets" if ratio >= TARGET_RATIO else "does NOT meet"
+        kept = (f"; its statistics {best.stats_hz:.2f} per s, postponed {best.postponed} times while the queue "
+                "was half full" if best else "")
         report.line(f"- {_size(result)}: zero drops up to {ratio:.0%} of the bare engine's rate: {met} the "
-                    f"target of {TARGET_RATIO:.0%}; capacity {result.capacity.bare_ratio:.0%}.")
+                    f"target of {TARGET_RATIO:.0%}{kept}; capacity {result.capacity.bare_ratio:.0%}.")
     report.line()
     report.line("Each ratio is to the bare engine measured around that trial (the faster of its runs just before "
                 "and just after): the machine's own speed drifts during a run, by up to 2x on a shared virtual "

@@ -114,3 +114,4 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
     assert "zero drops up to 95% of the bare engine's rate: meets the target" in text
     assert "| 0.75 (3) |" in text  # its paced row: stats messages per s (times postponed)
+    assert "meets the target of 90%; its statistics 0.75 per s, postponed 3 times" in text
