@@ -303,9 +303,8 @@ class Pipeline:
     def _frames_first(self, now: float) -> bool:
         """Whether the statistics (and maps) owed wait: a paced camera's queue is at least
         ``POSTPONE_QUEUE_FILL`` full, and the last ones are less than ``POSTPONE_MAX_INTERVALS``
-        stats intervals old. Their
-        region pass and percentiles are most of an evaluation's cost; the drying states (their
-        means only) are judged on their cadence meanwhile."""
+        stats intervals old. Their region pass and percentiles are most of an evaluation's cost;
+        the drying states (their means only) are judged on their cadence meanwhile."""
         capture = self.capture
         backlog = self.camera.paced and capture.frames.qsize() >= POSTPONE_QUEUE_FILL * capture.capacity
         late = now - self._last_stats_t >= POSTPONE_MAX_INTERVALS * self.cadence.stats_every_s

@@ -106,7 +106,6 @@ def test_help_lists_commands(capsys):
         assert command in text
 
 
-
 def test_openmp_threads_sleep_between_passes(tmp_path):
     """The CLI's process starts numba's OpenMP threads with OMP_WAIT_POLICY = PASSIVE: no spin
     after a parallel pass (libgomp's default, also reported as 'PASSIVE', spins 300,000 times,
