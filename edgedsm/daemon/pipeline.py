@@ -312,9 +312,9 @@ class Pipeline:
             if not self._postponing:
                 self._postponing = True
                 self.counters["stats_postponed"] += 1
-                # once a minute at most: a queue hovering at the mark would flood the journal
-                level = logging.WARNING if now - self._postpone_logged_t >= 60.0 else logging.DEBUG
-                self._postpone_logged_t = now if level == logging.WARNING else self._postpone_logged_t
+                level = logging.DEBUG  # a warning once a minute at most: a queue hovering at the mark
+                if now - self._postpone_logged_t >= 60.0:  # would flood the journal
+                    level, self._postpone_logged_t = logging.WARNING, now
                 log.log(level, "frame queue %d of %d: statistics and maps wait (up to %.0f s) until it drains; "
                         "drying states go on (%d times so far)", capture.frames.qsize(), capture.capacity,
                         POSTPONE_MAX_INTERVALS * self.cadence.stats_every_s, self.counters["stats_postponed"])
