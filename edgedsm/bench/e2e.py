@@ -322,27 +322,39 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         camera = open_camera_for(config)
         pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S), probes=instruments.probes())
         cpu: list[float] = []
+        stopped: list[float] = []  # when the trial's seconds were up: stopping is not measured
         started = time.monotonic()
 
         def should_stop() -> bool:
             now, ready_t = time.monotonic(), instruments.ready_t
             if ready_t is not None and not cpu:
                 cpu.append(time.process_time())
-            return (ready_t is not None and now - ready_t >= seconds) or now - started >= seconds + FILL_LIMIT_S
+            stop = (ready_t is not None and now - ready_t >= seconds) or now - started >= seconds + FILL_LIMIT_S
+            if stop and not stopped:
+                stopped.append(now)
+                cpu.append(time.process_time())
+            return stop
 
         pipeline.run(should_stop)
-        cpu_s = time.process_time() - (cpu[0] if cpu else 0.0)
+        cpu_s = (cpu[-1] if len(cpu) > 1 else time.process_time()) - (cpu[0] if cpu else 0.0)
         rss = instruments.rss_mib or anon_mib()
     finally:
         mqtt.close(1.0)
     ready_t, ready_at = instruments.ready_t or started, instruments.ready_at or 0
-    wall = time.monotonic() - ready_t
-    delivered = sum(1 for t in instruments.enqueued.values() if t >= ready_t)
+    # measured up to the stop request: the pipeline's and the sink's shutdown (up to a second or
+    # two of waiting for the last evaluation and publishes) would understate every rate
+    end_t = stopped[0] if stopped else time.monotonic()
+    wall = end_t - ready_t
+
+    def within(t: float) -> bool:
+        return ready_t <= t <= end_t
+
+    delivered = sum(1 for t in instruments.enqueued.values() if within(t))
     trial = Trial(label, rate, pipeline.capture.capacity, STATS_S, wall, delivered,
                   pipeline.counters["frames"] - ready_at, pipeline.counters["dropped_queue"], cpu_s, rss,
                   covered=covered, stall_s=instruments.stall_s(ready_t))
-    trial.states_hz = sum(1 for _, t in instruments.states if t >= ready_t) / wall
-    trial.stats_hz = sum(1 for _, t in instruments.stats if t >= ready_t) / wall
+    trial.states_hz = sum(1 for _, t in instruments.states if within(t)) / wall
+    trial.stats_hz = sum(1 for _, t in instruments.stats if within(t)) / wall
     trial.postponed = pipeline.counters["stats_postponed"]
     trial.latency = {"alert": latency(instruments, instruments.states),
                      "stats": latency(instruments, instruments.stats)}
