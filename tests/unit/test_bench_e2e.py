@@ -115,3 +115,15 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
     assert "zero drops up to 95% of the bare engine's rate: meets the target" in text
     assert "| 0.75 (3) |" in text  # its paced row: stats messages per s (times postponed)
     assert "meets the target of 90%; its statistics 0.75 per s, postponed 3 times" in text
+    slow.bare_fps = 48.0  # the machine slower around the slower trial: a higher share of the engine
+    text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
+    assert "capacity 92% (a clean trial at a lower rate sustained 96% of the bare engine around it)." in text
+
+
+def test_cadences_are_measured_from_their_intervals() -> None:
+    from edgedsm.bench.e2e import cadence_hz
+
+    grid = [0.3 + 0.5 * k for k in range(40)]  # states every 0.5 s: 40 in a 20 s trial, or 39 by phase
+    assert cadence_hz(grid) == pytest.approx(2.0) and cadence_hz(grid[:-1]) == pytest.approx(2.0)
+    assert cadence_hz([0.0, 1.0, 2.0, 6.0]) == pytest.approx(0.5)  # one gap of 4 s: 3 intervals in 6 s
+    assert np.isnan(cadence_hz([5.0]))
