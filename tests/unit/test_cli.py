@@ -129,3 +129,18 @@ def test_openmp_wait_policy_set_outside_is_kept(monkeypatch):
     monkeypatch.delenv("OMP_WAIT_POLICY")
     configure_threading()
     assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+
+
+def test_a_command_imports_only_its_own_module() -> None:
+    """`edgedsm cmd` (scripts, SCADA) does not pay for the simulator, the estimators and the
+    reports: a fresh interpreter parsing its command line has imported none of them."""
+    probe = ("import sys; from edgedsm import cli; args = cli.build_parser(cli.command_named(sys.argv[1:]))"
+             ".parse_args(sys.argv[1:]); heavy = ('numba', 'scipy', 'edgedsm.config', 'edgedsm.sim', "
+             "'edgedsm.report'); print(args.handler.__module__, "
+             "[m for m in heavy if m in sys.modules])")
+    light = subprocess.run([sys.executable, "-c", probe, "-v", "cmd", "publish_maps", "--broker", "127.0.0.1:1"],
+                           capture_output=True, text=True, timeout=60, check=True)
+    assert light.stdout.split(None, 1) == ["edgedsm.commands.cmd", "[]\n"], light.stdout
+    whole = subprocess.run([sys.executable, "-c", probe, "demo"], capture_output=True, text=True, timeout=60,
+                           check=True)
+    assert whole.stdout.startswith("edgedsm.commands.demo [") and "'edgedsm.config'" in whole.stdout  # the probe sees imports
