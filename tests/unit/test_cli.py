@@ -132,8 +132,8 @@ def test_openmp_wait_policy_set_outside_is_kept(monkeypatch):
 
 
 def test_a_command_imports_only_its_own_module() -> None:
-    """`edgedsm cmd` (scripts, SCADA) does not pay for the simulator, the estimators and the
-    reports: a fresh interpreter parsing its command line has imported none of them."""
+    """`edgedsm cmd` (scripts, SCADA) does not pay for the simulator, numba, the configuration
+    models and the reports: a fresh interpreter parsing its command line has imported none of them."""
     probe = ("import sys; from edgedsm import cli; args = cli.build_parser(cli.command_named(sys.argv[1:]))"
              ".parse_args(sys.argv[1:]); heavy = ('numba', 'scipy', 'edgedsm.config', 'edgedsm.sim', "
              "'edgedsm.report'); print(args.handler.__module__, "
@@ -143,4 +143,5 @@ def test_a_command_imports_only_its_own_module() -> None:
     assert light.stdout.split(None, 1) == ["edgedsm.commands.cmd", "[]\n"], light.stdout
     whole = subprocess.run([sys.executable, "-c", probe, "demo"], capture_output=True, text=True, timeout=60,
                            check=True)
-    assert whole.stdout.startswith("edgedsm.commands.demo [") and "'edgedsm.config'" in whole.stdout  # the probe sees imports
+    # the probe does see imports: the demo needs the configuration models
+    assert whole.stdout.startswith("edgedsm.commands.demo [") and "'edgedsm.config'" in whole.stdout
