@@ -59,27 +59,47 @@ class SinkSet:
         self.fanout = FanOut([])
         self.probes = PipelineProbes()
         self._built: dict[str, tuple[str, Sink]] = {}
+        self._config: DaemonConfig | None = None  # the config the sinks were last built for
 
     def apply(self, config: DaemonConfig) -> list[str]:
         """Build, keep or rebuild each sink for ``config``; returns the names (re)built or closed.
-        A sink that cannot start (a taken port) is a ConfigError; those already built stay."""
+        A sink that cannot start (a taken port) is a ConfigError. Sinks that can start beside the
+        running ones (one new to this config, a metrics server moving to another address) start
+        first: when one of them cannot, nothing running was touched."""
         wanted = wanted_sinks(config)
         changed = [name for name in self._built if self._built[name][0] != wanted.get(name)]
+        early: dict[str, Sink] = {}
+        try:
+            for name in wanted:
+                if name not in self._built or (name in changed and self._beside(name, config)):
+                    early[name] = self._build(name, config)
+        except ConfigError:
+            for name, sink in early.items():
+                _close(name, sink)
+            raise
         for name in changed:  # closed first: a new client with the same id would be thrown off
             _, sink = self._built.pop(name)
             self.fanout.sinks = [s for s in self.fanout.sinks if s is not sink]
-            try:
-                sink.close(1.0)
-            except Exception as exc:
-                log.error("%s: close failed: %s", name, exc)
+            _close(name, sink)
         built = [name for name in wanted if name not in self._built]
+        self._built.update({name: (wanted[name], sink) for name, sink in early.items()})
+        self._config = config
         for name in built:
-            self._built[name] = (wanted[name], self._build(name, config))
+            if name not in early:
+                self._built[name] = (wanted[name], self._build(name, config))
         self.fanout.sinks = [self._built[name][1] for name in wanted]
         self._wire(config)
         if changed or built:
             log.info("sinks built: %s; closed: %s", ", ".join(built) or "none", ", ".join(changed) or "none")
         return sorted(set(changed) | set(built))
+
+    def _beside(self, name: str, config: DaemonConfig) -> bool:
+        """Whether the sink ``name`` for ``config`` can start while the running one still runs: a
+        metrics server on another address can; an MQTT client cannot (the broker throws off the
+        older of two clients with one id), nor a server on the same address."""
+        running = self._config.http if self._config is not None else None
+        return name == "http" and running is not None and config.http is not None \
+            and running.address != config.http.address
 
     def _build(self, name: str, config: DaemonConfig) -> Sink:
         mqtt = config.mqtt
@@ -129,8 +149,16 @@ class SinkSet:
 
     def close(self, timeout_s: float) -> None:
         self._built.clear()
+        self._config = None
         self.fanout.close(timeout_s)
         self.fanout.sinks = []
+
+
+def _close(name: str, sink: Sink) -> None:
+    try:
+        sink.close(1.0)
+    except Exception as exc:  # a sink that fails to close must not keep the others from their turn
+        log.error("%s: close failed: %s", name, exc)
 
 
 def make_sink(config: DaemonConfig, on_command: CommandHandler) -> tuple[Sink, PipelineProbes]:

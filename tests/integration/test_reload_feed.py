@@ -242,18 +242,29 @@ def test_a_reload_whose_sink_cannot_start_is_refused_and_the_running_sinks_serve
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         url = f"http://127.0.0.1:{port}/metrics"
-        wait_until(lambda: b"edgedsm_frames_total" in _get(urllib.request, url), WAIT_S, "metrics served")
-        pipeline = service.pipeline
+        wait_until(lambda: _frames_total(_get(urllib.request, url)) >= 20, WAIT_S, "metrics served")
+        pipeline, metrics = service.pipeline, service.sinks.get("http")
         config["http"] = {"listen": f"127.0.0.1:{taken.getsockname()[1]}"}
         config["regions"][0]["min_dwell_s"] = 2.0
         write_config(path, config)
+        before = _frames_total(_get(urllib.request, url))
         service.request_reload()
         wait_until(lambda: "reload refused" in caplog.text, WAIT_S, "the reload refused")
         assert "http.listen" in caplog.text
         assert service.config.regions[0].min_dwell_s == 1.0 and service.pipeline is pipeline
-        # the running [http] settings serve again (rebuilt: the counters start again from 0)
-        wait_until(lambda: b"edgedsm_frames_total" in _get(urllib.request, url), WAIT_S, "metrics served again")
+        # the new metrics server is started beside the running one: it could not, so the running one was
+        # never closed (its counters not started again from 0)
+        assert service.sinks.get("http") is metrics
+        assert _frames_total(_get(urllib.request, url)) >= before
+        assert "sinks built" not in caplog.text
         assert result["thread"].is_alive() and "Traceback" not in caplog.text
+
+
+def _frames_total(page: bytes) -> float:
+    for line in page.decode().splitlines():
+        if line.startswith("edgedsm_frames_total"):
+            return float(line.split()[-1])
+    return -1.0
 
 
 def _get(request: Any, url: str) -> bytes:
