@@ -364,8 +364,19 @@ class SoakResult:
         return all(self.worst_off_s.get(kind, 0.0) <= bound for kind, bound in BOUNDS_S.items())
 
 
-def soak(minutes: float, seed: int = 1, progress: Callable[[str], None] = lambda _: None) -> SoakResult:
-    """Run the faults in turn until ``minutes`` are over (every kind at least once)."""
+def fault_due(kind: str, turn: int, kill_every: int) -> bool:
+    """Whether fault ``kind`` is injected at ``turn`` (counted over all kinds in turn): every one
+    each round, but a SIGKILL only every ``kill_every``-th round (the first included), so that one
+    daemon process lives through that many rounds of the other faults and its RSS drift covers them."""
+    return kind != "daemon SIGKILL" or (turn // len(FAULTS)) % kill_every == 0
+
+
+def soak(minutes: float, seed: int = 1, progress: Callable[[str], None] = lambda _: None,
+         kill_every: int = 1) -> SoakResult:
+    """Run the faults in turn until ``minutes`` are over (every kind at least once; a SIGKILL
+    every ``kill_every``-th round, see :func:`fault_due`)."""
+    if kill_every < 1:
+        raise ValueError(f"kill_every must be at least 1, got {kill_every}")
     rng = random.Random(seed)
     injected: dict[str, int] = defaultdict(int)
     worst: dict[str, float] = {}
@@ -385,6 +396,9 @@ def soak(minutes: float, seed: int = 1, progress: Callable[[str], None] = lambda
             turn = 0
             while turn < len(kinds) or time.monotonic() - started < minutes * 60:
                 kind = kinds[turn % len(kinds)]
+                if not fault_due(kind, turn, kill_every):
+                    turn += 1
+                    continue
                 delay = FAULTS[kind](rig, rng)
                 injected[kind] += 1
                 if delay is not None:
@@ -401,9 +415,20 @@ def soak(minutes: float, seed: int = 1, progress: Callable[[str], None] = lambda
                           rig.plant.copies, rig.plant.lost(), first, last, hours, code)
 
 
+def _rounds(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--minutes", type=float, default=5.0, help="how long to inject faults (default 5)")
     parser.add_argument("--seed", type=int, default=1, help="random seed of the fault timings")
+    parser.add_argument("--kill-every", type=_rounds, default=1, metavar="K",
+                        help="SIGKILL the daemon every K-th round of faults only, the first included "
+                             "(default 1: every round); a large K lets one daemon process live through the "
+                             "other faults, so the RSS drift covers them (a leak per reload, reconnection ...)")
     add_output_argument(parser, "docs/bench-soak.md")
 
 
@@ -422,9 +447,11 @@ def report_lines(result: SoakResult, report: Report) -> None:
 
 def run(args: argparse.Namespace) -> int:
     load = load_average()
-    result = soak(args.minutes, args.seed, progress=lambda text: print(text, flush=True))
+    result = soak(args.minutes, args.seed, progress=lambda text: print(text, flush=True), kill_every=args.kill_every)
     report = Report("Soak under faults")
-    report.line(report.machine(f"edgedsm bench soak --minutes {args.minutes:g}", load=load, load_after=load_average())
+    every = f" --kill-every {args.kill_every}" if args.kill_every != 1 else ""
+    report.line(report.machine(f"edgedsm bench soak --minutes {args.minutes:g}{every}", load=load,
+                               load_after=load_average())
                 + f" {result.minutes:.1f} minutes of faults in turn (seed {args.seed}); RSS of the longest-lived "
                   f"daemon process over {result.rss_hours * 60:.1f} minutes.")
     report.line()
