@@ -321,29 +321,29 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         mqtt.wait_connected(10)
         camera = open_camera_for(config)
         pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S), probes=instruments.probes())
-        cpu: list[float] = []
-        stopped: list[float] = []  # when the trial's seconds were up: stopping is not measured
+        # CPU time when the window filled; time and CPU time when the trial's seconds were up
+        # (stopping is not measured)
+        marks: dict[str, float] = {}
         started = time.monotonic()
 
         def should_stop() -> bool:
             now, ready_t = time.monotonic(), instruments.ready_t
-            if ready_t is not None and not cpu:
-                cpu.append(time.process_time())
+            if ready_t is not None:
+                marks.setdefault("cpu_ready", time.process_time())
             stop = (ready_t is not None and now - ready_t >= seconds) or now - started >= seconds + FILL_LIMIT_S
-            if stop and not stopped:
-                stopped.append(now)
-                cpu.append(time.process_time())
+            if stop and "stop" not in marks:
+                marks.update(stop=now, cpu_stop=time.process_time())
             return stop
 
         pipeline.run(should_stop)
-        cpu_s = (cpu[-1] if len(cpu) > 1 else time.process_time()) - (cpu[0] if cpu else 0.0)
+        cpu_s = marks.get("cpu_stop", time.process_time()) - marks.get("cpu_ready", 0.0)
         rss = instruments.rss_mib or anon_mib()
     finally:
         mqtt.close(1.0)
     ready_t, ready_at = instruments.ready_t or started, instruments.ready_at or 0
     # measured up to the stop request: the pipeline's and the sink's shutdown (up to a second or
     # two of waiting for the last evaluation and publishes) would understate every rate
-    end_t = stopped[0] if stopped else time.monotonic()
+    end_t = marks.get("stop", time.monotonic())
     wall = end_t - ready_t
 
     def within(t: float) -> bool:
