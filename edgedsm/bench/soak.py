@@ -416,7 +416,10 @@ def soak(minutes: float, seed: int = 1, progress: Callable[[str], None] = lambda
 
 
 def _rounds(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a whole number of rounds, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
     return value

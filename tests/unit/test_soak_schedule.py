@@ -37,3 +37,12 @@ def test_kill_every_below_one_is_refused(capsys: pytest.CaptureFixture[str]) -> 
     with pytest.raises(SystemExit) as info:
         parser.parse_args(["--kill-every", "0"])
     assert info.value.code == 2 and "must be at least 1" in capsys.readouterr().err
+
+
+def test_kill_every_not_a_number_is_refused_in_words(capsys: pytest.CaptureFixture[str]) -> None:
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    with pytest.raises(SystemExit) as info:
+        parser.parse_args(["--kill-every", "often"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "a whole number of rounds, got 'often'" in err and "_rounds" not in err
