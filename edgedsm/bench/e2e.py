@@ -23,15 +23,21 @@ Measured, in one run, per size:
    them would otherwise flatter the daemon: ratios above 100 % were seen with the mean).
 2. **Capacity**: the replay at rate 0 is a source that can wait; the pipeline holds it back when
    its queue is full, so frames/s is what the daemon processes at most.
-3. **Highest paced rate with zero drops** on the default queue: the replay paced into the
+3. **Capacity interleaved with the bare engine**, drift-free: one capacity trial in which the
+   pipeline thread is held between two frames (through its ``frame_taken`` probe) while the bare
+   engine, a second engine filled beforehand, pushes the same frames; phases of
+   ``PHASE_S`` alternate daemon / bare / bare / daemon ..., and each pair's ratio is taken
+   (their median is reported): the machine's drift over minutes cancels, which ratios to runs
+   before and after a 20 s trial only bound.
+4. **Highest paced rate with zero drops** on the default queue: the replay paced into the
    daemon's drop-oldest queue; bisection from 90 % of the bare engine's rate. Capacity and paced
    rates are given as ratios to the bare engine around each trial. The daemon postpones its
    statistics while the queue is half full (frames first): each trial gives the stats messages
    per second it published and how often they waited.
-4. **Latency**: from a frame entering the queue to the drying states that include it being
+5. **Latency**: from a frame entering the queue to the drying states that include it being
    judged and their alerts handed to the sink (frame → alert), and to the stats message that
    counts it (frame → stats), p50 and p99, frames after the window filled.
-5. **Cost that follows the regions** (``estimator.area = "regions"``): capacity with one
+6. **Cost that follows the regions** (``estimator.area = "regions"``): capacity with one
    region covering a decreasing fraction of the sensor, as ms per frame.
 
 Examples:
@@ -51,6 +57,7 @@ import math
 import statistics
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -75,6 +82,11 @@ WINDOW, LAG = 200, 10
 STATS_S, MAPS_S = 1.0, 10.0
 RECORDED_FRAMES = 240
 BARE_RUN_S = 6.0  # the bare engine's run after each trial (plus filling its window)
+#: Interleaved capacity: seconds per phase (below the bench config's camera.grab_timeout_s, so
+#: that a held pipeline is not a camera outage), the pause before a bare phase (the evaluation in
+#: flight ends) and the daemon's seconds at capacity before the first phase.
+PHASE_S, SETTLE_S, SETTLE_FIRST_S = 3.0, 0.3, 3.0
+PHASE_PAIRS = 8  # daemon/bare pairs (quick: half)
 FILL_LIMIT_S = 120.0  # a trial gives up when the window has not filled in this (plus its seconds)
 PIXEL_FORMATS = {"Mono8": 8, "Mono12p": 12, "Mono16": 16}
 COVERED = (1.0, 0.25, 0.0625, 0.01)  # fractions of the sensor the one region covers (area trials)
@@ -308,9 +320,11 @@ def anon_mib() -> float:
     return float("nan")
 
 
-def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: float, covered: float = 1.0) -> Trial:
+def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: float, covered: float = 1.0,
+              wrap: Callable[[PipelineProbes], PipelineProbes] | None = None) -> Trial:
     """Run the pipeline on ``config`` for ``seconds`` after its window filled (evaluations run
-    from then on) and measure over those seconds (see the module docstring)."""
+    from then on) and measure over those seconds (see the module docstring). ``wrap``: probes
+    around the instruments' (the interleaved capacity holds the pipeline thread in one)."""
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
@@ -320,7 +334,9 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
     try:
         mqtt.wait_connected(10)
         camera = open_camera_for(config)
-        pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S), probes=instruments.probes())
+        probes = instruments.probes()
+        pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S),
+                            probes=wrap(probes) if wrap else probes)
         # CPU time when the window filled; time and CPU time when the trial's seconds were up
         # (stopping is not measured)
         marks: dict[str, float] = {}
@@ -377,6 +393,101 @@ def cadence_hz(times: list[float]) -> float:
     return (len(times) - 1) / (times[-1] - times[0])
 
 
+@dataclass
+class Interleaved:
+    """Frames/s of the daemon at its capacity and of the bare engine in alternating phases of one
+    trial (daemon/bare, bare/daemon, ...): pair k is ``daemon[k]`` and ``bare[k]``."""
+
+    daemon: list[float]
+    bare: list[float]
+    drops: int = 0
+
+    @property
+    def ratios(self) -> list[float]:
+        return [d / b for d, b in zip(self.daemon, self.bare, strict=False)]
+
+    @property
+    def ratio(self) -> float:
+        """The median of the pairs' ratios (nan without a pair)."""
+        return statistics.median(self.ratios) if self.ratios else float("nan")
+
+
+class Alternation:
+    """Holds the pipeline thread between two frames while the bare engine runs, and counts the frames
+    it takes: the probe wrapper and the phases of :func:`interleaved_capacity`."""
+
+    def __init__(self, bare: Callable[[], None], pairs: int) -> None:
+        self.bare_push = bare
+        self.pairs = pairs
+        self.running = threading.Event()
+        self.running.set()
+        self.taken = 0
+        self.result = Interleaved([], [])
+        self.done = threading.Event()
+
+    def wrap(self, probes: PipelineProbes) -> PipelineProbes:
+        inner = probes.frame_taken
+
+        def taken(frame: Frame, count: int) -> None:
+            self.running.wait()  # the pipeline thread waits here during a bare phase
+            self.taken += 1
+            if inner is not None:
+                inner(frame, count)
+
+        probes.frame_taken = taken
+        return probes
+
+    def phases(self, stop: threading.Event) -> None:
+        """Once the daemon's window filled: ABBA phases (run on a thread of its own)."""
+        while self.taken < WINDOW and not stop.wait(0.1):
+            pass
+        if stop.wait(SETTLE_FIRST_S):
+            return
+        for phase in range(2 * self.pairs):
+            bare_now = phase % 2 != (phase // 2) % 2  # daemon, bare, bare, daemon, daemon, bare ...
+            if stop.is_set():
+                return
+            if bare_now:
+                self.running.clear()
+                time.sleep(SETTLE_S)
+                count, started = 0, time.monotonic()
+                while time.monotonic() - started < PHASE_S:
+                    self.bare_push()
+                    count += 1
+                self.result.bare.append(count / (time.monotonic() - started))
+                self.running.set()
+            else:
+                taken, started = self.taken, time.monotonic()
+                time.sleep(PHASE_S)
+                self.result.daemon.append((self.taken - taken) / (time.monotonic() - started))
+        self.done.set()
+
+
+def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs: int) -> Interleaved:
+    """The daemon at its capacity and the bare engine in alternating phases of one trial (see the
+    module docstring); the bare engine's window is filled before the trial."""
+    from edgedsm.estimators import SlidingWindow
+
+    stack = np.load(recording, mmap_mode="r")
+    engine = SlidingWindow(stack.shape[1:], window=WINDOW, lag=LAG, q=1.0, bits=bits)
+    frames = itertools.cycle(range(len(stack)))
+    for _ in range(WINDOW):
+        engine.push(stack[next(frames)])
+    alternation = Alternation(lambda: engine.push(stack[next(frames)]), pairs)
+    stop = threading.Event()
+    thread = threading.Thread(target=alternation.phases, args=(stop,), name="bench-phases", daemon=True)
+    thread.start()
+    seconds = SETTLE_FIRST_S + pairs * (2 * PHASE_S + SETTLE_S) + 1.0
+    try:
+        trial = run_trial("interleaved", config, rate=None, seconds=seconds, wrap=alternation.wrap)
+    finally:
+        stop.set()
+        alternation.running.set()
+        thread.join(PHASE_S + 1.0)
+    alternation.result.drops = trial.drops
+    return alternation.result
+
+
 def search_rate(run: Callable[[float], Trial], start: float, ceiling: float, max_trials: int,
                 resolution: float = 10.0, step: float = 5.0) -> list[Trial]:
     """Paced trials bisecting between the highest rate known to be sustained (0 at first) and the
@@ -421,6 +532,7 @@ class SizeResult:
     capacity: Trial
     paced: list[Trial]
     areas: list[Trial]
+    interleaved: Interleaved | None = None
 
     @property
     def best(self) -> Trial | None:
@@ -445,7 +557,7 @@ def quiet_daemon_logs() -> Iterator[None]:
 
 
 def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port: int, *, seconds: float,
-                 max_trials: int, areas: bool, say: Callable[[str], None]) -> SizeResult:
+                 max_trials: int, areas: bool, say: Callable[[str], None], pairs: int = PHASE_PAIRS) -> SizeResult:
     bits = PIXEL_FORMATS[pixel_format]
     name = f"{shape[1]}x{shape[0]}"
     say(f"{name} {pixel_format}: recording {RECORDED_FRAMES} frames ...")
@@ -473,6 +585,11 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     say(f"  bare engine, {seconds:g} s ...")
     say(f"  bare engine: {bare(seconds):.1f} frames/s")
     capacity = trial("capacity", None)
+    say(f"  capacity interleaved with the bare engine, {pairs} pairs of {PHASE_S:g} s phases ...")
+    interleaved = interleaved_capacity(recording, daemon_config(recording, port, workdir / f"state-{next(trial_id)}",
+                                                                0, bits, shape), bits, pairs)
+    say(f"  interleaved: daemon ÷ bare {', '.join(f'{r:.0%}' for r in interleaved.ratios)}; "
+        f"median {interleaved.ratio:.0%}")
     # the first paced trial is at the target, 90 % of the bare engine's latest run rounded up (so
     # that passing it shows the target met), on a grid of at most 2 % of the rate (87 % and 90 %
     # told apart at any size), bisected down to adjacent grid points
@@ -484,7 +601,7 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     covered = [trial(f"area, {100 * c:g} %", None, c) for c in COVERED] if areas else []
     recording.unlink()
     return SizeResult(shape, pixel_format, bare_runs, unpack_ms(shape, pixel_format), capacity,
-                      sorted(paced, key=lambda t: t.rate or 0.0), covered)
+                      sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -503,7 +620,8 @@ def run(args: argparse.Namespace) -> int:
             LocalBroker() as broker:
         for shape in args.size:
             results.append(measure_size(shape, args.pixel_format, Path(tmp), broker.port, seconds=seconds,
-                                        max_trials=max_trials, areas=not args.no_areas, say=say))
+                                        max_trials=max_trials, areas=not args.no_areas, say=say,
+                                        pairs=PHASE_PAIRS // 2 if args.quick else PHASE_PAIRS))
     write_report(results, args, seconds=seconds, load=load)
     return 0
 

@@ -4,6 +4,7 @@ sizes and recordings (the benchmark itself prints tables and is not run here).""
 from __future__ import annotations
 
 import argparse
+import itertools
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -108,7 +109,7 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
     assert result.bare_fps == 75.0 and capacity.bare_ratio == pytest.approx(0.92)
     assert slow.bare_ratio == pytest.approx(0.92) and fast.bare_ratio == pytest.approx(0.95)
     row = summary_row(result)
-    assert row[1] == "75 (50–100)" and row[2] == "46 (92%)" and row[3] == "95 (95%)"
+    assert row[1] == "75 (50–100)" and row[2] == "46 (92%)" and row[3] == "–" and row[4] == "95 (95%)"
     assert row[-3] == "2.00" and row[-2] == "0.75"  # the states and stats of the best zero-drop trial
     args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None)
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
@@ -127,3 +128,69 @@ def test_cadences_are_measured_from_their_intervals() -> None:
     assert cadence_hz(grid) == pytest.approx(2.0) and cadence_hz(grid[:-1]) == pytest.approx(2.0)
     assert cadence_hz([0.0, 1.0, 2.0, 6.0]) == pytest.approx(0.5)  # one gap of 4 s: 3 intervals in 6 s
     assert np.isnan(cadence_hz([5.0]))
+
+
+def test_interleaved_capacity_pairs_each_daemon_phase_with_a_bare_one() -> None:
+    from edgedsm.bench.e2e import Interleaved, SizeResult
+    from edgedsm.bench.e2e_report import summary_row, write_report
+
+    both = Interleaved(daemon=[45.0, 46.0, 44.0], bare=[50.0, 48.0, 55.0])
+    assert both.ratios == pytest.approx([0.9, 46 / 48, 0.8]) and both.ratio == pytest.approx(0.9)
+    assert np.isnan(Interleaved([], []).ratio)
+    capacity = Trial("capacity", None, 16, 1.0, 10.0, 460, 460, 0, 1.0, 100.0, bare_fps=50.0)
+    capacity.latency = {"alert": (0.4, 0.9), "stats": (0.7, 1.5)}
+    result = SizeResult((64, 64), "Mono8", [50.0, 50.0], 0.0, capacity, [], [], both)
+    assert summary_row(result)[3] == "45 ÷ 50: 90% (80%–96%, 3 pairs)"
+    args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None)
+    text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
+    assert "the daemon at its capacity ran at 90% of it (median of 3 pairs)" in text
+
+
+def test_alternation_holds_the_pipeline_thread_during_bare_phases(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Phases daemon, bare, bare, daemon: frames taken only in daemon phases, bare pushes only in
+    bare ones, each rate over its own phase."""
+    import threading
+    import time
+
+    from edgedsm.bench import e2e
+    from edgedsm.daemon.probes import PipelineProbes
+
+    monkeypatch.setattr(e2e, "PHASE_S", 0.3)
+    monkeypatch.setattr(e2e, "SETTLE_S", 0.05)
+    monkeypatch.setattr(e2e, "SETTLE_FIRST_S", 0.05)
+    monkeypatch.setattr(e2e, "WINDOW", 5)
+    log: list[str] = []
+    pushes = []
+
+    def bare() -> None:
+        pushes.append(time.monotonic())
+        log.append("bare")
+        time.sleep(0.01)
+
+    alternation = e2e.Alternation(bare, pairs=2)
+    seen: list[int] = []
+    probes = alternation.wrap(PipelineProbes(frame_taken=lambda frame, count: seen.append(count)))
+    stop = threading.Event()
+
+    def pipeline() -> None:  # the pipeline thread: a frame every 5 ms, held during bare phases
+        count = 0
+        while not stop.is_set():
+            count += 1
+            probes.frame_taken(None, count)  # type: ignore[arg-type]
+            log.append("daemon")
+            time.sleep(0.005)
+
+    worker = threading.Thread(target=pipeline, daemon=True)
+    worker.start()
+    alternation.phases(stop)
+    stop.set()
+    worker.join(1.0)
+    result = alternation.result
+    assert alternation.done.is_set() and len(result.daemon) == len(result.bare) == 2
+    assert seen == list(range(1, len(seen) + 1)) and alternation.taken == len(seen)
+    # the daemon took ~200 frames/s in its phases (a 5 ms sleep each); the bare engine ~100 pushes/s
+    assert all(50 < rate < 210 for rate in result.daemon) and all(30 < rate < 105 for rate in result.bare)
+    # the daemon's frames first and last (phases 1 and 4), the bare pushes between (phases 2 and 3)
+    runs = [key for key, _ in itertools.groupby(log)]
+    assert runs[0] == "daemon" and runs[1] == "bare" and runs[-1] == "daemon"
+    assert len(pushes) >= 2 * 0.3 * 30
