@@ -1,7 +1,9 @@
 """Public probe hooks of the pipeline, for benchmarks and tests that measure the real thing.
 
 Every callback is optional, runs on the thread named beside it and must return quickly (it
-runs inside the measurement loop). Times are monotonic seconds, durations seconds.
+runs inside the measurement loop; ``edgedsm bench e2e`` holds the pipeline thread in
+``frame_taken`` on purpose, to run the bare engine between two of its frames). Times are
+monotonic seconds, durations seconds.
 """
 
 from __future__ import annotations
