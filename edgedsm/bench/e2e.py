@@ -477,7 +477,9 @@ def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs
     stop = threading.Event()
     thread = threading.Thread(target=alternation.phases, args=(stop,), name="bench-phases", daemon=True)
     thread.start()
-    seconds = SETTLE_FIRST_S + pairs * (2 * PHASE_S + SETTLE_S) + 1.0
+    # the phases' own overshoot (a bare push past the phase's end, the wait for the window) is a
+    # fraction of a second per phase: the trial runs on well past them
+    seconds = SETTLE_FIRST_S + pairs * (2 * PHASE_S + SETTLE_S) + 5.0
     try:
         trial = run_trial("interleaved", config, rate=None, seconds=seconds, wrap=alternation.wrap)
     finally:

@@ -37,7 +37,8 @@ def _interleaved(result: SizeResult) -> str:
     if both is None or not both.ratios:
         return "–"
     return (f"{statistics.median(both.daemon):.0f} ÷ {statistics.median(both.bare):.0f}: {both.ratio:.0%} "
-            f"({min(both.ratios):.0%}–{max(both.ratios):.0%}, {len(both.ratios)} pairs)")
+            f"({min(both.ratios):.0%}–{max(both.ratios):.0%}, {len(both.ratios)} pairs"
+            f"{f', {both.drops} dropped' if both.drops else ''})")
 
 
 def summary_row(result: SizeResult) -> list[str]:

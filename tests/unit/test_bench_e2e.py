@@ -141,6 +141,9 @@ def test_interleaved_capacity_pairs_each_daemon_phase_with_a_bare_one() -> None:
     capacity.latency = {"alert": (0.4, 0.9), "stats": (0.7, 1.5)}
     result = SizeResult((64, 64), "Mono8", [50.0, 50.0], 0.0, capacity, [], [], both)
     assert summary_row(result)[3] == "45 ÷ 50: 90% (80%–96%, 3 pairs)"
+    both.drops = 2  # a source that waits drops nothing: shown if it did
+    assert summary_row(result)[3] == "45 ÷ 50: 90% (80%–96%, 3 pairs, 2 dropped)"
+    both.drops = 0
     args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None)
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
     assert "the daemon at its capacity ran at 90% of it (median of 3 pairs)" in text
