@@ -449,13 +449,15 @@ class Alternation:
                 return
             if bare_now:
                 self.running.clear()
-                time.sleep(SETTLE_S)
-                count, started = 0, time.monotonic()
-                while time.monotonic() - started < PHASE_S:
-                    self.bare_push()
-                    count += 1
-                self.result.bare.append(count / (time.monotonic() - started))
-                self.running.set()
+                try:  # whatever happens here, the pipeline thread is let go (the trial ends)
+                    time.sleep(SETTLE_S)
+                    count, started = 0, time.monotonic()
+                    while time.monotonic() - started < PHASE_S:
+                        self.bare_push()
+                        count += 1
+                    self.result.bare.append(count / (time.monotonic() - started))
+                finally:
+                    self.running.set()
             else:
                 taken, started = self.taken, time.monotonic()
                 time.sleep(PHASE_S)

@@ -197,3 +197,22 @@ def test_alternation_holds_the_pipeline_thread_during_bare_phases(monkeypatch: p
     runs = [key for key, _ in itertools.groupby(log)]
     assert runs[0] == "daemon" and runs[1] == "bare" and runs[-1] == "daemon"
     assert len(pushes) >= 2 * 0.3 * 30
+
+
+def test_alternation_lets_the_pipeline_thread_go_when_the_bare_engine_fails(monkeypatch: pytest.MonkeyPatch) -> None:
+    import threading
+
+    from edgedsm.bench import e2e
+
+    monkeypatch.setattr(e2e, "SETTLE_S", 0.0)
+    monkeypatch.setattr(e2e, "SETTLE_FIRST_S", 0.0)
+    monkeypatch.setattr(e2e, "PHASE_S", 0.05)
+    monkeypatch.setattr(e2e, "WINDOW", 0)
+
+    def broken() -> None:
+        raise MemoryError("no room for the second engine's frame")
+
+    alternation = e2e.Alternation(broken, pairs=1)
+    with pytest.raises(MemoryError):
+        alternation.phases(threading.Event())
+    assert alternation.running.is_set() and alternation.result.daemon and not alternation.result.bare
