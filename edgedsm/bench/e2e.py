@@ -71,6 +71,7 @@ from edgedsm.daemon.evaluation import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.service import open_camera_for
+from edgedsm.estimators import SlidingWindow
 from edgedsm.frames import Frame
 from edgedsm.messages import Stats
 from edgedsm.resources import data_file
@@ -130,14 +131,19 @@ def make_recording(path: Path, shape: tuple[int, int], bits: int = 8, frames: in
     return path
 
 
-def bare_engine(recording: Path, seconds: float, bits: int) -> float:
-    """Frames/s of ``SlidingWindow.push`` alone on the recording's frames (after the window filled)."""
-    from edgedsm.estimators import SlidingWindow
-
+def filled_engine(recording: Path, bits: int) -> tuple[SlidingWindow, np.ndarray]:
+    """The bare engine (the daemon's N, m and q) with its window filled from the recording, and the
+    recording's frames (memory-mapped)."""
     stack = np.load(recording, mmap_mode="r")
     engine = SlidingWindow(stack.shape[1:], window=WINDOW, lag=LAG, q=1.0, bits=bits)
     for i in range(WINDOW):
         engine.push(stack[i % len(stack)])
+    return engine, stack
+
+
+def bare_engine(recording: Path, seconds: float, bits: int) -> float:
+    """Frames/s of ``SlidingWindow.push`` alone on the recording's frames (after the window filled)."""
+    engine, stack = filled_engine(recording, bits)
     count, started = 0, time.perf_counter()
     while time.perf_counter() - started < seconds:
         engine.push(stack[count % len(stack)])
@@ -423,7 +429,6 @@ class Alternation:
         self.running.set()
         self.taken = 0
         self.result = Interleaved([], [])
-        self.done = threading.Event()
 
     def wrap(self, probes: PipelineProbes) -> PipelineProbes:
         inner = probes.frame_taken
@@ -462,20 +467,14 @@ class Alternation:
                 taken, started = self.taken, time.monotonic()
                 time.sleep(PHASE_S)
                 self.result.daemon.append((self.taken - taken) / (time.monotonic() - started))
-        self.done.set()
 
 
 def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs: int) -> Interleaved:
     """The daemon at its capacity and the bare engine in alternating phases of one trial (see the
     module docstring); the bare engine's window is filled before the trial."""
-    from edgedsm.estimators import SlidingWindow
-
-    stack = np.load(recording, mmap_mode="r")
-    engine = SlidingWindow(stack.shape[1:], window=WINDOW, lag=LAG, q=1.0, bits=bits)
-    frames = itertools.cycle(range(len(stack)))
-    for _ in range(WINDOW):
-        engine.push(stack[next(frames)])
-    alternation = Alternation(lambda: engine.push(stack[next(frames)]), pairs)
+    engine, stack = filled_engine(recording, bits)
+    frames = itertools.count(WINDOW)  # on from where the filling stopped
+    alternation = Alternation(lambda: engine.push(stack[next(frames) % len(stack)]), pairs)
     stop = threading.Event()
     thread = threading.Thread(target=alternation.phases, args=(stop,), name="bench-phases", daemon=True)
     thread.start()
