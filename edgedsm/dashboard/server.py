@@ -25,6 +25,7 @@ from pydantic import ValidationError
 from edgedsm.dashboard import maps
 from edgedsm.dashboard.history import History
 from edgedsm.dashboard.plant import Plant
+from edgedsm.publish.http_server import QuietDisconnects
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +106,7 @@ def _finite(value: Any) -> Any:
     return value
 
 
-class DashboardServer(ThreadingHTTPServer):
+class DashboardServer(QuietDisconnects, ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import sys
 import threading
 from collections.abc import Callable
 from http import HTTPStatus
@@ -31,7 +32,20 @@ MAX_HEADERS = 32
 MAX_CLIENTS = 16
 
 
-class _BoundedServer(ThreadingHTTPServer):
+class QuietDisconnects:
+    """``socketserver``'s ``handle_error`` prints a traceback to stderr (the journal) for any error
+    of a connection. A client that went away mid-request (a browser closing a keep-alive socket, a
+    scraper killed) is routine: a debug line. Any other error is logged with its traceback."""
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        error = sys.exc_info()[1]
+        if isinstance(error, ConnectionError):
+            log.debug("http: client %s went away: %s", client_address, error)
+            return
+        log.exception("http: a request from %s failed", client_address)
+
+
+class _BoundedServer(QuietDisconnects, ThreadingHTTPServer):
     """A thread per connection, at most ``MAX_CLIENTS`` at once."""
 
     daemon_threads = True
