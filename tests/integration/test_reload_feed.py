@@ -101,9 +101,15 @@ def test_a_publishing_and_thresholds_reload_keeps_session_window_and_states(
         return len({(r["activity"], r["time_to_dry_s"]) for r in within_a_state}) >= 2
 
     wait_until(republished_within_a_state, 30, "a state report republished within one state as activity moved")
+    # each combined report is followed by its per-region one: read between the two, the
+    # per-region topic is one behind, so wait (bounded) for it to catch up with the snapshot
     reports = [m.json()["regions"]["plate"] for m in scada.on(topics.state)]
-    per_region = [m.json() for m in scada.on(f"{topics.state}/plate")]
-    assert per_region[-1] == reports[-1]
+
+    def per_region() -> list[dict[str, Any]]:
+        return [m.json() for m in scada.on(f"{topics.state}/plate")]
+
+    wait_until(lambda: len(per_region()) >= len(reports), WAIT_S, "the per-region report after the combined one")
+    assert per_region()[:len(reports)] == reports
 
 
 @pytest.mark.timeout(150)
