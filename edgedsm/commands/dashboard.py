@@ -105,12 +105,13 @@ def run(args: argparse.Namespace) -> int:
           f"{dashboard.subscriber.subscription}; {'commands with token' if settings.token else 'read-only'})",
           flush=True)
     stop = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
+    previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGTERM, signal.SIGINT)}
     thread = threading.Thread(target=dashboard.serve_forever, name="dashboard-http", daemon=True)
     thread.start()
     try:
         stop.wait()
     finally:
         dashboard.stop()
+        for signum, handler in previous.items():  # in-process callers keep their handlers
+            signal.signal(signum, handler)
     return 0

@@ -35,5 +35,5 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     configure_logging(config.logging.level, config.logging.json_lines)
     service = Service(args.config, config=config)
-    service.install_signal_handlers()
-    return service.run()
+    with service.handling_signals():
+        return service.run()

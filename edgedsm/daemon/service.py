@@ -22,6 +22,7 @@ import logging
 import signal
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -83,10 +84,18 @@ class Service:
         self.laser_not_off: str | None = None  # why the laser could not be confirmed off at stop
 
     # -- signals ----------------------------------------------------------------------------
-    def install_signal_handlers(self) -> None:
-        signal.signal(signal.SIGTERM, self._on_stop_signal)
-        signal.signal(signal.SIGINT, self._on_stop_signal)
-        signal.signal(signal.SIGHUP, self._on_reload_signal)
+    @contextlib.contextmanager
+    def handling_signals(self) -> Iterator[Service]:
+        """SIGTERM/SIGINT stop and SIGHUP reloads while inside; the previous handlers are put
+        back on the way out (in-process callers, e.g. tests, keep theirs). Main thread only."""
+        handlers = {signal.SIGTERM: self._on_stop_signal, signal.SIGINT: self._on_stop_signal,
+                    signal.SIGHUP: self._on_reload_signal}
+        previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
+        try:
+            yield self
+        finally:
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
 
     def _on_stop_signal(self, signum: int, frame: FrameType | None) -> None:
         self.exit_reason = signal.Signals(signum).name
