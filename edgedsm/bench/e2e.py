@@ -65,7 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.bench.report import add_output_argument, load_average
+from edgedsm.bench.report import add_output_argument, cpu_sample, load_average, others_share
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.evaluation import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
@@ -614,6 +614,7 @@ def run(args: argparse.Namespace) -> int:
     seconds = args.seconds or (12.0 if args.quick else 20.0)
     max_trials = 3 if args.quick else 5
     load = load_average()
+    start = cpu_sample()
     results: list[SizeResult] = []
 
     def say(text: str) -> None:
@@ -625,7 +626,7 @@ def run(args: argparse.Namespace) -> int:
             results.append(measure_size(shape, args.pixel_format, Path(tmp), broker.port, seconds=seconds,
                                         max_trials=max_trials, areas=not args.no_areas, say=say,
                                         pairs=PHASE_PAIRS // 2 if args.quick else PHASE_PAIRS))
-    write_report(results, args, seconds=seconds, load=load)
+    write_report(results, args, seconds=seconds, load=load, others=others_share(start, cpu_sample()))
     return 0
 
 

@@ -64,14 +64,21 @@ def area_row(result: SizeResult, trial: Trial, full: Trial) -> list[str]:
             _pair(trial.push_ms, 1.0, 2), f"{full.fps / trial.fps:.0%}"]
 
 
+#: Above this share of the machine's CPU time taken by other work, the run counts as shared.
+SHARED_ABOVE = 0.05
+
+
 def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds: float,
-                 load: float | None) -> Report:
+                 load: float | None, others: float | None = None) -> Report:
+    """``others``: the share of the machine's CPU time other work took during the run
+    (:func:`edgedsm.bench.report.others_share`); without it the load average before the run judges."""
     report = Report("End-to-end daemon benchmark")
     sizes = ",".join(f"{r.shape[1]}x{r.shape[0]}" for r in results)
     command = f"edgedsm bench e2e --size {sizes} --pixel-format {args.pixel_format}{' --quick' if args.quick else ''}"
-    quiet = load is not None and load < 1.0
-    report.line(report.machine(command, "numba", load=load, load_after=load_average()) +
-                (" Nothing else ran on the machine during the run; still, only the ratios measured in this one "
+    quiet = others < SHARED_ABOVE if others is not None else load is not None and load < 1.0
+    took = "" if others is None else f" Other work took {others:.1%} of the machine's CPU time during the run."
+    report.line(report.machine(command, "numba", load=load, load_after=load_average()) + took +
+                (" Little else ran on the machine during the run; still, only the ratios measured in this one "
                  "run are meant to carry over to other machines." if quiet else
                  " The machine is shared: other work ran on its cores during the run, so every rate is noisy "
                  "and only the ratios measured in this one run mean much."))

@@ -33,7 +33,9 @@ import datetime
 import os
 import platform
 import sys
+import time
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +76,42 @@ def load_average() -> float | None:
         return os.getloadavg()[0]
     except OSError:
         return None
+
+
+@dataclass(frozen=True)
+class CpuSample:
+    """CPU time so far, in seconds: the whole machine's busy time (all CPUs, including time the
+    hypervisor stole) and this process's own (with its children that have been waited for)."""
+
+    busy_s: float
+    own_s: float
+    wall_s: float
+
+
+def cpu_sample() -> CpuSample | None:
+    """Now, or None where /proc/stat does not tell (not Linux)."""
+    try:
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()
+    except (OSError, IndexError):
+        return None
+    if fields[:1] != ["cpu"] or len(fields) < 9:
+        return None
+    # user nice system idle iowait irq softirq steal (guest time is inside user already)
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (int(value) for value in fields[1:9])
+    times = os.times()
+    return CpuSample(busy_s=(user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK"),
+                     own_s=times.user + times.system + times.children_user + times.children_system,
+                     wall_s=time.monotonic())
+
+
+def others_share(before: CpuSample | None, after: CpuSample | None) -> float | None:
+    """The share (0–1) of the machine's CPU time between two samples that went to other work:
+    other processes and the hypervisor's steal. Unlike the load average, this is blind to
+    what ran before the first sample (e.g. the previous benchmark's decaying load)."""
+    if before is None or after is None or after.wall_s <= before.wall_s:
+        return None
+    others = (after.busy_s - before.busy_s) - (after.own_s - before.own_s)
+    return min(1.0, max(0.0, others / ((after.wall_s - before.wall_s) * (os.cpu_count() or 1))))
 
 
 def format_load(load: float | None) -> str:

@@ -119,6 +119,11 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
     slow.bare_fps = 48.0  # the machine slower around the slower trial: a higher share of the engine
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
     assert "capacity 92% (a clean trial at a lower rate sustained 96% of the bare engine around it)." in text
+    # shared or not is judged by the CPU time others took during the run, not the load before it
+    text = "\n".join(write_report([result], args, seconds=10.0, load=3.0, others=0.02).lines)
+    assert "Other work took 2.0% of the machine's CPU time during the run. Little else ran" in text
+    text = "\n".join(write_report([result], args, seconds=10.0, load=0.1, others=0.2).lines)
+    assert "took 20.0% of the machine's CPU time during the run. The machine is shared" in text
 
 
 def test_cadences_are_measured_from_their_intervals() -> None:
