@@ -22,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 from edgedsm.bench.e2e import make_recording, parse_size
-from edgedsm.bench.report import Report, load_average
+from edgedsm.bench.report import Report, cpu_sample, load_average, machine_use, others_share
 from edgedsm.estimators.jit import configure_threading
 
 
@@ -82,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     from edgedsm.daemon.broker import LocalBroker
 
     load = load_average()
+    start = cpu_sample()
     rows = []
     with tempfile.TemporaryDirectory(prefix="edgedsm-fleet-") as tmp, LocalBroker() as broker:
         recording = make_recording(Path(tmp) / "r.npy", args.size)
@@ -98,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     report = Report("Cameras per PC")
     report.line(report.machine(f"python -m edgedsm.bench.e2e_fleet --size {args.size[1]}x{args.size[0]} "
                                f"--rate {args.rate:g}", "numba", load=load, load_after=load_average()) +
-                " Shared machine: other work ran meanwhile.")
+                machine_use(others_share(start, cpu_sample()), load))
     report.line()
     report.table(["daemons", "numba threads each", "frames/s asked each", "processed frames/s each",
                   "drops (all)", "CPU ms/frame (worst)", "CPU all daemons (2 cores = 200 %)",

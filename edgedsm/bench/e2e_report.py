@@ -7,7 +7,7 @@ import math
 import statistics
 
 from edgedsm.bench.e2e import LAG, MAPS_S, PHASE_S, RECORDED_FRAMES, STATS_S, WINDOW, SizeResult, Trial
-from edgedsm.bench.report import Report, load_average
+from edgedsm.bench.report import Report, load_average, machine_use
 
 #: The issue's target: the daemon sustains this fraction of the bare engine with zero drops.
 TARGET_RATIO = 0.9
@@ -64,10 +64,6 @@ def area_row(result: SizeResult, trial: Trial, full: Trial) -> list[str]:
             _pair(trial.push_ms, 1.0, 2), f"{full.fps / trial.fps:.0%}"]
 
 
-#: Above this share of the machine's CPU time taken by other work, the run counts as shared.
-SHARED_ABOVE = 0.05
-
-
 def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds: float,
                  load: float | None, others: float | None = None) -> Report:
     """``others``: the share of the machine's CPU time other work took during the run
@@ -75,13 +71,7 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     report = Report("End-to-end daemon benchmark")
     sizes = ",".join(f"{r.shape[1]}x{r.shape[0]}" for r in results)
     command = f"edgedsm bench e2e --size {sizes} --pixel-format {args.pixel_format}{' --quick' if args.quick else ''}"
-    quiet = others < SHARED_ABOVE if others is not None else load is not None and load < 1.0
-    took = "" if others is None else f" Other work took {others:.1%} of the machine's CPU time during the run."
-    report.line(report.machine(command, "numba", load=load, load_after=load_average()) + took +
-                (" Little else ran on the machine during the run; still, only the ratios measured in this one "
-                 "run are meant to carry over to other machines." if quiet else
-                 " The machine is shared: other work ran on its cores during the run, so every rate is noisy "
-                 "and only the ratios measured in this one run mean much."))
+    report.line(report.machine(command, "numba", load=load, load_after=load_average()) + machine_use(others, load))
     report.line()
     report.line(f"Replay of {RECORDED_FRAMES} recorded frames (looped) → the daemon's `Pipeline` (N = {WINDOW}, "
                 f"m = {LAG}, S1 + S2 + S3, two regions: the whole sensor and its centre quarter) → `MqttSink` → "

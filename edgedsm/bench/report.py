@@ -114,6 +114,21 @@ def others_share(before: CpuSample | None, after: CpuSample | None) -> float | N
     return min(1.0, max(0.0, others / ((after.wall_s - before.wall_s) * (os.cpu_count() or 1))))
 
 
+#: Above this share of the machine's CPU time taken by other work, a run counts as shared.
+SHARED_ABOVE = 0.05
+
+
+def machine_use(others: float | None, load: float | None) -> str:
+    """The sentences after the machine header that say whether other work ran during the run:
+    from ``others`` (:func:`others_share`), else from the load average before the run."""
+    quiet = others < SHARED_ABOVE if others is not None else load is not None and load < 1.0
+    took = "" if others is None else f" Other work took {others:.1%} of the machine's CPU time during the run."
+    return took + (" Little else ran on the machine during the run; still, only the ratios measured in this "
+                   "one run are meant to carry over to other machines." if quiet else
+                   " The machine is shared: other work ran on its cores during the run, so every rate is "
+                   "noisy and only the ratios measured in this one run mean much.")
+
+
 def format_load(load: float | None) -> str:
     """The load average with two decimals, or "unknown"."""
     return "unknown" if load is None else f"{load:.2f}"
