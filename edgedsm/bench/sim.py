@@ -34,7 +34,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edgedsm.analysis import contrast
-from edgedsm.bench.report import Report, add_output_argument, format_load, load_average
+from edgedsm.bench.report import (
+    SHARED_ABOVE,
+    Report,
+    add_output_argument,
+    cpu_sample,
+    format_load,
+    load_average,
+    others_share,
+)
 from edgedsm.estimators.batch import all_maps
 from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
 from edgedsm.sim.poisson import _numba as poisson_numba
@@ -263,11 +271,13 @@ def run(args: argparse.Namespace) -> int:
         if peer is not None:
             steps[f"pyspeckle/{size}"], counts[f"pyspeckle/{size}"] = peer, frames_for(size)
     print(f"timing {len(steps)} cases ...", file=sys.stderr, flush=True)
-    load_before = load_average()
+    load_before, start = load_average(), cpu_sample()
     timings = measure(steps, counts, repeats)
-    emit(f"Machine load (1-minute load average) before / after the timing: "
-         f"{format_load(load_before)} / {format_load(load_average())}; "
-         f"anything above ~0.2 means other programs shared the {os.cpu_count()} CPUs and the "
+    others = others_share(start, cpu_sample())
+    took = "unknown" if others is None else f"{others:.1%}"
+    emit(f"Other work took {took} of the machine's CPU time during the timing (1-minute load average "
+         f"before / after it: {format_load(load_before)} / {format_load(load_average())}); "
+         f"anything above ~{SHARED_ABOVE:.0%} means other programs shared the {os.cpu_count()} CPUs and the "
          "two-thread figures in particular are low.")
     emit()
 

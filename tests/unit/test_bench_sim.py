@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from edgedsm.cli import main
 
 
@@ -14,4 +16,5 @@ def test_bench_sim_quick_writes_the_tables(tmp_path, capsys):
     for heading in ("## Frames per second by effect", "## complex64 against complex128",
                     "## Peer: pyspeckle", "| base: surface + activity", "| all effects", "| S3 |"):
         assert heading in text
+    assert re.search(r"Other work took \d+\.\d% of the machine's CPU time during the timing", text)
     assert text in capsys.readouterr().out + "\n"  # printed as well as written
