@@ -59,19 +59,19 @@ def test_others_share_is_the_machine_busy_time_not_this_process() -> None:
 def test_a_busy_process_counts_as_other_work_until_it_is_ours() -> None:
     import subprocess
     import sys
-    import time
 
     from edgedsm.bench.report import cpu_sample, others_share
 
     before = cpu_sample()
-    busy = "import time\nend = time.process_time() + 0.6\nwhile time.process_time() < end: pass\ntime.sleep(60)"
-    child = subprocess.Popen([sys.executable, "-c", busy])
+    busy = ("import time\nend = time.process_time() + 0.6\nwhile time.process_time() < end: pass\n"
+            "print('spent', flush=True)\ntime.sleep(60)")
+    child = subprocess.Popen([sys.executable, "-c", busy], stdout=subprocess.PIPE, text=True)
     try:
-        time.sleep(1.2)  # its 0.6 s of CPU spent, then it sleeps, not waited for yet
-        running = cpu_sample()
+        assert child.stdout is not None and child.stdout.readline() == "spent\n"
+        running = cpu_sample()  # its 0.6 s of CPU spent, now asleep and not waited for yet
     finally:
         child.kill()
-        child.wait()
+        child.communicate()
     reaped = cpu_sample()
     assert before is not None and running is not None and reaped is not None
     child_cpu = reaped.own_s - running.own_s  # its CPU time joins ours once waited for
