@@ -30,6 +30,7 @@ from edgedsm.commands import broker_options
 from edgedsm.commands.broker_options import add_credential_options, host_port
 from edgedsm.errors import ConfigError
 from edgedsm.publish.settings import MqttSettings, resolve_password
+from edgedsm.signals import handling
 
 NAME = "dashboard"
 HELP = "serve the live plant dashboard (maps, regions, drying curves, alerts) for every daemon on a broker"
@@ -105,13 +106,11 @@ def run(args: argparse.Namespace) -> int:
           f"{dashboard.subscriber.subscription}; {'commands with token' if settings.token else 'read-only'})",
           flush=True)
     stop = threading.Event()
-    previous = {signum: signal.signal(signum, lambda *_: stop.set()) for signum in (signal.SIGTERM, signal.SIGINT)}
-    thread = threading.Thread(target=dashboard.serve_forever, name="dashboard-http", daemon=True)
-    thread.start()
-    try:
-        stop.wait()
-    finally:
-        dashboard.stop()
-        for signum, handler in previous.items():  # in-process callers keep their handlers
-            signal.signal(signum, handler)
+    with handling({signal.SIGTERM: lambda *_: stop.set(), signal.SIGINT: lambda *_: stop.set()}):
+        thread = threading.Thread(target=dashboard.serve_forever, name="dashboard-http", daemon=True)
+        thread.start()
+        try:
+            stop.wait()
+        finally:
+            dashboard.stop()
     return 0

@@ -40,6 +40,7 @@ from edgedsm.errors import ConfigError, DeviceError
 from edgedsm.messages import Alert, AlertKind
 from edgedsm.publish.commands import Command
 from edgedsm.publish.sink import Sink
+from edgedsm.signals import handling
 
 log = logging.getLogger(__name__)
 
@@ -88,14 +89,9 @@ class Service:
     def handling_signals(self) -> Iterator[Service]:
         """SIGTERM/SIGINT stop and SIGHUP reloads while inside; the previous handlers are put
         back on the way out (in-process callers, e.g. tests, keep theirs). Main thread only."""
-        handlers = {signal.SIGTERM: self._on_stop_signal, signal.SIGINT: self._on_stop_signal,
-                    signal.SIGHUP: self._on_reload_signal}
-        previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
-        try:
+        with handling({signal.SIGTERM: self._on_stop_signal, signal.SIGINT: self._on_stop_signal,
+                       signal.SIGHUP: self._on_reload_signal}):
             yield self
-        finally:
-            for signum, handler in previous.items():
-                signal.signal(signum, handler)
 
     def _on_stop_signal(self, signum: int, frame: FrameType | None) -> None:
         self.exit_reason = signal.Signals(signum).name
