@@ -67,7 +67,8 @@ def test_fake_gige_camera_killed_and_restarted_twice(
         down = _stats_between(plant, wall_off + 0.6, wall_restarted)
         assert down, "no stats while the camera was down"
         assert all(s["laser"] == "off" and s["state"]["plate"] == "fault" for s in down), down
-        assert len(plant.fault_alerts()) == outage, plant.distinct_alerts()
+        # the daemon's log too: which path raised an extra fault is in it (seen once in CI)
+        assert len(plant.fault_alerts()) == outage, (plant.distinct_alerts(), daemon.log[-6000:])
 
     code, _ = daemon.terminate()
     assert code == 0, daemon.log
