@@ -32,6 +32,20 @@ class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, allow_inf_nan=False)
 
 
+def same_settings(a: Any, b: Any) -> bool:
+    """Whether two config values (a model, a list of models, None) hold the same settings.
+
+    Only the fields count: pydantic's ``==`` also compares private attributes, and a section
+    caches what it derived (a parsed URI) in them once used, so a running section never equals
+    the same section read again from the same file.
+    """
+    if isinstance(a, BaseModel) or isinstance(b, BaseModel):
+        return type(a) is type(b) and a.model_dump() == b.model_dump()
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(same_settings(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
 def format_validation_error(error: ValidationError, source: str, data: Any = None) -> str:
     """One line per problem: ``source: key.path: reason``."""
     lines = []

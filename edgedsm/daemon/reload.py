@@ -17,6 +17,7 @@ from pathlib import Path
 from edgedsm.config import DaemonConfig, load_config
 from edgedsm.devices.laser import open_relay
 from edgedsm.errors import ConfigError, DeviceError, EdgedsmError
+from edgedsm.validation import same_settings
 
 log = logging.getLogger(__name__)
 
@@ -107,8 +108,9 @@ THRESHOLD_FIELDS = frozenset({"wet_above", "dry_below", "wet_below_s", "dry_abov
 
 
 def changed_sections(new: DaemonConfig, running: DaemonConfig) -> list[str]:
-    """The config sections that differ, in the table's order."""
-    return [name for name in SECTION_CHANGE if getattr(new, name) != getattr(running, name)]
+    """The config sections whose settings differ, in the table's order (cached, derived state
+    such as a parsed URI does not count: :func:`~edgedsm.validation.same_settings`)."""
+    return [name for name in SECTION_CHANGE if not same_settings(getattr(new, name), getattr(running, name))]
 
 
 def _geometry(config: DaemonConfig) -> list[tuple[str, dict[str, object]]]:

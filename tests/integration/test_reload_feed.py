@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import time
@@ -33,6 +34,7 @@ from helpers_daemon import (
     write_config,
 )
 from helpers_mqtt import WAIT_S, Broker, Subscriber, wait_until
+from helpers_relay import NumatoBoard, open_pty_pair
 
 from edgedsm.publish import Topics
 
@@ -110,6 +112,43 @@ def test_a_publishing_and_thresholds_reload_keeps_session_window_and_states(
 
     wait_until(lambda: len(per_region()) >= len(reports), WAIT_S, "the per-region report after the combined one")
     assert per_region()[:len(reports)] == reports
+
+
+@pytest.mark.timeout(150)
+@pytest.mark.parametrize("relay", ["sim", "numato"])
+def test_a_reload_of_the_unchanged_file_keeps_window_states_and_laser(
+        tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber],
+        daemons: Callable[..., Daemon], relay: str) -> None:
+    # The running config has read its relay URI (its parsed spec is cached); the file read
+    # again must still count as unchanged, whatever the relay.
+    with contextlib.ExitStack() as stack:
+        board = None
+        if relay == "sim":
+            uri = f"sim:reload-{uuid.uuid4().hex[:6]}"
+        else:
+            pair = stack.enter_context(open_pty_pair(tmp_path))
+            board = NumatoBoard(pair.board, channel=11)
+            board.start()
+            stack.callback(board.stop)
+            uri = f"serial:{pair.app}?protocol=numato&channel=11"
+        _, _, topics, scada, daemon = _feed(tmp_path, broker, subscribers, daemons, laser={"uri": uri})
+        frames_before = wait_frames_beyond(scada, topics, 0)
+        alerts_before = len(distinct_alerts(scada, topics))
+        states_before = len(scada.on(topics.state))
+
+        daemon.signal(signal.SIGHUP)  # the file as it is
+        daemon.wait_log(r"configuration reloaded", WAIT_S)
+        wait_frames_beyond(scada, topics, frames_before + 60)
+
+        after_reload = daemon.log.split("configuration reloaded", 1)[1]
+        assert after_reload.startswith(" from ") and "(changed: nothing); measurement kept" in after_reload, daemon.log
+        assert "measurement restarted" not in after_reload
+        new_alerts = distinct_alerts(scada, topics)[alerts_before:]
+        assert [a["type"] for a in new_alerts if a["type"] != "transition"] == [], new_alerts
+        assert "warming_up" not in region_states(scada.on(topics.state)[states_before:], "plate")
+        assert _availability(scada, topics) == [b"online"]
+        if board is not None:
+            assert board.errors == [] and board.is_on  # still measuring, never switched by the reload
 
 
 @pytest.mark.timeout(150)

@@ -124,3 +124,17 @@ def test_one_device_name_default_for_daemon_watch_cmd_dashboard_sparkplug(tmp_pa
     cmd_args = parser.parse_args(["laser"])  # every option at its default
     assert Topics.from_settings(cmd.settings_of(cmd_args)).base == f"edgedsm/{DEFAULT_DEVICE}"
     assert list(regions_from_configs([path])) == [DEFAULT_DEVICE]
+
+
+@pytest.mark.parametrize("laser", ["sim:line3", "serial:/dev/ttyUSB0?protocol=lcus&channel=1"])
+def test_an_unchanged_file_changes_nothing_once_its_specs_were_read(tmp_path: Path, laser: str) -> None:
+    # the running config has parsed its camera and relay URIs (cached on the sections); a fresh
+    # parse of the same file has not: the sections' settings are still the same
+    running = config(tmp_path, extra=f'\n[laser]\nuri = "{laser}"\n')
+    assert running.laser is not None
+    running.laser.spec, running.camera.spec  # noqa: B018  (what the daemon reads while running)
+    new = config(tmp_path, extra=f'\n[laser]\nuri = "{laser}"\n')
+    assert changed_sections(new, running) == []
+    assert restart_reasons(new, running) == []
+    moved = config(tmp_path, extra='\n[laser]\nuri = "sim:other"\n')
+    assert restart_reasons(moved, running) == ["laser"]
