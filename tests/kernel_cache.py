@@ -1,5 +1,5 @@
 """Compile the daemon's kernels into numba's disk cache in a separate process, as a daemon's
-start does (``Evaluation.warm_up``), and say which kernels that process did not find there."""
+start does (``edgedsm.daemon.engine_budget.warm_up``), and say which kernels that process did not find there."""
 
 from __future__ import annotations
 
@@ -12,15 +12,12 @@ REPO = Path(__file__).resolve().parents[1]
 
 PROBE = r"""
 import gc, json, sys
-from collections import Counter
 from numba.core.registry import CPUDispatcher
 from edgedsm.config import DaemonConfig
-from edgedsm.daemon.evaluation import Evaluation
-from edgedsm.messages import Clock
-from edgedsm.publish.sink import RecordingSink
+from edgedsm.daemon.engine_budget import warm_up
 from edgedsm.validation import validate
 config = validate(DaemonConfig, json.loads(sys.argv[1]), "<warm start>")
-Evaluation(config, RecordingSink(), Clock(), Counter())
+warm_up(config)
 missed = sorted({obj.py_func.__qualname__ for obj in gc.get_objects()
                  if isinstance(obj, CPUDispatcher) and obj._cache.__class__.__name__ != "NullCache"
                  and obj.stats.cache_misses})

@@ -23,16 +23,13 @@ Examples:
 
 from __future__ import annotations
 
-import argparse
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from scipy import ndimage, optimize, special
 
 from edgedsm.analysis import contrast
-from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.estimators import SlidingWindow, all_maps, tau_c
 from edgedsm.report.measures import auc
 from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
@@ -293,23 +290,3 @@ def measure(plan: Plan) -> Results:
     measure_step(plan, results)
     measure_smoothing(plan, results)
     return results
-
-
-# ----------------------------------------------------------------------------- command
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--quick", action="store_true", help="small frames and short sweeps (about a minute)")
-    add_output_argument(parser, "docs/accuracy.md")
-
-
-def run(args: argparse.Namespace) -> int:
-    from edgedsm.bench.accuracy_report import write_report
-
-    load = load_average()
-    plan = QUICK if args.quick else FULL
-    results = measure(plan)
-    report = Report("Accuracy against time")
-    figures = Path(args.output).with_suffix("") if args.output else None
-    write_report(report, results, load, "edgedsm bench accuracy" + (" --quick" if args.quick else ""), figures)
-    if args.output:
-        report.save(args.output)
-    return 0

@@ -1,23 +1,29 @@
-"""The markdown tables and figures of `edgedsm bench accuracy` (docs/accuracy.md)."""
+"""``edgedsm bench accuracy``: the command, and the markdown tables and figures of what
+:mod:`edgedsm.bench.accuracy` measured (docs/accuracy.md)."""
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
 
+from edgedsm.bench import accuracy
 from edgedsm.bench.accuracy import (
     ESTIMATORS,
+    FULL,
     LABELS,
     MODES,
     NOISE,
+    QUICK,
     STEP_FROM,
     STEP_TO,
     TAU_FAST,
     TAU_SLOW,
     Results,
+    measure,
 )
-from edgedsm.bench.report import Report, load_average
+from edgedsm.bench.report import Report, add_output_argument, load_average
 
 
 def _f(value: float, digits: int = 3) -> str:
@@ -287,3 +293,26 @@ def how_to_choose(results: Results) -> list[str]:
         f"| noisy maps, regions larger than a few px | box smoothing k = 3–5 | CNR {c1:.1f} → {c3:.1f} (k = 3) → "
         f"{c5:.1f} (k = 5) while the edge widens {w1:.1f} → {w3:.1f} → {w5:.1f} px (table 4) |",
     ]
+
+
+# ----------------------------------------------------------------------------- command
+HELP = accuracy.HELP
+#: the command's --help text: what the benchmark measures (the measuring module's docstring)
+DESCRIPTION = accuracy.__doc__
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="small frames and short sweeps (about a minute)")
+    add_output_argument(parser, "docs/accuracy.md")
+
+
+def run(args: argparse.Namespace) -> int:
+    load = load_average()
+    plan = QUICK if args.quick else FULL
+    results = measure(plan)
+    report = Report("Accuracy against time")
+    figures = Path(args.output).with_suffix("") if args.output else None
+    write_report(report, results, load, "edgedsm bench accuracy" + (" --quick" if args.quick else ""), figures)
+    if args.output:
+        report.save(args.output)
+    return 0

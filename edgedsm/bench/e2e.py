@@ -55,8 +55,6 @@ import itertools
 import logging
 import math
 import statistics
-import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -65,12 +63,11 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.bench.report import add_output_argument, cpu_sample, load_average, others_share
 from edgedsm.config import DaemonConfig
-from edgedsm.daemon.evaluation import Snapshot
+from edgedsm.daemon.devices import open_camera_for
+from edgedsm.daemon.handover import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.service import open_camera_for
 from edgedsm.estimators import SlidingWindow
 from edgedsm.frames import Frame
 from edgedsm.messages import Stats
@@ -605,39 +602,4 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     recording.unlink()
     return SizeResult(shape, pixel_format, bare_runs, unpack_ms(shape, pixel_format), capacity,
                       sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved)
-
-
-def run(args: argparse.Namespace) -> int:
-    from edgedsm.bench.e2e_report import write_report
-    from edgedsm.daemon.broker import LocalBroker
-
-    seconds = args.seconds or (12.0 if args.quick else 20.0)
-    max_trials = 3 if args.quick else 5
-    load = load_average()
-    start = cpu_sample()
-    results: list[SizeResult] = []
-
-    def say(text: str) -> None:
-        print(text, file=sys.stderr, flush=True)
-
-    with tempfile.TemporaryDirectory(prefix="edgedsm-bench-e2e-") as tmp, quiet_daemon_logs(), \
-            LocalBroker() as broker:
-        for shape in args.size:
-            results.append(measure_size(shape, args.pixel_format, Path(tmp), broker.port, seconds=seconds,
-                                        max_trials=max_trials, areas=not args.no_areas, say=say,
-                                        pairs=PHASE_PAIRS // 2 if args.quick else PHASE_PAIRS))
-    write_report(results, args, seconds=seconds, load=load, others=others_share(start, cpu_sample()))
-    return 0
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--size", type=lambda text: [parse_size(part) for part in text.split(",")],
-                        default=[(2048, 2048)], metavar="WxH[,WxH]",
-                        help="frame sizes, e.g. 2048x2048,4096x2168 (the paper's camera); default 2048x2048")
-    parser.add_argument("--pixel-format", choices=tuple(PIXEL_FORMATS), default="Mono8",
-                        help="pixel format of the replayed frames (default Mono8)")
-    parser.add_argument("--quick", action="store_true", help="shorter trials (12 s), fewer paced rates")
-    parser.add_argument("--seconds", type=float, metavar="S", help="seconds per trial (default 20; quick 12)")
-    parser.add_argument("--no-areas", action="store_true", help="leave out the estimator.area = regions trials")
-    add_output_argument(parser, "docs/bench-e2e.md")
 

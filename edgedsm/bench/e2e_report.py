@@ -1,13 +1,31 @@
-"""The report of ``edgedsm bench e2e``: tables of what :mod:`edgedsm.bench.e2e` measured."""
+"""``edgedsm bench e2e``: the command, and the report of what :mod:`edgedsm.bench.e2e` measured."""
 
 from __future__ import annotations
 
 import argparse
 import math
 import statistics
+import sys
+import tempfile
+from pathlib import Path
 
-from edgedsm.bench.e2e import LAG, MAPS_S, PHASE_S, RECORDED_FRAMES, STATS_S, WINDOW, SizeResult, Trial
-from edgedsm.bench.report import Report, load_average, machine_use
+from edgedsm.bench import e2e
+from edgedsm.bench.e2e import (
+    LAG,
+    MAPS_S,
+    PHASE_PAIRS,
+    PHASE_S,
+    PIXEL_FORMATS,
+    RECORDED_FRAMES,
+    STATS_S,
+    WINDOW,
+    SizeResult,
+    Trial,
+    measure_size,
+    parse_size,
+    quiet_daemon_logs,
+)
+from edgedsm.bench.report import Report, add_output_argument, cpu_sample, load_average, machine_use, others_share
 
 #: The issue's target: the daemon sustains this fraction of the bare engine with zero drops.
 TARGET_RATIO = 0.9
@@ -151,3 +169,43 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     if args.output:
         report.save(args.output)
     return report
+
+
+# -- the command -------------------------------------------------------------------------------
+HELP = e2e.HELP
+#: the command's --help text: what the benchmark measures (the measuring module's docstring)
+DESCRIPTION = e2e.__doc__
+
+
+def run(args: argparse.Namespace) -> int:
+    from edgedsm.daemon.broker import LocalBroker
+
+    seconds = args.seconds or (12.0 if args.quick else 20.0)
+    max_trials = 3 if args.quick else 5
+    load = load_average()
+    start = cpu_sample()
+    results: list[SizeResult] = []
+
+    def say(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    with tempfile.TemporaryDirectory(prefix="edgedsm-bench-e2e-") as tmp, quiet_daemon_logs(), \
+            LocalBroker() as broker:
+        for shape in args.size:
+            results.append(measure_size(shape, args.pixel_format, Path(tmp), broker.port, seconds=seconds,
+                                        max_trials=max_trials, areas=not args.no_areas, say=say,
+                                        pairs=PHASE_PAIRS // 2 if args.quick else PHASE_PAIRS))
+    write_report(results, args, seconds=seconds, load=load, others=others_share(start, cpu_sample()))
+    return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--size", type=lambda text: [parse_size(part) for part in text.split(",")],
+                        default=[(2048, 2048)], metavar="WxH[,WxH]",
+                        help="frame sizes, e.g. 2048x2048,4096x2168 (the paper's camera); default 2048x2048")
+    parser.add_argument("--pixel-format", choices=tuple(PIXEL_FORMATS), default="Mono8",
+                        help="pixel format of the replayed frames (default Mono8)")
+    parser.add_argument("--quick", action="store_true", help="shorter trials (12 s), fewer paced rates")
+    parser.add_argument("--seconds", type=float, metavar="S", help="seconds per trial (default 20; quick 12)")
+    parser.add_argument("--no-areas", action="store_true", help="leave out the estimator.area = regions trials")
+    add_output_argument(parser, "docs/bench-e2e.md")

@@ -19,8 +19,8 @@ import importlib
 NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
 SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices",
-          "e2e": "edgedsm.bench.e2e", "ambient": "edgedsm.bench.ambient", "soak": "edgedsm.bench.soak",
-          "accuracy": "edgedsm.bench.accuracy"}
+          "e2e": "edgedsm.bench.e2e_report", "ambient": "edgedsm.bench.ambient", "soak": "edgedsm.bench.soak",
+          "accuracy": "edgedsm.bench.accuracy_report"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             if exc.name == module_name:
                 continue
             raise
-        suite = sub.add_parser(name, help=module.HELP, description=module.__doc__,
+        suite = sub.add_parser(name, help=module.HELP, description=getattr(module, "DESCRIPTION", module.__doc__),
                                formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(suite)
         suite.set_defaults(bench_run=module.run)

@@ -3,8 +3,9 @@ drying-state machine → typed messages to one sink, with the laser switched as 
 plan says.
 
 Composed of :mod:`capture` (the capture thread and its drop-oldest queue, camera reconnection),
-:mod:`acquisition` (laser, dark frames, bursts: whether frames are wanted now) and
-:mod:`evaluation` (the engine; statistics, states and messages on an evaluator thread).
+:mod:`acquisition` (laser, dark frames, bursts: whether frames are wanted now),
+:mod:`measurement` (the engine and the regions, on the pipeline thread: a snapshot at each
+evaluation) and :mod:`evaluator` (statistics, drying states and messages on the evaluator thread).
 
 Threads: the capture thread fills the queue; the thread that calls :meth:`Pipeline.run` (the
 pipeline thread) takes frames, drives the laser and the engine, handles commands (queued to it
@@ -41,8 +42,12 @@ from typing import Any
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.acquisition import Acquisition
 from edgedsm.daemon.capture import Capture
-from edgedsm.daemon.evaluation import Evaluation, Status
+from edgedsm.daemon.engine_budget import warm_up
+from edgedsm.daemon.evaluator import Evaluator
+from edgedsm.daemon.handover import Status
+from edgedsm.daemon.measurement import Measurement
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.tau import TauRegions
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.laser.base import LaserRelay
 from edgedsm.errors import EdgedsmError
@@ -100,10 +105,13 @@ class Pipeline:
         self.probes = probes or PipelineProbes()
         self.counters: Counter[str] = Counter()
         self.capture = Capture(camera, config.camera, config.acquisition, self.counters, self.probes)
-        self.evaluation = Evaluation(config, sink, self.clock, self.counters, self.probes)
+        warm_up(config)
+        tau = TauRegions(config)  # τc: frame interval, region pixels (edgedsm.daemon.tau); both threads read it
+        self.evaluator = Evaluator(config, tau, sink, self.clock, self.counters, self.probes)
+        self.measurement = Measurement(config, tau, self.evaluator.map_buffers, self.counters, self.probes)
         self.acquisition = Acquisition(config.acquisition, relay, self.counters, self.clock.monotonic,
                                        on_fault=self._device_fault,
-                                       relit=lambda: self.evaluation.reset("laser on", states=False),
+                                       relit=lambda: self.restart("laser on", states=False),
                                        burst_ended=lambda now: self._evaluate(now))
         self.lit_level: float | None = None
         self._commands: queue.Queue[tuple[str, dict[str, Any], Future[dict[str, Any]]]] = queue.Queue()
@@ -158,7 +166,7 @@ class Pipeline:
             self._urgent = self._urgent or acq.laser != before
             return reply
         if name == "rebaseline":
-            self.evaluation.reset("command rebaseline")
+            self.restart("command rebaseline")
             return {"ok": True}
         if name == "dark":
             refusal = acq.dark_refusal()
@@ -174,7 +182,29 @@ class Pipeline:
     @property
     def frame_shape(self) -> tuple[int, int] | None:
         """The camera's frame (rows, columns), once a frame came."""
-        return self.evaluation.frame_shape
+        return self.measurement.frame_shape
+
+    def apply(self, config: DaemonConfig, cadence: Cadence) -> None:
+        """A reload that keeps the measurement (``edgedsm.daemon.reload``): the new thresholds go
+        to the running state machines (their states, dwell and trend history kept), the new
+        cadence to the running loop."""
+        self.evaluator.apply(config)
+        self.cadence.stats_every_s = cadence.stats_every_s
+        self.cadence.maps_every_s = cadence.maps_every_s
+        self.config = self.measurement.config = config
+
+    def restart(self, why: str, states: bool = True) -> None:
+        """Empty the estimator window; with ``states``, every region goes back to warming up,
+        announced as one ``reset`` alert."""
+        self.measurement.restart()
+        if states:
+            self.evaluator.restart_states(why)
+        else:
+            log.info("measurement restarted (%s)", why)
+
+    def publish_alert(self, alert: Alert) -> None:
+        """Hand an alert to the sinks, in order with the evaluations (any thread)."""
+        self.evaluator.publish_alert(alert)
 
     def request_maps(self) -> None:
         """Publish the maps at the next evaluation, whatever the cadence (pipeline thread)."""
@@ -185,7 +215,7 @@ class Pipeline:
         frame = self.capture.take(timeout_s)
         if frame is None:
             return None
-        self.evaluation.prepare(frame)  # at the first frame: regions checked before the laser goes on
+        self.measurement.prepare(frame)  # at the first frame: regions checked before the laser goes on
         self._last_frame_t = self.clock.monotonic()
         self.counters["frames"] += 1
         self._frames_t.append(self._last_frame_t)
@@ -199,11 +229,11 @@ class Pipeline:
     def _device_fault(self, reason: str) -> None:
         """A fault of the whole device (laser relay, camera): one alert, the stats at once."""
         self._urgent = True
-        self.evaluation.publish_alert(Alert(kind=AlertKind.FAULT, t=self.clock.wall(), reason=reason))
+        self.publish_alert(Alert(kind=AlertKind.FAULT, t=self.clock.wall(), reason=reason))
 
     def _push(self, frame: Frame) -> None:
         started = time.perf_counter()
-        if not self.evaluation.push(frame, self.acquisition.dark):
+        if not self.measurement.push(frame, self.acquisition.dark):
             return
         if self.probes.frame_pushed is not None:
             self.probes.frame_pushed(frame, time.monotonic(), time.perf_counter() - started)
@@ -220,6 +250,8 @@ class Pipeline:
     # -- evaluation ---------------------------------------------------------------------------------
     def _evaluate(self, now: float, wait: bool = False, stats_due: bool = True) -> bool:
         """Hand a snapshot to the evaluator; False if skipped (the previous one still runs)."""
+        if not self.evaluator.idle(wait):
+            return False  # tried again at the next loop; the fault to report is kept for it
         fault = self._outage or self._fault
         self._fault = None
         status = Status(now=now, frames=self.counters["frames"], fps=self._fps(), laser=self.acquisition.laser,
@@ -227,10 +259,11 @@ class Pipeline:
                         camera=dict(self.camera.stats), ambient_level=self.acquisition.ambient_level,
                         warning=self._ambient_warning(), fault=fault)
         maps_due = now - self._last_maps_t >= self.cadence.maps_every_s
-        snapshot = self.evaluation.evaluate(status, maps_due, wait=wait, stats_due=stats_due)
-        if snapshot is not None and snapshot.publish_maps:
+        snapshot = self.measurement.snapshot(status, maps_due, stats_due, self.evaluator.generation)
+        self.evaluator.submit(snapshot, wait=wait)
+        if snapshot.publish_maps:
             self._last_maps_t = now
-        return snapshot is not None
+        return True
 
     def _ambient_warning(self) -> str | None:
         ambient = self.acquisition.ambient_level
@@ -246,7 +279,7 @@ class Pipeline:
         """One line for systemd's STATUS: rate, frames, drops and the state of each region."""
         drops = sum(v for k, v in self.counters.items() if k.startswith("dropped"))
         return (f"{self._fps():.1f} frames/s, {self.counters['frames']} frames, {drops} dropped, "
-                f"laser {self.acquisition.laser}; {self.evaluation.states_line()}")
+                f"laser {self.acquisition.laser}; {self.evaluator.states_line()}")
 
     # -- main loop ----------------------------------------------------------------------------------
     def run(self, should_stop: Callable[[], bool], max_frames: int | None = None) -> None:
@@ -297,7 +330,8 @@ class Pipeline:
         finally:
             capture.request_stop()  # joined below, once the laser is off
             acq.switch_off("stop")
-            self.evaluation.finish()
+            self.evaluator.finish()
+            self.measurement.release()
             capture.stop(timeout_s=1.0)
 
     def _frames_first(self, now: float) -> bool:
@@ -350,5 +384,5 @@ class Pipeline:
             return False
         log.warning("camera back: frames flowed for %.1f s", now - self._back_since)
         self._outage, self._back_since = None, None
-        self.evaluation.reset("camera back", states=False)  # the fault covered it
+        self.restart("camera back", states=False)  # the fault covered it
         return True

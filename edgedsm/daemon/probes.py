@@ -10,13 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
+from edgedsm.daemon.handover import Snapshot
 from edgedsm.frames import Frame
 from edgedsm.messages import Stats
-
-if TYPE_CHECKING:
-    from edgedsm.daemon.evaluation import Snapshot
 
 
 @dataclass

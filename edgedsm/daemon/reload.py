@@ -15,6 +15,7 @@ import logging
 from pathlib import Path
 
 from edgedsm.config import DaemonConfig, load_config
+from edgedsm.daemon.devices import open_camera_for
 from edgedsm.devices.laser import open_relay
 from edgedsm.errors import ConfigError, DeviceError, EdgedsmError
 from edgedsm.validation import same_settings
@@ -32,8 +33,6 @@ def _same_camera(new: DaemonConfig, running: DaemonConfig) -> bool:
 
 def _probe_frame_shape(config: DaemonConfig) -> tuple[int, int]:
     """Open the configured camera, take one frame, close it: the frame's (rows, columns)."""
-    from edgedsm.daemon.service import open_camera_for
-
     camera = open_camera_for(config)
     try:
         camera.open()
@@ -51,8 +50,6 @@ def check_reload(path: Path, running: DaemonConfig, running_shape: tuple[int, in
 
     ``running_shape``: the running camera's frame shape (None before its first frame).
     """
-    from edgedsm.daemon.service import open_camera_for
-
     try:
         new = load_config(path)
     except ConfigError as exc:

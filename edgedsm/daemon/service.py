@@ -28,14 +28,12 @@ from types import FrameType
 from typing import Any
 
 from edgedsm.config import DaemonConfig, load_config
+from edgedsm.daemon.devices import couple_simulated_laser, open_camera_for
 from edgedsm.daemon.notify import Notifier
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.reload import ReloadRefused, changed_sections, check_reload, restart_reasons
 from edgedsm.daemon.sinks import SinkSet, make_sink  # noqa: F401 (make_sink: the daemon's sinks, for tests)
-from edgedsm.devices.camera.base import Camera
-from edgedsm.devices.camera.sim import SimulatedCamera
-from edgedsm.devices.camera.uri import open_camera
-from edgedsm.devices.laser import LaserRelay, LaserSafety, SimulatedRelay, open_relay
+from edgedsm.devices.laser import LaserSafety, open_relay
 from edgedsm.errors import ConfigError, DeviceError
 from edgedsm.messages import Alert, AlertKind
 from edgedsm.publish.commands import Command
@@ -52,18 +50,6 @@ FINAL_MAPS_TIMEOUT_S = 5.0
 
 #: Exit status when the laser could not be confirmed off at stop (sysexits EX_UNAVAILABLE).
 EXIT_LASER_NOT_OFF = 69
-
-
-def open_camera_for(config: DaemonConfig) -> Camera:
-    """The configured camera, built from the spec the config parsed (paths already resolved)."""
-    return open_camera(config.camera.spec)
-
-
-def couple_simulated_laser(camera: Camera, relay: LaserRelay | None) -> None:
-    """A simulated camera sees speckle only while the simulated laser's contact is closed."""
-    if isinstance(camera, SimulatedCamera) and isinstance(relay, SimulatedRelay):
-        board = relay.board
-        camera.illuminated = lambda: board.is_on
 
 
 class Service:
@@ -147,7 +133,7 @@ class Service:
             self._reloaded = True
             return True
         if pipeline is not None:
-            apply_in_place(pipeline, new, self._cadence(new))
+            pipeline.apply(new, self._cadence(new))
         self.config = new
         log.warning("configuration reloaded from %s (changed: %s); measurement kept", self.config_path, what)
         self.notifier.ready(status=f"measuring with {new.camera.uri} (reloaded)")
@@ -158,7 +144,7 @@ class Service:
         summary = reason.splitlines()[0].rstrip(":")
         if self.pipeline is not None:
             why = f"reload refused, running configuration kept: {reason}"
-            self.pipeline.evaluation.publish_alert(Alert(kind=AlertKind.WARNING, t=time.time(), reason=why))
+            self.pipeline.publish_alert(Alert(kind=AlertKind.WARNING, t=time.time(), reason=why))
         self.notifier.ready(status=f"reload refused: {summary} (see the log)")
 
     # -- running ----------------------------------------------------------------------------
@@ -269,15 +255,3 @@ class Service:
             return Cadence()
         return Cadence(stats_every_s=config.mqtt.stats_interval_s, maps_every_s=config.mqtt.maps_interval_s)
 
-
-def apply_in_place(pipeline: Pipeline, config: DaemonConfig, cadence: Cadence) -> None:
-    """A reload that keeps the measurement: the new thresholds go to the running state machines
-    (their states, dwell and trend history kept), the new cadence to the running loop."""
-    thresholds = {region.name: region.thresholds() for region in config.regions}
-    evaluation = pipeline.evaluation
-    with evaluation.monitor_lock:
-        for name, machine in evaluation.monitor.regions.items():
-            machine.thresholds = thresholds[name]
-    pipeline.cadence.stats_every_s = cadence.stats_every_s
-    pipeline.cadence.maps_every_s = cadence.maps_every_s
-    pipeline.config = evaluation.config = config

@@ -9,7 +9,7 @@ import pytest
 
 from edgedsm.cli import main
 from edgedsm.config import check_regions, load_config, load_relay_spec
-from edgedsm.daemon.service import open_camera_for
+from edgedsm.daemon.devices import open_camera_for
 from edgedsm.devices.camera.replay import ReplayCamera
 from edgedsm.devices.camera.sim import SimulatedCamera
 from edgedsm.devices.camera.uri import CameraSpec, known_frame_shape

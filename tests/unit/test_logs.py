@@ -139,12 +139,12 @@ def journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[socket.
 
 def test_the_journal_gets_one_entry_with_priority_region_and_state(journal: socket.socket) -> None:
     configure_logging("info", json_lines=False)
-    logging.getLogger("edgedsm.daemon.evaluation").warning("region %s: wet -> drying", "panel",
+    logging.getLogger("edgedsm.daemon.evaluator").warning("region %s: wet -> drying", "panel",
                                                            extra={"region": "panel", "state": "drying"})
     fields = _fields(journal.recv(65536))
     assert fields["MESSAGE"] == "region panel: wet -> drying"
     assert (fields["PRIORITY"], fields["REGION"], fields["STATE"]) == ("4", "panel", "drying")
-    assert fields["LOGGER"] == "edgedsm.daemon.evaluation" and fields["SYSLOG_IDENTIFIER"] == "edgedsm"
+    assert fields["LOGGER"] == "edgedsm.daemon.evaluator" and fields["SYSLOG_IDENTIFIER"] == "edgedsm"
 
 
 def test_a_traceback_stays_in_its_journal_entry(journal: socket.socket) -> None:

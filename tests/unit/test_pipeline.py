@@ -9,9 +9,9 @@ import pytest
 
 from edgedsm.analysis import region_stats
 from edgedsm.config import load_config
+from edgedsm.daemon.devices import couple_simulated_laser
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.service import couple_simulated_laser
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.devices.laser import SimulatedRelay
 from edgedsm.estimators import all_maps
@@ -179,12 +179,12 @@ def test_bad_frames_are_dropped_and_counted(setup):
     pipeline._push(Frame(np.zeros((8, 8), np.float32), 2, 0, 8))
     pipeline._push(good)
     assert pipeline.counters["dropped_invalid"] == 2
-    engine = pipeline.evaluation.engine
+    engine = pipeline.measurement.engine
     assert engine is not None and engine.frames_seen == 2
 
 
 def test_a_window_that_cannot_fit_in_memory_is_a_config_error(monkeypatch):
-    from edgedsm.daemon import evaluation as pipeline_module
+    from edgedsm.daemon import engine_budget as pipeline_module
     from edgedsm.errors import ConfigError
     from edgedsm.estimators import SlidingWindow
     from edgedsm.frames import Frame

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from edgedsm.config import load_config
+from edgedsm.daemon.devices import couple_simulated_laser
 from edgedsm.daemon.pipeline import Cadence, Pipeline
-from edgedsm.daemon.service import couple_simulated_laser
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.devices.laser import SimulatedBoard, SimulatedRelay
 from edgedsm.errors import DeviceLost, DeviceTimeout

@@ -34,7 +34,7 @@ def test_only_the_calling_thread_gets_nicer() -> None:
 
 
 def test_map_workers_and_the_evaluator_run_nicer_than_the_pipeline() -> None:
-    from edgedsm.daemon.evaluation import EVALUATOR_NICE, yield_cores
+    from edgedsm.daemon.evaluator import EVALUATOR_NICE, yield_cores
 
     process = os.getpriority(os.PRIO_PROCESS, os.getpid())
     seen: dict[str, int] = {}

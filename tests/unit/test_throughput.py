@@ -11,9 +11,9 @@ import numpy as np
 
 from edgedsm.config import AcquisitionSection, DaemonConfig
 from edgedsm.daemon.capture import INITIAL_QUEUE_FRAMES, Capture, queue_capacity
+from edgedsm.daemon.devices import open_camera_for
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.service import open_camera_for
 from edgedsm.frames import Frame
 from edgedsm.messages import Clock
 from edgedsm.publish.sink import RecordingSink
@@ -81,7 +81,7 @@ def _run(config: DaemonConfig) -> tuple[Pipeline, RecordingSink]:
 
     def frame_taken(frame: Frame, count: int) -> None:
         deadline = time.monotonic() + 10
-        while box["p"].evaluation.busy and time.monotonic() < deadline:
+        while box["p"].evaluator.busy and time.monotonic() < deadline:
             time.sleep(0.001)
 
     probes = PipelineProbes(frame_taken=frame_taken)
@@ -96,13 +96,13 @@ def _run(config: DaemonConfig) -> tuple[Pipeline, RecordingSink]:
 def test_area_regions_gives_the_same_region_statistics_on_the_box_only(tmp_path: Path) -> None:
     full_pipeline, full = _run(_replay_config(tmp_path, "frame"))
     box_pipeline, box = _run(_replay_config(tmp_path, "regions"))
-    assert full_pipeline.evaluation.engine is None  # released at the end
+    assert full_pipeline.measurement.engine is None  # released at the end
     ready_full = [s for s in full.stats if s.ready]
     ready_box = [s for s in box.stats if s.ready]
     assert len(ready_full) >= 3 and [s.frames for s in ready_full] == [s.frames for s in ready_box]
     for one, other in zip(ready_full, ready_box, strict=True):
         assert one.regions == other.regions  # bit-identical: the same sums on the box's pixels
-    assert box_pipeline.evaluation.crop == (slice(5, 30), slice(10, 36))
+    assert box_pipeline.measurement.crop == (slice(5, 30), slice(10, 36))
     # the maps cover the box, and say where it is
     box_maps = [m for m in box.maps if m.name == "s2"]
     full_maps = [m for m in full.maps if m.name == "s2"]

@@ -1,0 +1,108 @@
+"""The engine's budget before frames flow: whether its arrays fit in memory (refused with the
+config keys to change when not), how many kernel threads a frame deserves, and the warm-up that
+loads every compiled kernel an evaluation uses."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edgedsm.analysis import RegionBox
+from edgedsm.config import DaemonConfig
+from edgedsm.daemon.tau import TauRegions, engine_estimators
+from edgedsm.errors import ConfigError
+from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
+from edgedsm.estimators.snapshot import maps_from
+from edgedsm.estimators.streaming import TAU_BATCH
+from edgedsm.estimators.tau_pooled import pooled_covariances
+from edgedsm.frames import Frame
+
+#: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
+SMALL_FRAME_PIXELS = 1 << 18
+#: Pixels of the probe engine whose arrays give the per-pixel memory of the real one.
+PROBE_PIXELS = 8
+#: Bytes per pixel of the float maps: two sets of S1, S2, S3 and σ (float64; a second set while
+#: a sink still holds the first).
+MAP_BYTES_PER_PIXEL = 2 * 4 * 8
+#: Side of the warm-up engine: at least PARALLEL_MIN_PIXELS, so the parallel kernels that real
+#: frames use are loaded too.
+WARM_UP_SIDE = 256
+
+
+def kernel_threads(config: DaemonConfig, pixels: int) -> int | None:
+    """``estimator.threads``, or one thread for a small frame: a parallel pass over it costs more
+    in thread wake-ups than it saves, and stalls badly when the capture thread competes for the
+    cores (None: the engine's default)."""
+    threads = config.estimator.threads
+    if threads is None and pixels < SMALL_FRAME_PIXELS:
+        return 1
+    return threads
+
+
+def available_memory() -> int | None:
+    """Bytes the kernel says can be allocated without swapping (None if unknown)."""
+    try:
+        with open("/proc/meminfo") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
+
+
+def engine_bytes_per_pixel(probe: SlidingWindow) -> float:
+    """Bytes per pixel the daemon keeps for an engine like ``probe`` (any size, its bit depth
+    known): the engine's own arrays (ring and sums, τc's included), the copy of the sums for the
+    maps, the float maps, and τc's copy of its sums (estimated as large as the engine's)."""
+    own = probe.array_bytes()
+    tau = sum(size for name, size in own.items() if name in ("products", "edges", "retired", "total", "total_sq"))
+    copies = probe.snapshot_buffers().nbytes + (tau if "tau_c" in probe.estimators else 0)
+    pixels = probe.shape[0] * probe.shape[1]
+    return (sum(own.values()) + copies) / pixels + MAP_BYTES_PER_PIXEL
+
+
+def check_engine_memory(frame: Frame, bytes_per_pixel: float, pixels: int | None = None) -> None:
+    """Refuse, with the config keys to change, an engine that cannot fit in memory (``pixels``:
+    what the engine sees, when not the whole frame; ``bytes_per_pixel``: engine_bytes_per_pixel)."""
+    needed = (pixels or frame.pixels.size) * bytes_per_pixel
+    free = available_memory()
+    if free is not None and needed > 0.8 * free:
+        raise ConfigError(f"estimator.window: the estimator for {frame.shape[1]}x{frame.shape[0]} frames needs "
+                          f"{needed / 2**30:.1f} GiB (its window, sums and their copies); this machine has "
+                          f"{free / 2**30:.1f} GiB available (use a shorter window or max_lag, mode = 'tumbling' "
+                          "or 'exponential', or area = 'regions')")
+
+
+def warm_up(config: DaemonConfig) -> None:
+    """Load every compiled kernel an evaluation of ``config`` uses, on a small engine, before
+    frames flow: loading them later (hundreds of ms, holding the GIL) would stall the pipeline
+    thread and overflow the queue at the first push and the first evaluation."""
+    est = config.estimator
+    tau = TauRegions(config)
+    deep = config.camera.pixel_format not in (None, "Mono8")
+    side = WARM_UP_SIDE
+    window = est.lag + 2
+    if tau.on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
+        window = max(window, est.lags + TAU_BATCH + 2)
+    engine = SlidingWindow((side, side), window=window, lag=est.lag, q=est.q, bits=16 if deep else 8,
+                           estimators=engine_estimators(config), mode=est.mode, threads=est.threads,
+                           max_lag=est.lags if tau.on else None)
+    frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
+    for _ in range(window + TAU_BATCH + 1):  # past a full batch of lag products
+        engine.push(frame)
+    mask = np.zeros((side, side), bool)
+    mask[1:-1, 1:-1] = True
+    layout = RegionLayout.of({name: RegionPlan.of(RegionBox.of(region), (side, side))
+                              for name, region in (("all", np.ones_like(mask)), ("inner", mask))})
+    maps_from(engine.snapshot(ESTIMATORS))
+    wanted = [ESTIMATORS] + ([[est.activity]] if est.activity in ESTIMATORS else [])
+    for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
+        for names in wanted:
+            region_moments(engine.snapshot(names, live=True), layout, names, spread=names is ESTIMATORS,
+                           parallel=parallel)
+    if tau.on:  # the pooled-covariance kernels of the regions and the block map
+        sums = engine.tau_snapshot()
+        tau.map_seconds(sums, 1.0, block=2)
+        pooled_covariances(sums.window, sums.total, sums.total_sq, sums.products, sums.edges, sums.ends,
+                           np.flatnonzero(mask), sums.lags)

@@ -1,0 +1,171 @@
+"""The measurement, on the pipeline thread: the streaming engine for the camera's frames and
+the region masks, and at each evaluation a :class:`~edgedsm.daemon.handover.Snapshot` of what the
+evaluator needs.
+
+The pipeline thread pushes frames into the engine and, on the states and stats cadence, reduces
+the engine's live sums to region statistics between two pushes
+(:func:`edgedsm.estimators.region_stats.region_moments`: one pass over the rows the regions cover,
+each pixel's maps computed once whatever the regions holding it, no float maps and no copy of
+the sums). States need the activity map's region means only; the full statistics (count, mean,
+deviation, percentile sample of every map) come on the stats cadence. Only on the maps cadence
+are the sums copied (``engine.snapshot()``), into buffers the next copy reuses.
+
+With ``estimator.area = "regions"`` the engine sees only the bounding box of all regions (frames
+are cropped before the push): the cost follows the regions, and the published maps cover that
+box (the snapshot's ``origin`` gives its top-left corner in camera pixels).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+
+import numpy as np
+
+from edgedsm.analysis import RegionBox, bounding_box
+from edgedsm.config import DaemonConfig
+from edgedsm.daemon.engine_budget import PROBE_PIXELS, check_engine_memory, engine_bytes_per_pixel, kernel_threads
+from edgedsm.daemon.handover import Snapshot, Status
+from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.tau import TauRegions, engine_estimators
+from edgedsm.errors import FrameError
+from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
+from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot
+from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
+from edgedsm.frames import Frame
+
+log = logging.getLogger(__name__)
+
+
+class Measurement:
+    """The engine and the region masks of one camera (pipeline thread only)."""
+
+    def __init__(self, config: DaemonConfig, tau: TauRegions, map_buffers: MapBuffers, counters: Counter[str],
+                 probes: PipelineProbes | None = None) -> None:
+        self.config = config
+        self.tau = tau  # shared with the evaluator, which forms τc from the sums taken here
+        self.counters = counters
+        self.probes = probes or PipelineProbes()
+        self.engine: SlidingWindow | None = None
+        self.frame_shape: tuple[int, int] | None = None  # fixed by the first frame
+        self.regions: dict[str, RegionBox] = {}  # in the engine's coordinates
+        self._layout = RegionLayout.of({})  # the same, prepared for region_moments
+        self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
+        self._buffers: EngineSnapshot | None = None  # the latest copy of the sums, overwritten by the next
+        self._map_buffers = map_buffers  # the evaluator's float maps: reserved here with the engine
+        self._tau_buffers: TauSnapshot | None = None
+
+    def prepare(self, frame: Frame) -> None:
+        """At the first frame (before the laser goes on): the engine and the region masks for its
+        shape. A region outside the frame or a window too big for memory is a ``ConfigError``."""
+        if self.frame_shape is None:
+            self._make_engine(frame)
+
+    def push(self, frame: Frame, dark: np.ndarray | None) -> bool:
+        """Push one frame (ambient-corrected with ``dark`` when configured); False if refused."""
+        if self.engine is None:  # the first frame fixes the shape; later misfits are refused
+            self._make_engine(frame)
+        assert self.engine is not None
+        pixels = frame.pixels
+        if self.crop is not None and pixels.shape == frame.shape:
+            pixels = np.ascontiguousarray(pixels[self.crop])
+            dark = dark[self.crop] if dark is not None and dark.shape == frame.shape else None
+        if self.config.estimator.ambient_correction and dark is not None and dark.shape == pixels.shape:
+            # ambient-corrected S2: the dark level is subtracted before normalising (saturating at 0)
+            pixels = np.subtract(pixels, np.minimum(pixels, dark))
+        try:
+            self.engine.push(pixels)
+            self.tau.interval.saw(frame)
+        except FrameError as exc:
+            self.counters["dropped_invalid"] += 1
+            log.warning("frame %d dropped: %s", frame.seq, exc)
+            if self.probes.frame_dropped is not None:
+                self.probes.frame_dropped(frame, "invalid")
+            return False
+        return True
+
+    @property
+    def ready(self) -> bool:
+        return self.engine is not None and self.engine.ready
+
+    def restart(self) -> None:
+        """Empty the estimator window (the engine and its arrays are kept)."""
+        if self.engine is not None:
+            self.engine.reset()
+
+    def _make_engine(self, frame: Frame) -> None:
+        est = self.config.estimator
+        threads = kernel_threads(self.config, frame.pixels.size)
+        masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
+        regions = {name: RegionBox.of(mask) for name, mask in masks.items()}
+        shape = frame.shape
+        if est.area == "regions" and masks:
+            rows, cols = self.crop = bounding_box(list(masks.values()))
+            regions = {name: box.shifted(rows, cols) for name, box in regions.items()}
+            shape = (rows.stop - rows.start, cols.stop - cols.start)
+
+        def engine(shape: tuple[int, int]) -> SlidingWindow:
+            return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
+                                 estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
+                                 max_lag=est.lags if self.tau.on else None)
+
+        # the same arrays for a few pixels first: a window too big for memory is refused before
+        # anything large is allocated
+        check_engine_memory(frame, engine_bytes_per_pixel(engine((1, PROBE_PIXELS))), pixels=shape[0] * shape[1])
+        self.engine = engine(shape)
+        # the arrays of the maps evaluation (a copy of the sums, the float maps) written once now,
+        # before frames flow: their fresh pages would otherwise stall both threads at the first maps
+        self._buffers = self.engine.snapshot_buffers(ESTIMATORS)
+        self._map_buffers.reserve(self._buffers)
+        self.regions = regions
+        self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in regions.items()})
+        self.tau.prepare(regions, shape)
+        self.frame_shape = frame.shape
+
+    def snapshot(self, status: Status, maps_due: bool, stats_due: bool, generation: int) -> Snapshot:
+        """Region statistics from the live sums now (and a copy of the sums when maps are due).
+
+        The copy reuses the buffers of the previous one: the caller hands a new snapshot over only
+        once the evaluator is done with the previous one. Without ``stats_due`` only what the
+        drying states need (no stats message, no maps).
+        """
+        started = time.perf_counter()
+        ready = self.ready
+        engine = tau = None
+        moments: dict[str, dict[str, Moments]] = {}
+        publish_maps = ready and maps_due and stats_due
+        if ready and self.engine is not None:
+            wanted = self._snapshot_estimators(stats_due)
+            if wanted:
+                # the live sums, read between two pushes on the thread that pushes: no copy
+                moments = region_moments(self.engine.snapshot(wanted, live=True), self._layout, wanted,
+                                         spread=stats_due, parallel=self.engine.shape[0] * self.engine.shape[1]
+                                         >= PARALLEL_MIN_PIXELS)
+            if publish_maps:
+                engine = self._buffers = self.engine.snapshot(ESTIMATORS, into=self._buffers)
+            tau = self.tau.take(self.engine, stats_due, self._tau_buffers)
+            self._tau_buffers = tau or self._tau_buffers
+        origin = None if self.crop is None else (self.crop[1].start, self.crop[0].start)
+        snapshot = Snapshot(status, ready, engine, publish_maps=publish_maps, publish_stats=stats_due, tau=tau,
+                            regions=moments, generation=generation, origin=origin)
+        if self.probes.snapshot_taken is not None:
+            self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
+        return snapshot
+
+    def _snapshot_estimators(self, stats_due: bool) -> list[str]:
+        """The S maps an evaluation needs: all for the stats; for the states alone, the judged one
+        if a region is judged on it (none when every region is judged on τc)."""
+        if stats_due:
+            return list(ESTIMATORS)
+        activity = self.config.estimator.activity
+        judged_on_activity = any(not region.on_tau for region in self.config.regions)
+        return [activity] if activity in ESTIMATORS and judged_on_activity else []
+
+    def release(self) -> None:
+        """Drop the engine and the copies of its sums: the window's ring is the bulk of the
+        daemon's memory (N frames), released now rather than when the garbage collector gets to
+        the pipeline (a reload builds a new one at once)."""
+        self.engine = self._buffers = self._tau_buffers = None
+        self._map_buffers = MapBuffers()  # the evaluator lets go of its pooled maps too
