@@ -20,12 +20,12 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from edgedsm.config import AcquisitionSection
-from edgedsm.daemon.capture import Capture
 from edgedsm.devices.camera.base import Backoff
 from edgedsm.devices.laser.base import LaserRelay
 from edgedsm.errors import DeviceError
 from edgedsm.frames import Frame
 from edgedsm.messages import LaserState
+from edgedsm.publish.commands import CommandResult
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,8 @@ class Acquisition:
 
     def __init__(self, settings: AcquisitionSection, relay: LaserRelay | None, counters: Counter[str],
                  clock: Callable[[], float], *, on_fault: Callable[[str], None], relit: Callable[[], None],
-                 burst_ended: Callable[[float], None], min_switch_interval_s: float = MIN_SWITCH_INTERVAL_S) -> None:
+                 burst_ended: Callable[[float], None], drain: Callable[[], None], camera_lost: Callable[[], bool],
+                 min_switch_interval_s: float = MIN_SWITCH_INTERVAL_S) -> None:
         self.settings = settings
         self.relay = relay
         self.counters = counters
@@ -53,6 +54,8 @@ class Acquisition:
         self._on_fault = on_fault          # a relay fault (reported once per fault)
         self._relit = relit                # the laser went on: the estimator starts over
         self._burst_ended = burst_ended    # a burst's end: its final evaluation
+        self._drain = drain                # throw away the frames queued so far (exposed in another state)
+        self._camera_lost = camera_lost    # the camera is down: no dark frame will come
         self.laser: LaserState = "off"
         self.fault_reason = ""  # the last relay error
         self.manual_off = False  # the `laser off` command holds it off until `on` or `auto`
@@ -131,25 +134,25 @@ class Acquisition:
                     f"went on {since:.2f} s ago; try again in {self.min_switch_interval_s - since:.2f} s")
         return None
 
-    def command(self, state: str, now: float, capture: Capture, camera_ok: bool) -> dict[str, object]:
+    def command(self, state: str, now: float, camera_ok: bool) -> CommandResult:
         """The `laser` command: ``off`` holds it off, ``on``/``auto`` give it back to the plan."""
         if state == "off":
             self.manual_off = True
             if self.laser == "off":
-                return {"ok": True, "laser": "off"}
+                return CommandResult(laser="off")
             if self.laser == "unknown" and now < self._next_off_t:
-                return {"ok": False, "error": f"{self._fault_text}; next try in {self._next_off_t - now:.1f} s",
-                        "laser": self.laser}
+                return CommandResult.refused(f"{self._fault_text}; next try in {self._next_off_t - now:.1f} s",
+                                             self.laser)
             if not self.switch_off("command laser off"):
-                return {"ok": False, "error": self._fault_text, "laser": self.laser}
-            return {"ok": True, "laser": self.laser}
+                return CommandResult.refused(self._fault_text, self.laser)
+            return CommandResult(laser=self.laser)
         if self.laser == "unknown":
-            return {"ok": False, "error": self._fault_text, "laser": self.laser}
+            return CommandResult.refused(self._fault_text, self.laser)
         if self.laser == "off" and (why := self.refusal(now)):
-            return {"ok": False, "error": why, "laser": self.laser}
+            return CommandResult.refused(why, self.laser)
         self.manual_off = False
-        self.tick(now, capture, camera_ok)
-        return {"ok": True, "laser": self.laser}
+        self.tick(now, camera_ok)
+        return CommandResult(laser=self.laser)
 
     @property
     def _fault_text(self) -> str:
@@ -170,7 +173,7 @@ class Acquisition:
             self._burst_ended(now)  # the burst's final maps and states, once
         return False
 
-    def tick(self, now: float, capture: Capture, camera_ok: bool) -> None:
+    def tick(self, now: float, camera_ok: bool) -> None:
         """Once per loop: retry a pending switch-off; switch the laser as the plan wants."""
         if self.laser == "unknown":
             self._wanted = False
@@ -186,7 +189,7 @@ class Acquisition:
             else:
                 self._check_relay(now)
         elif wants and self.refusal(now) is None and self._switch(True, "measuring") and self.relay is not None:
-            capture.drain()  # frames exposed before the laser was on
+            self._drain()  # frames exposed before the laser was on
 
     def admit(self) -> bool:
         """Whether the frame just taken is measured: laser known on and frames wanted."""
@@ -211,17 +214,17 @@ class Acquisition:
             return "acquisition.dark_frames is 0"
         return None
 
-    def take_dark_frames(self, capture: Capture, take: Callable[[float], Frame | None], grab_timeout_s: float) -> None:
+    def take_dark_frames(self, take: Callable[[float], Frame | None], grab_timeout_s: float) -> None:
         """Laser off, average ``dark_frames`` frames into the dark level (the first is skipped)."""
         self.dark_requested = False
         count = self.settings.dark_frames
         if count == 0 or self.relay is None or not self.switch_off("dark frames"):
             return
         self._wanted = False
-        capture.drain()
+        self._drain()
         frames = []
         deadline = self.clock() + grab_timeout_s * (count + 2)
-        while len(frames) < count + 1 and self.clock() < deadline and not capture.lost.is_set():
+        while len(frames) < count + 1 and self.clock() < deadline and not self._camera_lost():
             frame = take(0.5)
             if frame is not None:
                 frames.append(frame.pixels)
@@ -232,4 +235,4 @@ class Acquisition:
             self.ambient_level = float(stack.mean())
             log.info("ambient level %.2f grey from %d dark frames", self.ambient_level, len(frames) - 1)
         self.last_dark_t = self.clock()
-        capture.drain()
+        self._drain()

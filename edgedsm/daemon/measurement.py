@@ -24,7 +24,7 @@ from collections import Counter
 import numpy as np
 
 from edgedsm.analysis import RegionBox, bounding_box
-from edgedsm.config import DaemonConfig
+from edgedsm.config import DaemonConfig, check_regions
 from edgedsm.daemon.engine_budget import PROBE_PIXELS, check_engine_memory, engine_bytes_per_pixel, kernel_threads
 from edgedsm.daemon.handover import Snapshot, Status
 from edgedsm.daemon.probes import PipelineProbes
@@ -98,6 +98,7 @@ class Measurement:
     def _make_engine(self, frame: Frame) -> None:
         est = self.config.estimator
         threads = kernel_threads(self.config, frame.pixels.size)
+        check_regions(self.config, frame.shape)  # the rule check-config applies, before anything is allocated
         masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
         regions = {name: RegionBox.of(mask) for name, mask in masks.items()}
         shape = frame.shape

@@ -53,6 +53,14 @@ from edgedsm.devices.laser.base import LaserRelay
 from edgedsm.errors import EdgedsmError
 from edgedsm.frames import Frame
 from edgedsm.messages import Alert, AlertKind, Clock
+from edgedsm.publish.commands import (
+    Command,
+    CommandResult,
+    DarkCommand,
+    LaserCommand,
+    PublishMapsCommand,
+    RebaselineCommand,
+)
 from edgedsm.publish.sink import Sink
 
 log = logging.getLogger(__name__)
@@ -112,9 +120,14 @@ class Pipeline:
         self.acquisition = Acquisition(config.acquisition, relay, self.counters, self.clock.monotonic,
                                        on_fault=self._device_fault,
                                        relit=lambda: self.restart("laser on", states=False),
-                                       burst_ended=lambda now: self._evaluate(now))
+                                       burst_ended=lambda now: self._evaluate(now), drain=self.capture.drain,
+                                       camera_lost=self.capture.lost.is_set)
         self.lit_level: float | None = None
-        self._commands: queue.Queue[tuple[str, dict[str, Any], Future[dict[str, Any]]]] = queue.Queue()
+        self._commands: queue.Queue[tuple[Command, Future[CommandResult]]] = queue.Queue()
+        #: each command type and its handler (run on the pipeline thread)
+        self._handlers: dict[type[Command], Callable[[Any], CommandResult]] = {
+            LaserCommand: self._laser, RebaselineCommand: self._rebaseline, DarkCommand: self._dark,
+            PublishMapsCommand: self._publish_maps}
         self._last_frame_t: float | None = None  # None until the first frame
         self._stats_due = float("-inf")  # when the next stats are due (monotonic)
         self._states_due = float("-inf")  # and the next drying states
@@ -132,52 +145,52 @@ class Pipeline:
         self._urgent = False  # evaluate at once (the laser or the camera changed), whatever the cadence
 
     # -- commands (called from other threads) -------------------------------------------------
-    def submit(self, name: str, args: dict[str, Any] | None = None, timeout_s: float = 5.0) -> dict[str, Any]:
-        """Run a command on the pipeline thread and wait (bounded) for its result."""
-        future: Future[dict[str, Any]] = Future()
-        self._commands.put((name, args or {}, future))
+    def submit(self, command: Command, timeout_s: float = 5.0) -> CommandResult:
+        """Run a validated command on the pipeline thread and wait (bounded) for its result."""
+        future: Future[CommandResult] = Future()
+        self._commands.put((command, future))
         try:
             return future.result(timeout=timeout_s)
         except TimeoutError:
-            return {"ok": False, "error": f"command {name!r} not handled within {timeout_s} s"}
+            return CommandResult.refused(f"command {type(command).__name__} not handled within {timeout_s} s")
 
     def _handle_commands(self) -> None:
         while True:
             try:
-                name, args, future = self._commands.get_nowait()
+                command, future = self._commands.get_nowait()
             except queue.Empty:
                 return
+            handler = self._handlers.get(type(command))
             try:
-                future.set_result(self._command(name, args))
+                if handler is None:
+                    raise EdgedsmError(f"no handler for {type(command).__name__}")
+                future.set_result(handler(command))
             except EdgedsmError as exc:
-                future.set_result({"ok": False, "error": str(exc)})
+                future.set_result(CommandResult.refused(str(exc)))
             except Exception as exc:  # a command must never take the measurement down
-                log.exception("command %s failed", name)
-                future.set_result({"ok": False, "error": f"internal error: {exc}"})
+                log.exception("command %s failed", type(command).__name__)
+                future.set_result(CommandResult.refused(f"internal error: {exc}"))
 
-    def _command(self, name: str, args: dict[str, Any]) -> dict[str, Any]:
-        acq = self.acquisition
-        if name == "laser":
-            state = args.get("state")
-            if state not in ("on", "off", "auto"):
-                return {"ok": False, "error": "state must be 'on', 'off' or 'auto'"}
-            before = acq.laser
-            reply = acq.command(state, self.clock.monotonic(), self.capture, self._camera_ok)
-            self._urgent = self._urgent or acq.laser != before
-            return reply
-        if name == "rebaseline":
-            self.restart("command rebaseline")
-            return {"ok": True}
-        if name == "dark":
-            refusal = acq.dark_refusal()
-            if refusal is not None:
-                return {"ok": False, "error": refusal}
-            acq.dark_requested = True
-            return {"ok": True}
-        if name == "publish_maps":
-            self.request_maps()
-            return {"ok": True}
-        return {"ok": False, "error": f"unknown command {name!r}"}
+    def _laser(self, command: LaserCommand) -> CommandResult:
+        before = self.acquisition.laser
+        result = self.acquisition.command(command.state, self.clock.monotonic(), self._camera_ok)
+        self._urgent = self._urgent or self.acquisition.laser != before
+        return result
+
+    def _rebaseline(self, command: RebaselineCommand) -> CommandResult:
+        self.restart("command rebaseline")
+        return CommandResult()
+
+    def _dark(self, command: DarkCommand) -> CommandResult:
+        refusal = self.acquisition.dark_refusal()
+        if refusal is not None:
+            return CommandResult.refused(refusal)
+        self.acquisition.dark_requested = True
+        return CommandResult()
+
+    def _publish_maps(self, command: PublishMapsCommand) -> CommandResult:
+        self.request_maps()
+        return CommandResult()
 
     @property
     def frame_shape(self) -> tuple[int, int] | None:
@@ -290,7 +303,7 @@ class Pipeline:
         capture.open()
         capture.start()
         try:
-            acq.take_dark_frames(capture, self._take, grab_timeout_s)
+            acq.take_dark_frames(self._take, grab_timeout_s)
             while not should_stop():
                 self._handle_commands()
                 now = self.clock.monotonic()
@@ -298,9 +311,9 @@ class Pipeline:
                     raise capture.error
                 camera_ok = self._camera_ok = self._watch_camera(now)
                 if camera_ok and acq.dark_due(now):
-                    acq.take_dark_frames(capture, self._take, grab_timeout_s)
+                    acq.take_dark_frames(self._take, grab_timeout_s)
                 laser = acq.laser
-                acq.tick(now, capture, camera_ok)
+                acq.tick(now, camera_ok)
                 self._urgent = self._urgent or acq.laser != laser
                 frame = self._take(0.1)
                 if frame is not None and acq.admit():

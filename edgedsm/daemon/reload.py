@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from edgedsm.config import DaemonConfig, load_config
+from edgedsm.config import DaemonConfig, check_regions, load_config
 from edgedsm.daemon.devices import open_camera_for
 from edgedsm.devices.laser import open_relay
 from edgedsm.errors import ConfigError, DeviceError, EdgedsmError
@@ -61,8 +61,7 @@ def check_reload(path: Path, running: DaemonConfig, running_shape: tuple[int, in
         # the running camera cannot be opened twice: its frame is known
         shape = running_shape if _same_camera(new, running) else _probe_frame_shape(new)
         if shape is not None:
-            for region in new.regions:
-                region.mask(shape, new.base_dir)
+            check_regions(new, shape)  # the rule check-config and the daemon's start apply
         if new.laser is not None and (running.laser is None or new.laser.uri != running.laser.uri):
             relay = open_relay(new.laser.uri)
             try:

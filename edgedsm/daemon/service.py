@@ -36,7 +36,7 @@ from edgedsm.daemon.sinks import SinkSet, make_sink  # noqa: F401 (make_sink: th
 from edgedsm.devices.laser import LaserSafety, open_relay
 from edgedsm.errors import ConfigError, DeviceError
 from edgedsm.messages import Alert, AlertKind
-from edgedsm.publish.commands import Command
+from edgedsm.publish.commands import Command, CommandResult
 from edgedsm.publish.sink import Sink
 from edgedsm.signals import handling
 
@@ -188,7 +188,8 @@ class Service:
     def _on_command(self, name: str, command: Command) -> dict[str, Any]:
         # called on the MQTT sink's command thread with a validated command
         pipeline = self.pipeline
-        return pipeline.submit(name, command.model_dump()) if pipeline else {"ok": False, "error": "not running"}
+        result = pipeline.submit(command) if pipeline is not None else CommandResult.refused("not running")
+        return result.as_mapping()
 
     def _run_once(self) -> None:
         config = self.config

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from edgedsm.config import DaemonConfig
@@ -29,25 +31,84 @@ def _fingerprint(*parts: Any) -> str:
 CADENCE_FIELDS = frozenset({"stats_interval_s", "maps_interval_s"})
 
 
+def _broker(config: DaemonConfig) -> dict[str, Any]:
+    assert config.mqtt is not None
+    return config.mqtt.model_dump(mode="json", exclude=set(CADENCE_FIELDS))
+
+
+def _regions(config: DaemonConfig) -> list[str]:
+    return [region.name for region in config.regions]
+
+
+def _build_mqtt(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+    from edgedsm.publish.json_sink import MqttSink
+
+    assert config.mqtt is not None
+    return MqttSink(config.mqtt, config.device.state_dir, on_command).start()
+
+
+def _build_sparkplug(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+    from edgedsm.publish.sparkplug.node import SparkplugSink
+
+    assert config.mqtt is not None and config.sparkplug is not None
+    return SparkplugSink(config.sparkplug, config.mqtt, config.device.state_dir, regions=_regions(config),
+                         maps=engine_estimators(config)).start()
+
+
+def _build_homeassistant(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+    from edgedsm.publish.homeassistant import HomeAssistantSink
+
+    ha = config.homeassistant
+    assert config.mqtt is not None and ha is not None
+    return HomeAssistantSink(config.mqtt, ha.discovery_prefix, _regions(config), config.device.state_dir,
+                             colormap=ha.colormap if ha.color_maps else None).start()
+
+
+def _build_http(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+    from edgedsm.publish.prometheus import MetricsSink
+
+    assert config.http is not None
+    return MetricsSink(config.http.stale_after_s).serve(config.http.address)
+
+
+def _http_moves(new: DaemonConfig, running: DaemonConfig | None) -> bool:
+    return running is not None and running.http is not None and new.http is not None \
+        and running.http.address != new.http.address
+
+
+@dataclass(frozen=True)
+class SinkSpec:
+    """One kind of sink: whether a config asks for it, what it is built from (a fingerprint:
+    the sink is rebuilt when it changes), how to build it, and whether a new one can start while
+    the running one still runs (a metrics server moving to another address can; an MQTT client
+    cannot, the broker throws off the older of two clients with one id, nor a server on the same
+    address)."""
+
+    name: str
+    wanted: Callable[[DaemonConfig], bool]
+    fingerprint: Callable[[DaemonConfig], str]
+    build: Callable[[DaemonConfig, CommandHandler], Sink]
+    beside: Callable[[DaemonConfig, DaemonConfig | None], bool] = lambda new, running: False
+
+
+#: Every sink the daemon can run, in fan-out order: the one table of sinks.
+SINKS: tuple[SinkSpec, ...] = (
+    SinkSpec("log", lambda c: c.mqtt is None, lambda c: "", lambda c, on_command: LogSink()),
+    SinkSpec("mqtt", lambda c: c.mqtt is not None,
+             lambda c: _fingerprint(_broker(c), str(c.device.state_dir)), _build_mqtt),
+    SinkSpec("sparkplug", lambda c: c.mqtt is not None and c.sparkplug is not None,
+             lambda c: _fingerprint(c.sparkplug, _broker(c), str(c.device.state_dir), _regions(c)), _build_sparkplug),
+    SinkSpec("homeassistant", lambda c: c.mqtt is not None and c.homeassistant is not None,
+             lambda c: _fingerprint(c.homeassistant, _broker(c), str(c.device.state_dir), _regions(c)),
+             _build_homeassistant),
+    SinkSpec("http", lambda c: c.http is not None, lambda c: _fingerprint(c.http), _build_http, _http_moves),
+)
+_SPECS = {spec.name: spec for spec in SINKS}
+
+
 def wanted_sinks(config: DaemonConfig) -> dict[str, str]:
     """Each sink the config asks for, in fan-out order, with the fingerprint of its settings."""
-    regions = [region.name for region in config.regions]
-    state_dir = str(config.device.state_dir)
-    wanted: dict[str, str] = {}
-    if config.mqtt is None:
-        wanted["log"] = ""
-        if config.http is not None:
-            wanted["http"] = _fingerprint(config.http)
-        return wanted
-    broker = config.mqtt.model_dump(mode="json", exclude=set(CADENCE_FIELDS))
-    wanted["mqtt"] = _fingerprint(broker, state_dir)
-    if config.sparkplug is not None:
-        wanted["sparkplug"] = _fingerprint(config.sparkplug, broker, state_dir, regions)
-    if config.homeassistant is not None:
-        wanted["homeassistant"] = _fingerprint(config.homeassistant, broker, state_dir, regions)
-    if config.http is not None:
-        wanted["http"] = _fingerprint(config.http)
-    return wanted
+    return {spec.name: spec.fingerprint(config) for spec in SINKS if spec.wanted(config)}
 
 
 class SinkSet:
@@ -94,39 +155,11 @@ class SinkSet:
         return sorted(set(changed) | set(built))
 
     def _beside(self, name: str, config: DaemonConfig) -> bool:
-        """Whether the sink ``name`` for ``config`` can start while the running one still runs: a
-        metrics server on another address can; an MQTT client cannot (the broker throws off the
-        older of two clients with one id), nor a server on the same address."""
-        running = self._config.http if self._config is not None else None
-        return name == "http" and running is not None and config.http is not None \
-            and running.address != config.http.address
+        """Whether the sink ``name`` for ``config`` can start while the running one still runs."""
+        return _SPECS[name].beside(config, self._config)
 
     def _build(self, name: str, config: DaemonConfig) -> Sink:
-        mqtt = config.mqtt
-        state_dir = config.device.state_dir
-        regions = [region.name for region in config.regions]
-        if name == "log":
-            return LogSink()
-        if name == "mqtt" and mqtt is not None:
-            from edgedsm.publish.json_sink import MqttSink
-
-            return MqttSink(mqtt, state_dir, self.on_command).start()
-        if name == "sparkplug" and mqtt is not None and config.sparkplug is not None:
-            from edgedsm.publish.sparkplug.node import SparkplugSink
-
-            return SparkplugSink(config.sparkplug, mqtt, state_dir, regions=regions,
-                                 maps=engine_estimators(config)).start()
-        if name == "homeassistant" and mqtt is not None and config.homeassistant is not None:
-            from edgedsm.publish.homeassistant import HomeAssistantSink
-
-            ha = config.homeassistant
-            return HomeAssistantSink(mqtt, ha.discovery_prefix, regions, state_dir,
-                                     colormap=ha.colormap if ha.color_maps else None).start()
-        if name == "http" and config.http is not None:
-            from edgedsm.publish.prometheus import MetricsSink
-
-            return MetricsSink(config.http.stale_after_s).serve(config.http.address)
-        raise AssertionError(f"no sink {name!r}")  # wanted_sinks and _build list the same names
+        return _SPECS[name].build(config, self.on_command)
 
     def _wire(self, config: DaemonConfig) -> None:
         """The metrics sink reads the MQTT link's health and is the pipeline's frame probes."""

@@ -28,6 +28,7 @@ request (with its Correlation Data) when that is this same reply topic or a topi
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -64,6 +65,29 @@ COMMANDS: dict[str, type[Command]] = {
     "dark": DarkCommand,
     "publish_maps": PublishMapsCommand,
 }
+
+
+@dataclass(frozen=True)
+class CommandResult:
+    """What a handler answers to a command: carried out or refused (``error`` says why), and the
+    laser's state where the command concerns it. The reply's ``result`` is its fields but ``ok``
+    and ``error`` (:meth:`as_mapping`: what a :data:`CommandHandler` returns)."""
+
+    ok: bool = True
+    error: str | None = None
+    laser: Literal["on", "off", "unknown"] | None = None
+
+    @classmethod
+    def refused(cls, error: str, laser: Literal["on", "off", "unknown"] | None = None) -> CommandResult:
+        return cls(ok=False, error=error, laser=laser)
+
+    def as_mapping(self) -> dict[str, Any]:
+        result: dict[str, Any] = {"ok": self.ok}
+        if self.error is not None:
+            result["error"] = self.error
+        if self.laser is not None:
+            result["laser"] = self.laser
+        return result
 
 
 class CommandReply(BaseModel):

@@ -16,6 +16,7 @@ from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.devices.laser import SimulatedRelay
 from edgedsm.estimators import all_maps
 from edgedsm.messages import AlertKind, Clock
+from edgedsm.publish.commands import CommandResult, RebaselineCommand
 from edgedsm.publish.sink import RecordingSink
 from edgedsm.sim import load_scene
 
@@ -337,16 +338,16 @@ def test_rebaseline_publishes_one_reset_alert_and_the_states_start_again(setup):
     config, camera, relay, publisher, _ = setup
     pipeline = make_pipeline(config, camera, relay, publisher)
     hold_back(camera, pipeline)
-    replies: list[dict] = []
+    replies: list[object] = []
 
     def stop() -> bool:
         if pipeline.counters["frames"] >= 450 and not replies:
-            replies.append({})
-            threading.Thread(target=lambda: replies.append(pipeline.submit("rebaseline"))).start()
+            replies.append(None)
+            threading.Thread(target=lambda: replies.append(pipeline.submit(RebaselineCommand()))).start()
         return False
 
     pipeline.run(stop, max_frames=900)
-    assert replies[-1] == {"ok": True}
+    assert replies[-1] == CommandResult()
     kinds = [(a.kind, a.from_state, a.to_state) for a in publisher.alerts]
     assert kinds[0] == (AlertKind.TRANSITION, "warming_up", "wet"), kinds
     reset = [a for a in publisher.alerts if a.kind == AlertKind.RESET]

@@ -18,6 +18,7 @@ from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.devices.laser import SimulatedBoard, SimulatedRelay
 from edgedsm.errors import DeviceLost, DeviceTimeout
 from edgedsm.messages import AlertKind, Clock
+from edgedsm.publish.commands import DarkCommand, LaserCommand
 from edgedsm.publish.sink import RecordingSink
 from edgedsm.sim import load_scene
 
@@ -141,9 +142,9 @@ def test_a_failed_laser_off_command_says_unknown_not_off(setup):
     with running(pipeline):
         wait_until(lambda: relay.board.is_on and pipeline.counters["frames"] > 50, what="measuring")
         relay.board.fault = "no-answer"  # dead while ON
-        reply = pipeline.submit("laser", {"state": "off"})
-        assert reply["ok"] is False and "no answer" in reply["error"]
-        assert reply["laser"] == "unknown"
+        reply = pipeline.submit(LaserCommand(state="off"))
+        assert reply.ok is False and "no answer" in (reply.error or "")
+        assert reply.laser == "unknown"
         assert pipeline.acquisition.laser == "unknown" and relay.board.is_on
         stats_before = len(sink.stats)
         wait_until(lambda: len(sink.stats) > stats_before + 2, what="stats")
@@ -169,13 +170,13 @@ def test_a_manual_laser_off_pauses_measuring_without_false_alerts(setup):
     with running(pipeline):
         wait_until(lambda: [a.to_state for a in sink.alerts] == ["wet"] and pipeline.counters["frames"] > 350,
                    what="the plate wet")
-        assert pipeline.submit("laser", {"state": "off"})["ok"]
+        assert pipeline.submit(LaserCommand(state="off")).ok
         off_at = pipeline.counters["frames"]
         alerts_at_off = len(sink.alerts)
         wait_until(lambda: pipeline.counters["frames"] > off_at + 400, what="400 frames with the laser off")
         assert not relay.board.is_on
         assert sink.alerts[alerts_at_off:] == []  # no false wet -> drying from ambient-only frames
-        assert pipeline.submit("laser", {"state": "auto"})["ok"]
+        assert pipeline.submit(LaserCommand(state="auto")).ok
         wait_until(lambda: pipeline.counters["frames"] > off_at + 700, what="measuring again")
     assert pushed and all(lit for _, lit in pushed)
     assert not [count for count, _ in pushed if off_at + 5 < count <= off_at + 400]
@@ -210,7 +211,7 @@ def test_the_dark_command_takes_dark_frames_even_without_a_schedule(setup):
         wait_until(lambda: pipeline.counters["frames"] > 200, what="measuring")
         first = pipeline.acquisition.last_dark_t
         offs_before = sum(1 for s in relay.board.history if not s.on)
-        assert pipeline.submit("dark")["ok"]
+        assert pipeline.submit(DarkCommand()).ok
         wait_until(lambda: pipeline.acquisition.last_dark_t > first, what="dark frames taken")
         wait_until(lambda: relay.board.is_on, what="the laser on again")
     assert sum(1 for s in relay.board.history if not s.on) > offs_before
@@ -229,15 +230,15 @@ def test_a_flood_of_laser_commands_is_refused_not_executed(setup):
         wait_until(lambda: relay.board.is_on, what="measuring")
         switched = len(relay.board.history)
         started = time.monotonic()
-        replies = [pipeline.submit("laser", {"state": "on" if i % 2 else "off"}) for i in range(40)]
+        replies = [pipeline.submit(LaserCommand(state="on" if i % 2 else "off")) for i in range(40)]
         elapsed = time.monotonic() - started
         executed = len(relay.board.history) - switched
-    refused = [r for r in replies if not r["ok"]]
+    refused = [r for r in replies if not r.ok]
     # at most one switch-on per interval; switching off is never refused (it is the safe side)
     limit = pipeline.acquisition.min_switch_interval_s
     assert executed <= 2 * (elapsed / limit + 1) + 1, (executed, elapsed)
-    assert len(refused) >= 15 and all("at most one switch every" in r["error"] for r in refused)
-    assert all(r["laser"] in ("on", "off") for r in replies)
+    assert len(refused) >= 15 and all("at most one switch every" in (r.error or "") for r in refused)
+    assert all(r.laser in ("on", "off") for r in replies)
 
 
 # -- a lost or flapping camera ----------------------------------------------------------------------
@@ -391,7 +392,7 @@ def test_a_region_outside_the_frame_is_refused_before_the_laser_goes_on(setup, r
     camera = SimulatedCamera(scene, time_scale=0)
     couple_simulated_laser(camera, relay)
     pipeline = Pipeline(config, camera, sink, relay=relay)
-    with pytest.raises(ConfigError, match=r"regions\.plate: the region has no pixel inside the 64x64 frame"):
+    with pytest.raises(ConfigError, match=r"regions\.0: region 'plate' has no pixel inside the 64x64 frame"):
         pipeline.run(lambda: False, max_frames=300)
     assert relay.board.history and not any(s.on for s in relay.board.history)
 
