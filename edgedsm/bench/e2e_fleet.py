@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.child:
         return child(args)
-    from edgedsm.daemon.broker import LocalBroker
+    from edgedsm.localbroker import LocalBroker
 
     load = load_average()
     start = cpu_sample()

@@ -178,7 +178,7 @@ DESCRIPTION = e2e.__doc__
 
 
 def run(args: argparse.Namespace) -> int:
-    from edgedsm.daemon.broker import LocalBroker
+    from edgedsm.localbroker import LocalBroker
 
     seconds = args.seconds or (12.0 if args.quick else 20.0)
     max_trials = 3 if args.quick else 5

@@ -37,8 +37,8 @@ from typing import Any
 
 from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.daemon.acquisition import OFF_RETRY, RELAY_CHECK_S
-from edgedsm.daemon.broker import free_port
 from edgedsm.errors import EdgedsmError
+from edgedsm.localbroker import free_port
 from edgedsm.resources import data_file
 
 HELP = "faults in a loop against the daemon: alerts lost, laser-off delays, memory drift"

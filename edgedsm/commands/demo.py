@@ -116,8 +116,8 @@ def run_daemon_demo(config_path: Path, broker: str | None, time_limit: float, st
 def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, time_limit: float,
                  dashboard_listen: str = "off") -> int:
     from edgedsm.commands.watcher import Watcher
-    from edgedsm.daemon.broker import LocalBroker
     from edgedsm.daemon.service import Service
+    from edgedsm.localbroker import LocalBroker
 
     assert config.mqtt is not None
     with contextlib.ExitStack() as stack:

@@ -27,7 +27,7 @@ import numpy as np
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from edgedsm.daemon.broker import LocalBroker
+from edgedsm.localbroker import LocalBroker
 from edgedsm.messages import Alert, AlertKind, MapStats, RegionState, StateReport, Stats
 from edgedsm.publish.mapcodec import encode_map
 

@@ -1,4 +1,5 @@
-"""A private mosquitto on a free loopback port, for the demo (and tests) when no broker is set."""
+"""A private mosquitto on a free loopback port, for the demo, the benchmarks and the dashboard's load
+test when no broker is set (not part of the daemon: it never starts a broker)."""
 
 from __future__ import annotations
 
