@@ -23,8 +23,8 @@ from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_cam
 from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.drying import Thresholds
 from edgedsm.errors import ConfigError
-from edgedsm.estimators.correlation_time import TAU_FLOOR
-from edgedsm.publish.settings import DEFAULT_DEVICE, TOPIC_PREFIX_PATTERN, MqttSettings
+from edgedsm.estimators.correlation_time import TAU_FLOOR, tau_mode_problem
+from edgedsm.publish.settings import CADENCE_KEYS, DEFAULT_DEVICE, TOPIC_PREFIX_PATTERN, MqttSettings
 from edgedsm.publish.sparkplug.settings import SparkplugSettings
 from edgedsm.validation import StrictModel, read_toml, validate
 
@@ -158,12 +158,8 @@ class EstimatorSection(StrictModel):
         if self.max_lag is not None and self.max_lag > self.window - 2:
             raise ValueError(f"max_lag ({self.max_lag}) must be at most window - 2 ({self.window - 2}): τc needs "
                              "K < N - 1")
-        if self.activity == "tau_c" and self.mode == "exponential":
-            raise ValueError("activity 'tau_c' needs mode 'sliding' or 'tumbling' (τc's finite-window bias "
-                             "correction has no exponential counterpart)")
-        if self.tau_c and self.mode == "exponential":
-            raise ValueError("tau_c needs mode 'sliding' or 'tumbling' (τc's finite-window bias correction has "
-                             "no exponential counterpart)")
+        if (self.activity == "tau_c" or self.tau_c) and (problem := tau_mode_problem(self.mode)):
+            raise ValueError(f"{'activity' if self.activity == 'tau_c' else 'tau_c'}: {problem}")
         return self
 
     @property
@@ -282,6 +278,16 @@ class LoggingSection(StrictModel):
     json_lines: bool = Field(False, description="one JSON object per log line (for log shippers)")
 
 
+class CadenceSection(StrictModel):
+    """``[cadence]``: how often the pipeline evaluates and publishes statistics and maps, for
+    every sink (the drying states are judged twice a second whatever these say)."""
+
+    stats_interval_s: float = Field(5.0, ge=0.1, le=3600.0,
+                                    description="seconds between statistics messages")
+    maps_interval_s: float = Field(60.0, ge=0.1, le=86_400.0,
+                                   description="seconds between map messages (cmd/publish_maps asks for one at once)")
+
+
 class HomeAssistantSection(StrictModel):
     """``[homeassistant]``: MQTT discovery of this device's entities (needs ``[mqtt]``)."""
 
@@ -328,11 +334,20 @@ class DaemonConfig(StrictModel):
     mqtt: MqttSettings | None = Field(None, description="broker; absent = no publishing")
     sparkplug: SparkplugSettings | None = Field(
         None, description="Sparkplug B edge node on the [mqtt] broker; absent = none (docs/sparkplug.md)")
+    cadence: CadenceSection = Field(default_factory=CadenceSection,
+                                    description="how often statistics and maps are evaluated and published")
     logging: LoggingSection = Field(default_factory=LoggingSection)
     homeassistant: HomeAssistantSection | None = Field(None, description="Home Assistant discovery; absent = off")
     http: HttpSection | None = Field(None, description="metrics and health over HTTP; absent = off")
     _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
     _source: str = PrivateAttr("")
+    _notes: list[str] = PrivateAttr(default_factory=list)
+
+    @property
+    def notes(self) -> list[str]:
+        """Deprecations found while reading the file, one line each (the daemon logs them,
+        ``check-config`` prints them)."""
+        return list(self._notes)
 
     @property
     def base_dir(self) -> Path:
@@ -382,9 +397,8 @@ class DaemonConfig(StrictModel):
             if est.activity == "tau_c" and not region.on_tau:
                 raise ValueError(f"regions.{index}.wet_above: estimator.activity = 'tau_c' judges every region on "
                                  "its τc in seconds: give wet_below_s and dry_above_s")
-            if region.on_tau and est.mode == "exponential":
-                raise ValueError(f"regions.{index}.wet_below_s: τc thresholds need estimator.mode 'sliding' or "
-                                 "'tumbling' (τc has no exponential window)")
+            if region.on_tau and (problem := tau_mode_problem(est.mode)):
+                raise ValueError(f"regions.{index}.wet_below_s: τc thresholds in seconds: estimator.mode: {problem}")
         if not self.tau_c_on:
             return
         if est.window < 3:
@@ -418,6 +432,21 @@ def tau_threshold_problem(wet_below_s: float, dry_above_s: float, hysteresis: fl
     return None
 
 
+def _cadence_from_mqtt(data: dict, path: Path) -> tuple[dict, list[str]]:
+    """``[mqtt]`` stats_interval_s / maps_interval_s, where they once were, moved to ``[cadence]``;
+    the keys moved. Both places at once is a ConfigError."""
+    mqtt, cadence = data.get("mqtt"), data.get("cadence", {})
+    if not isinstance(mqtt, dict) or not isinstance(cadence, dict):
+        return data, []
+    moved = [key for key in CADENCE_KEYS if key in mqtt]
+    if both := [key for key in moved if key in cadence]:
+        raise ConfigError(f"{path}: mqtt.{both[0]}: given in both [mqtt] and [cadence]: keep the [cadence] one")
+    if not moved:
+        return data, []
+    return ({**data, "mqtt": {k: v for k, v in mqtt.items() if k not in moved},
+             "cadence": {**cadence, **{key: mqtt[key] for key in moved}}}, moved)
+
+
 def load_config(path: str | Path) -> DaemonConfig:
     """Read and validate a daemon config; ConfigError lists every problem with its key path.
 
@@ -428,8 +457,17 @@ def load_config(path: str | Path) -> DaemonConfig:
     data = read_toml(path)
     if isinstance(data.get("regions"), list):  # the default shape as a key, so error paths read as written
         data["regions"] = [_default_shape(region) for region in data["regions"]]
-    config = validate(DaemonConfig, data, str(path))
+    data, moved = _cadence_from_mqtt(data, path)
+    try:
+        config = validate(DaemonConfig, data, str(path))
+    except ConfigError as exc:  # a moved key's problem is named where the file has it
+        message = str(exc)
+        for key in moved:
+            message = message.replace(f": cadence.{key}:", f": mqtt.{key}:")
+        raise ConfigError(message) from None
     config._base_dir, config._source = path.resolve().parent, str(path)
+    config._notes = [f"{path}: mqtt.{key} is deprecated: write it as {key} in [cadence] (same meaning)"
+                     for key in moved]
     try:
         config.camera.resolve(config.base_dir)
     except ConfigError as exc:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from edgedsm.errors import ConfigError
-from edgedsm.publish.settings import MqttSettings
+from edgedsm.publish.settings import CADENCE_KEYS, MqttSettings
 from edgedsm.validation import read_toml, validate
 
 
@@ -75,6 +75,8 @@ def mqtt_settings(config: Path | None, args: argparse.Namespace, overrides: Mapp
         elif require_table:
             raise ConfigError(f"{config}: has no [mqtt] table")
     data.pop("client_id", None)
+    for key in CADENCE_KEYS:  # a daemon's cadence (deprecated there), nothing a subscriber uses
+        data.pop(key, None)
     if not with_device:
         data.pop("device", None)
     data.update({key: value for key, value in overrides.items() if value is not None})

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -48,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
     from edgedsm.publish.topics import Topics
 
     base = Topics.from_settings(config.mqtt).base if config.mqtt else None
+    for note in config.notes:
+        print(f"edgedsm: note: {note}", file=sys.stderr)
     if args.json:
         print(json.dumps({
             "config": args.config, "ok": True, "device": config.device.name, "topic_base": base,
@@ -59,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
             "frame_shape": list(frame_shape) if frame_shape is not None else None,
             "mqtt": f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else None,
             "homeassistant": config.homeassistant.discovery_prefix if config.homeassistant else None,
-            "http": config.http.listen if config.http else None}))
+            "http": config.http.listen if config.http else None, "notes": config.notes}))
         return 0
     mqtt = f"{config.mqtt.host}:{config.mqtt.port}, topics {base}/..." if config.mqtt else "none (log only)"
     regions = (f"{len(config.regions)} region(s) inside the {frame_shape[1]}x{frame_shape[0]} frame"

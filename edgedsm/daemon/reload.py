@@ -93,6 +93,7 @@ SECTION_CHANGE: dict[str, str] = {
     "regions": RESTART,     # names and geometry; thresholds only: KEEP (see region_change)
     "mqtt": KEEP,
     "sparkplug": KEEP,
+    "cadence": KEEP,        # applied to the running loop
     "logging": KEEP,
     "homeassistant": KEEP,
     "http": KEEP,

@@ -112,6 +112,8 @@ class Service:
         except ReloadRefused as exc:
             self._refuse_reload(str(exc))
             return False
+        for note in new.notes:
+            log.warning("%s", note)
         changed = changed_sections(new, self.config)
         restart = restart_reasons(new, self.config)
         try:
@@ -150,6 +152,8 @@ class Service:
     # -- running ----------------------------------------------------------------------------
     def run(self) -> int:
         """Measure until stopped; returns the process exit code."""
+        for note in self.config.notes:
+            log.warning("%s", note)
         self.sinks.apply(self.config)
         try:
             return self._run_pipelines()
@@ -252,7 +256,5 @@ class Service:
     @staticmethod
     def _cadence(config: DaemonConfig) -> Cadence:
         """How often stats and maps are evaluated and published."""
-        if config.mqtt is None:
-            return Cadence()
-        return Cadence(stats_every_s=config.mqtt.stats_interval_s, maps_every_s=config.mqtt.maps_interval_s)
+        return Cadence(stats_every_s=config.cadence.stats_interval_s, maps_every_s=config.cadence.maps_interval_s)
 

@@ -27,13 +27,9 @@ def _fingerprint(*parts: Any) -> str:
                       sort_keys=True, default=str)
 
 
-#: ``[mqtt]`` keys the pipeline's cadence reads (applied to the running loop): no new session.
-CADENCE_FIELDS = frozenset({"stats_interval_s", "maps_interval_s"})
-
-
 def _broker(config: DaemonConfig) -> dict[str, Any]:
     assert config.mqtt is not None
-    return config.mqtt.model_dump(mode="json", exclude=set(CADENCE_FIELDS))
+    return config.mqtt.model_dump(mode="json")
 
 
 def _regions(config: DaemonConfig) -> list[str]:

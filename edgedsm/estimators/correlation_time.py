@@ -55,6 +55,17 @@ from edgedsm.estimators.batch import check_frames
 
 MEASURED, ABOVE, BELOW, NO_SIGNAL = 0, 1, -1, 2
 TAU_FLOOR = 1.0 / 3.0  # frames: e^-3 = 5 % correlation left after one frame
+#: Window modes τc can be estimated in: its finite-window bias correction models a window of N
+#: equally weighted frames, which an exponential window is not.
+TAU_MODES = ("sliding", "tumbling")
+
+
+def tau_mode_problem(mode: str) -> str | None:
+    """Why τc cannot be estimated in window ``mode`` (None: it can); the one statement of it."""
+    if mode in TAU_MODES:
+        return None
+    return (f"τc needs mode 'sliding' or 'tumbling', not {mode!r} (its finite-window bias correction has no "
+            f"{mode} counterpart)")
 LAG1_MIN = 0.05  # fitted lag-1 correlation below this: nothing left to time
 DEFAULT_MAX_LAG = 20
 DENSE_LAGS = 4  # every lag up to this one

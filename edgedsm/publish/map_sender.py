@@ -28,6 +28,11 @@ from edgedsm.publish.topics import Topics
 
 log = logging.getLogger(__name__)
 
+#: Longest wait for one map's PNG to leave before the worker moves on (s): the next map of that
+#: name replaces it anyway (maps are state, not events).
+MAP_SEND_WAIT_S = 30.0
+
+
 class MapSender:
     """Sends maps handed to :meth:`submit` while ``connected`` is set."""
 
@@ -96,7 +101,7 @@ class MapSender:
         self._client.publish(self.topics.map_meta(name), _json.dumps(info), qos=0)
         sent = self._client.publish(self.topics.map(name), png, qos=0)
         # Back-pressure: wait (in this thread only) until the PNG left, so maps never pile up.
-        deadline = time.monotonic() + max(5.0, self.settings.maps_interval_s)
+        deadline = time.monotonic() + MAP_SEND_WAIT_S
         while not sent.is_published() and sent.rc == MQTTErrorCode.MQTT_ERR_SUCCESS:
             if self._worker.stopping or time.monotonic() >= deadline:
                 return

@@ -31,6 +31,11 @@ _DEVICE = r"^[A-Za-z0-9_.-]{1,64}$"
 DEFAULT_DEVICE = "camera1"
 
 
+#: Keys a daemon config once had in ``[mqtt]`` and now has in ``[cadence]`` (the pipeline's, for
+#: every sink): still accepted in ``[mqtt]``, moved there with a deprecation note.
+CADENCE_KEYS = ("stats_interval_s", "maps_interval_s")
+
+
 class MqttTlsSettings(StrictModel):
     """``[mqtt.tls]``: present = TLS on. Without ``ca_file`` the system's CA store is used."""
 
@@ -95,11 +100,6 @@ class MqttSettings(StrictModel):
                     "beyond this the oldest are dropped (counted and logged)")
     alerts_in_flight: int = Field(10, ge=1, le=20,
                                   description="alerts sent but not yet acknowledged at any one time")
-    stats_interval_s: float = Field(5.0, ge=0.1, le=3600.0,
-                                    description="seconds between statistics messages")
-    maps_interval_s: float = Field(60.0, ge=0.1, le=86_400.0,
-                                   description="seconds between map messages (cmd/publish_maps asks "
-                                               "for one at once)")
     laser_command: bool = Field(
         True, description="accept cmd/laser (on/off/auto); false = refused, saying so, for sites whose laser-safety "
                           "sign-off does not cover switching the laser remotely (docs/laser-safety.md)")

@@ -13,6 +13,7 @@ from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.reload import KEEP, RESTART, SECTION_CHANGE, changed_sections, restart_reasons
 from edgedsm.daemon.sinks import wanted_sinks
 from edgedsm.dashboard.app import regions_from_configs
+from edgedsm.errors import ConfigError
 from edgedsm.messages import RegionState, StateReport
 from edgedsm.publish.settings import DEFAULT_DEVICE
 from edgedsm.publish.topics import Topics
@@ -61,7 +62,7 @@ def test_the_table_names_every_config_section_once() -> None:
 def test_publishing_logging_and_thresholds_keep_the_measurement(tmp_path: Path) -> None:
     running = config(tmp_path)
     new = config(tmp_path, wet=0.7, stats=2.5, extra='username = "plant"')
-    assert changed_sections(new, running) == ["regions", "mqtt"]
+    assert changed_sections(new, running) == ["regions", "mqtt", "cadence"]
     assert restart_reasons(new, running) == []
     assert restart_reasons(config(tmp_path), running) == []  # unchanged
 
@@ -108,6 +109,24 @@ def _report(state: str = "drying", activity: float | None = 0.2, ttd: float | No
 ])
 def test_a_state_report_is_republished_when_it_moved_meaningfully(new: StateReport, moved: bool) -> None:
     assert new.moved_from(_report()) is moved
+
+
+def test_the_cadence_once_in_mqtt_moves_to_its_own_table_with_a_note(tmp_path: Path) -> None:
+    old = config(tmp_path, stats=2.5)  # written in [mqtt], as the BASE template does
+    assert old.cadence.stats_interval_s == 2.5 and old.cadence.maps_interval_s == 60.0
+    assert old.notes == [f"{old.source}: mqtt.stats_interval_s is deprecated: write it as stats_interval_s "
+                         "in [cadence] (same meaning)"]
+    new_path = tmp_path / "new.toml"
+    new_path.write_text(BASE.replace("stats_interval_s = {stats}\n", "").format(
+        state=tmp_path / "state", window=64, region="plate", width=16, wet=0.5, stats=0,
+        extra="\n[cadence]\nstats_interval_s = 2.5\n"), encoding="utf-8")
+    new = load_config(new_path)
+    assert new.notes == [] and changed_sections(new, old) == []  # the same settings, where they belong
+    both = tmp_path / "both.toml"
+    both.write_text(BASE.format(state=tmp_path / "state", window=64, region="plate", width=16, wet=0.5, stats=1.0,
+                                extra="\n[cadence]\nstats_interval_s = 2.5\n"), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"mqtt\.stats_interval_s: given in both \[mqtt\] and \[cadence\]"):
+        load_config(both)
 
 
 def test_one_device_name_default_for_daemon_watch_cmd_dashboard_sparkplug(tmp_path: Path) -> None:
