@@ -33,9 +33,9 @@ def command_named(argv: list[str]) -> str | None:
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The whole command line; with ``command``, only that command's module is imported (the others
-    get an empty parser, enough to choose them): ``edgedsm cmd`` in a SCADA script starts in 0.6 s
-    instead of 2.6-3.3 s of importing the simulator, numba, the configuration models and the reports
-    it does not use (2-core EPYC)."""
+    get an empty parser, enough to choose them): ``edgedsm cmd`` in a SCADA script then starts
+    without importing the simulator, numba, the configuration models and the reports it does not
+    use (several times faster: docs/bench-design.md)."""
     parser = argparse.ArgumentParser(
         prog="edgedsm",
         description="Dynamic speckle activity maps (S1, S2, S3 of Levchenko et al. 2022): "

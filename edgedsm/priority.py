@@ -2,10 +2,9 @@
 
 On a machine with few cores a parallel engine pass waits for its slowest kernel thread, so a
 thread that shares a core with one of them at the same priority stretches every pass it
-overlaps (measured at 4096×2168 on a 2-core EPYC: a push overlapping an evaluation takes 50 ms
-instead of 37). A lower priority moves such work into the moments the kernel threads idle, and
-costs it nothing when the cores are free. Linux sets a nice value per thread; elsewhere, or
-where the system refuses, the thread keeps its priority.
+overlaps (docs/bench-design.md has the figures). A lower priority moves such work into the
+moments the kernel threads idle, and costs it nothing when the cores are free. Linux sets a
+nice value per thread; elsewhere, or where the system refuses, the thread keeps its priority.
 """
 
 from __future__ import annotations

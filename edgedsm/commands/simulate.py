@@ -2,7 +2,7 @@
 
 The scene (TOML) says which effects to simulate: activity (τc map, drying), illumination,
 phase noise, ambient light, detector. Effects that are absent cost nothing. See
-config/scenes/*.toml for examples and DESIGN.md §5 for the format.
+config/scenes/*.toml for examples and the README's "Scenes" section for the format.
 
 Examples:
   edgedsm simulate config/scenes/logos.toml -o frames.npy

@@ -19,10 +19,8 @@ from typing import Any
 #: How numba's OpenMP worker threads wait for the next parallel region. libgomp's default spins
 #: for up to 300,000 iterations (milliseconds) after every region before it sleeps: a worker
 #: then holds a core the daemon's other threads need between two pushes (evaluator, capture,
-#: sinks). Measured with the daemon at its capacity (2-core EPYC, A/B trials in separate
-#: processes, 6 at 2048² and 3 at 4096×2168 each): 81-93 % of the bare engine spinning, 82-100 %
-#: passive (medians 91 and 95 %); an evaluation took 104-141 ms on the evaluator thread
-#: spinning, 74-99 ms passive (wall time: it waits for a core).
+#: sinks): passive waiting sustained more frames and shorter evaluations in A/B trials of the
+#: daemon at its capacity (docs/bench-design.md).
 OMP_WAIT_POLICY = "PASSIVE"
 
 

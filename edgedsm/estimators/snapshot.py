@@ -46,8 +46,8 @@ class MapBuffers:
     """Float64 map arrays that :func:`maps_from` writes into again once nobody else holds them.
 
     Fresh arrays of a large sensor cost more than the maps kernel itself: the kernel's first
-    touch of each page faults (4096×2168: four 71 MB arrays, 0.2-0.5 s of page faults against
-    74 ms of arithmetic, measured on a 2-core EPYC). An array is reused only when the pool's own
+    touch of each page faults, several times the kernel's arithmetic at large frames
+    (docs/bench-design.md). An array is reused only when the pool's own
     reference is the last one (the maps handed out, their views and whatever a sink kept all
     count), so a sink may keep a map as long as it likes: the pool then allocates a new set.
     Used from one thread.

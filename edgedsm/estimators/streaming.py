@@ -576,9 +576,9 @@ class SlidingWindow:
 
     def snapshot_buffers(self, estimators: Iterable[str] | None = None) -> EngineSnapshot:
         """Arrays for a later ``snapshot(into=...)``, allocated and written once now (zeros, not
-        a snapshot: any time, full window or not). Fresh pages fault in at the first write: at
-        4096×2168 the first copy into new arrays stalls the pushing thread ~0.35 s, against
-        ~30 ms into these (2-core EPYC); take them before frames flow."""
+        a snapshot: any time, full window or not). Fresh pages fault in at the first write, and
+        at large frames the first copy into new arrays stalls the pushing thread ten times as
+        long as a copy into these (docs/bench-design.md); take them before frames flow."""
         return self._snapshot_of(estimators, None, "zeros")
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
