@@ -29,9 +29,17 @@ from collections import deque
 import numpy as np
 
 from edgedsm.analysis import RegionBox
-from edgedsm.config import DaemonConfig, tau_threshold_problem
+from edgedsm.config import DaemonConfig
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
-from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL, fit_correlations, normalise
+from edgedsm.estimators.correlation_time import (
+    ABOVE,
+    BELOW,
+    MEASURED,
+    NO_SIGNAL,
+    fit_correlations,
+    normalise,
+    tau_threshold_problem,
+)
 from edgedsm.estimators.snapshot import TauSnapshot, tau_covariances
 from edgedsm.estimators.tau_pooled import block_covariances, pooled_covariances
 from edgedsm.estimators.tau_stream import tau_map, tau_region

@@ -60,6 +60,29 @@ TAU_FLOOR = 1.0 / 3.0  # frames: e^-3 = 5 % correlation left after one frame
 TAU_MODES = ("sliding", "tumbling")
 
 
+def default_max_lag(window: int, lag: int) -> int:
+    """K, the longest τc lag in frames when none is given: twice the lag m, at most N - 2."""
+    return max(1, min(2 * lag, window - 2))
+
+
+def tau_threshold_problem(wet_below_s: float, dry_above_s: float, hysteresis: float, lags: int,
+                          frame_interval_s: float) -> str | None:
+    """Why τc thresholds cannot be told apart at this frame interval (None: they can). τc is measured
+    from TAU_FLOOR·Δt (Δt/3) up to K·Δt; beyond, only a bound is known (docs/tau_c.md)."""
+    top = lags * frame_interval_s
+    floor = TAU_FLOOR * frame_interval_s
+    # dry is entered at τc >= dry_above_s/(1-h), wet at τc <= wet_below_s/(1+h) (the hysteresis
+    # is relative on 1/τc); "above K" reads as τc = K·Δt, "below the floor" as Δt/3
+    if dry_above_s / (1 - hysteresis) > top:
+        return (f"dry_above_s ({dry_above_s:g} s; {dry_above_s / (1 - hysteresis):.4g} s with the hysteresis) is "
+                f"beyond the longest τc measured, estimator.max_lag x Δt = {lags} x {frame_interval_s:g} s = "
+                f"{top:g} s: raise max_lag (and window) or lower dry_above_s")
+    if wet_below_s / (1 + hysteresis) < floor:
+        return (f"wet_below_s ({wet_below_s:g} s; {wet_below_s / (1 + hysteresis):.4g} s with the hysteresis) is "
+                f"below the shortest τc measured, Δt/3 = {floor:.4g} s: a faster camera is needed")
+    return None
+
+
 def tau_mode_problem(mode: str) -> str | None:
     """Why τc cannot be estimated in window ``mode`` (None: it can); the one statement of it."""
     if mode in TAU_MODES:

@@ -33,7 +33,7 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags, tau_mode_problem
+from edgedsm.estimators.correlation_time import TauC, _check_mask, default_max_lag, tau_lags, tau_mode_problem
 from edgedsm.estimators.fixed_point import _NO_LUT, ratio_kind, ratio_lut, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
 
@@ -149,7 +149,7 @@ class SlidingWindow:
         self._do_sums = self._do_sigma or self._do_tau  # ΣI and ΣI² serve S3 and τc
         if self._do_tau and (problem := tau_mode_problem(mode)):
             raise EstimatorError(f"estimator 'tau_c': {problem}")
-        default_lag = max(1, min(2 * self.lag, self.window - 2))
+        default_lag = default_max_lag(self.window, self.lag)
         self.max_lag = default_lag if max_lag is None else _check_int("max_lag K", max_lag, 1,
                                                                       max(1, self.window - 2))
         self.tau_lags = tau_lags(self.max_lag)  # the lags τc keeps products for (frames)

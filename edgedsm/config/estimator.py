@@ -1,0 +1,61 @@
+"""``[estimator]``: what the engine computes, over which window and lag (the paper's N and m)."""
+
+from __future__ import annotations
+
+import os
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from edgedsm.estimators.correlation_time import default_max_lag, tau_mode_problem
+from edgedsm.validation import StrictModel
+
+
+class EstimatorSection(StrictModel):
+    activity: Literal["s1", "s2", "s3", "tau_c"] = Field(
+        "s2", description="estimator the drying states are judged on (S3 saturates once τc >> N; tau_c: the "
+                          "region's correlation time in seconds, thresholds wet_below_s / dry_above_s)")
+    window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
+    lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
+    q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
+    mode: Literal["sliding", "exponential", "tumbling"] = Field("sliding", description="window mode of the engine")
+    tau_c: bool = Field(
+        False, description="also estimate the correlation time τc (docs/tau_c.md): a push of S1+S2+S3+τc "
+                           "costs about 1.6-2.0x one of S1+S2+S3 at 2048², so off unless asked for here or "
+                           "needed (activity = 'tau_c', or a region with wet_below_s / dry_above_s); needs mode "
+                           "'sliding' or 'tumbling'")
+    max_lag: int | None = Field(None, ge=1, le=99_998,
+                                description="K: the longest lag in frames that τc is fitted over, at multi-tau lags "
+                                            "1, 2, 3, 4, 6, 8, … K (default min(2·lag, window-2)); τc is measured up "
+                                            "to K·Δt, above it reported as '> K·Δt'")
+    tau_c_map: bool = Field(True, description="publish the τc map (seconds) with the other maps")
+    tau_c_map_block: int | None = Field(
+        None, ge=1, le=256, description="side b of the b×b pixel blocks the τc map is fitted over, pooled as a "
+                                        "region (1: per pixel, ~6 µs each on the evaluator thread per map); "
+                                        "default: the smallest b that keeps the map at 65,536 fits (2048²: 8)")
+    ambient_correction: bool = Field(
+        False, description="subtract the measured dark level from every frame before all estimators (off: the "
+                           "validation in docs/ambient.md shows it distorts S2; use S3 under ambient light)")
+    threads: int | None = Field(None, ge=1, le=256, description="kernel threads (default: all cores)")
+    area: Literal["frame", "regions"] = Field(
+        "frame", description="frame: maps of the whole sensor; regions: only the bounding box of all regions "
+                             "(the cost follows the regions; the published maps cover that box)")
+
+    @model_validator(mode="after")
+    def _lag_fits(self) -> EstimatorSection:
+        if self.lag >= self.window:
+            raise ValueError(f"lag ({self.lag}) must be smaller than window ({self.window})")
+        cores = os.cpu_count() or 1
+        if self.threads is not None and self.threads > cores:
+            raise ValueError(f"threads ({self.threads}) is more than this machine's {cores} cores")
+        if self.max_lag is not None and self.max_lag > self.window - 2:
+            raise ValueError(f"max_lag ({self.max_lag}) must be at most window - 2 ({self.window - 2}): τc needs "
+                             "K < N - 1")
+        if (self.activity == "tau_c" or self.tau_c) and (problem := tau_mode_problem(self.mode)):
+            raise ValueError(f"{'activity' if self.activity == 'tau_c' else 'tau_c'}: {problem}")
+        return self
+
+    @property
+    def lags(self) -> int:
+        """K, the τc lags in frames (``max_lag`` or its default)."""
+        return self.max_lag if self.max_lag is not None else default_max_lag(self.window, self.lag)
