@@ -107,7 +107,18 @@ class LosslessRow:
     ratio: float
     speed: Speed
     identical: bool  # every decoded pixel equals the original
-    tiff: str  # "yes" (tifffile wrote and read it back bit-identically), "no: <why>" or "" (no TIFF mode)
+    tiff: TiffCheck | None  # None: TIFF has no such compression
+
+
+@dataclass(frozen=True)
+class TiffCheck:
+    """A multi-page TIFF written by tifffile with the codec, read back by three readers: "yes" if
+    tifffile gives back every pixel ("no: <why>" otherwise); OpenCV and Pillow: True if they
+    do too, False if not, None if not installed."""
+
+    tifffile: str
+    opencv: bool | None
+    pillow: bool | None
 
 
 @dataclass(frozen=True)
@@ -310,21 +321,61 @@ def ratio(frames: np.ndarray, encoded: list[bytes]) -> float:
     return frames.nbytes / sum(len(data) for data in encoded)
 
 
-def tiff_round_trip(codec: Codec, frames: np.ndarray) -> str:
-    """Write ``frames`` as a multi-page TIFF in memory with the codec's tifffile compression and read
-    them back: "yes" if bit-identical, "no: ..." otherwise, "" if TIFF has no such compression."""
+def tiff_round_trip(codec: Codec, frames: np.ndarray) -> TiffCheck | None:
+    """Write ``frames`` as a multi-page TIFF in memory with the codec's tifffile compression, then
+    read every page back with tifffile, OpenCV and Pillow (None if TIFF has no such compression)."""
     if codec.tiff is None:
-        return ""
+        return None
     import tifffile
 
     compression, kwargs = codec.tiff
     buffer = io.BytesIO()
     try:
-        tifffile.imwrite(buffer, frames, compression=compression, **kwargs)
+        tifffile.imwrite(buffer, frames, compression=compression, photometric="minisblack", **kwargs)
         back = tifffile.imread(io.BytesIO(buffer.getvalue()))
-    except Exception as exc:
-        return f"no: {type(exc).__name__}: {str(exc).splitlines()[0][:60] if str(exc) else ''}".rstrip(": ")
-    return "yes" if np.array_equal(back.reshape(frames.shape), frames) else "no: differs"
+    except Exception as exc:  # any refusal by tifffile or the codec is the finding
+        return TiffCheck(f"no: {type(exc).__name__}", None, None)
+    data = buffer.getvalue()
+    return TiffCheck("yes" if np.array_equal(back.reshape(frames.shape), frames) else "no: differs",
+                     _opencv_reads(data, frames), _pillow_reads(data, frames))
+
+
+def _same_pages(pages: Sequence[np.ndarray], frames: np.ndarray) -> bool:
+    return len(pages) == len(frames) and all(np.array_equal(p, f) for p, f in zip(pages, frames, strict=True))
+
+
+def _opencv_reads(data: bytes, frames: np.ndarray) -> bool | None:
+    """Whether OpenCV (its own libtiff) decodes every page bit-identically; None if not installed."""
+    try:
+        import cv2
+    except ImportError:
+        return None
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # a refusal is the finding
+    try:
+        ok, pages = cv2.imdecodemulti(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        return False
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+    return bool(ok) and _same_pages(pages, frames)
+
+
+def _pillow_reads(data: bytes, frames: np.ndarray) -> bool | None:
+    """Whether Pillow decodes every page bit-identically; None if not installed."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return None
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            pages = []
+            for index in range(getattr(image, "n_frames", 1)):
+                image.seek(index)
+                pages.append(np.array(image))
+    except Exception:  # Pillow raises many types for a compression it lacks
+        return False
+    return _same_pages(pages, frames)
 
 
 def map_quality(frames: np.ndarray, scene: Scene, plan: Plan,
