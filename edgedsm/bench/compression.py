@@ -36,6 +36,7 @@ from edgedsm.bench.compression_cost import (
     MapQuality,
     Plan,
     Results,
+    Speed,
     measure,
 )
 from edgedsm.bench.report import (
@@ -50,7 +51,7 @@ from edgedsm.bench.report import (
 from edgedsm.errors import EdgedsmError
 
 HELP = "what compression costs: lossless ratio and MB/s at 8/12/16 bits, lossy codecs against map accuracy"
-PAPER_RATE_MB_S = 4096 * 2168 / 2.0 / 1e6  # the paper's series: 4096×2168 8-bit frames every Δt = 2 s
+PAPER_RATE_MB_S = 4096 * 2168 / 2.0 / 1e6  # the paper's series: 4096×2168 frames every Δt = 2 s, at 8 bits
 NEED_MB_S = 100.0  # default: a 2048² 8-bit camera at 24 frames/s, half the daemon's zero-drop rate there
 AUC_LOSS = 0.01  # a lossy setting keeps a map's contrast while its AUC falls by no more than this
 
@@ -69,9 +70,15 @@ def _pct(value: float) -> str:
 
 def lossless_rows(results: Results, bits: int) -> list[list[str]]:
     return [[row.codec.name, row.codec.setting or "—", f"{row.ratio:.3f}", _mb(row.speed.encode_mb_s),
-             _mb(row.speed.decode_mb_s), f"{row.speed.encode_cpu:.2f} / {row.speed.decode_cpu:.2f}",
+             _mb(row.speed.decode_mb_s), cpu_cells(row.speed),
              "yes" if row.identical else "**NO**", *tiff_cells(row)]
             for row in results.lossless if row.bits == bits]
+
+
+def cpu_cells(speed: Speed) -> str:
+    """'process ÷ thread CPU, encode / decode; thread CPU ÷ wall, encode / decode'."""
+    return (f"{speed.encode.threads:.2f} / {speed.decode.threads:.2f}; "
+            f"{speed.encode.on_cpu:.2f} / {speed.decode.on_cpu:.2f}")
 
 
 def tiff_cells(row: LosslessRow) -> list[str]:
@@ -229,18 +236,23 @@ def write_report(report: Report, results: Results, command: str, header: str, ne
                 "ETRI at τc = 10 Δt on a τc = 50 Δt background, speckle 2 px, shot noise with N_max = 1000 "
                 f"photons), {plan.size}² pixels, changing only `[detector] bits`.")
     report.line()
-    report.line(f"Speed is MB/s (10⁶ bytes) of raw frames on one core: imagecodecs calls each codec once per "
-                "frame on the calling thread, and the codecs that have a thread option (OpenJPEG, libjxl, "
-                "libwebp) get `numthreads=1`; the CPU/wall column is process CPU seconds per wall second over "
-                f"the timed passes (about 1.0 = one core busy; less = the machine's other work). Median of "
-                f"{plan.repeats} passes over {plan.speed_frames} frames after one warm-up frame. Ratio = raw "
-                "bytes / compressed bytes, raw being 1 byte per pixel at 8 bits and 2 (the uint16 a camera "
-                "delivers) at 12 and 16. TIFF: tifffile wrote the frames as a multi-page TIFF with that codec "
-                "and read them back bit-identically (`—`: TIFF has no such compression). A recorder can use "
-                "several cores by compressing frames in parallel; the figures are per core.")
-    if results.absent:
-        report.line()
-        report.line(f"Absent from this imagecodecs build: {', '.join(results.absent)}.")
+    report.line(f"Speed is MB/s (10⁶ bytes) of raw frames per CPU second of the thread that calls the codec: "
+                "imagecodecs calls each codec once per frame on that thread, and the codecs that have a thread "
+                "option (OpenJPEG, libjxl, libwebp) get `numthreads=1`, so this is the rate of one core. CPU "
+                "time rather than wall time, because the machine is shared: the wall clock also counts the time "
+                "other work held the core. Median of "
+                f"{plan.repeats} passes over {plan.speed_frames} frames after one warm-up frame. The column "
+                "*threads; on CPU*: the process's CPU time ÷ the calling thread's (1.00: no other thread "
+                "helped, which a per-core figure needs), then the thread's CPU time ÷ the wall time (below 1: "
+                "other work took the core part of the time). Ratio = raw bytes / compressed bytes, raw being 1 "
+                "byte per pixel at 8 bits and 2 (the uint16 a camera delivers) at 12 and 16. TIFF: tifffile "
+                "wrote the frames as a multi-page TIFF with that codec and read them back bit-identically; "
+                "OpenCV (cv2.imdecodemulti, its own libtiff) and Pillow read the same file, every page "
+                "compared (`—`: TIFF has no such compression). A recorder can use several cores by "
+                "compressing frames in parallel; the figures are per core.")
+    report.line()
+    report.line(f"Absent from this imagecodecs build: {', '.join(results.absent)}; their rows are missing."
+                if results.absent else "Every codec below is in this imagecodecs build (none of them is absent).")
     report.line()
     report.line("## What the frames hold")
     report.line()
@@ -261,13 +273,14 @@ def write_report(report: Report, results: Results, command: str, header: str, ne
     for bits in DEPTHS:
         report.line(f"### {bits} bits")
         report.line()
-        report.table(["codec", "setting", "ratio", "encode MB/s", "decode MB/s", "CPU/wall enc / dec",
+        report.table(["codec", "setting", "ratio", "encode MB/s", "decode MB/s", "threads; on CPU (enc / dec)",
                       "bit-identical", "TIFF: tifffile", "OpenCV", "Pillow"], lossless_rows(results, bits),
                      "llrrrrllll")
         report.line()
     report.line("## Lossy codecs and what the maps lose")
     report.line()
-    report.line(f"8-bit logo scene, {plan.frames} frames; S1, S2, S3 at m = {plan.lag} over all of them "
+    report.line(f"Measured at 8 bits, the depth of the paper's simulated frames (§2A: 8-bit bitmaps): the logo "
+                f"scene, {plan.frames} frames; S1, S2, S3 at m = {plan.lag} over all of them "
                 f"(paper Eq. 1-3), τc fitted with K = {plan.max_lag} lags (edgedsm.estimators.tau_c). Errors "
                 "are the relative RMS difference of each map from the decoded frames against the same map "
                 "from the original frames, ‖map − map₀‖ / ‖map₀‖ over all pixels (τc in frames). Frame RMS: "

@@ -13,9 +13,12 @@ Frames come from the simulator's logo scene (the paper's two-level object, edged
   the background, and the regions' τc.
 
 Every codec runs through imagecodecs, one call per frame on the calling thread; the codecs that
-have a thread option (OpenJPEG, libjxl, libwebp) are given ``numthreads=1``, and the CPU time of each
-timed pass is recorded against its wall time to show it. imagecodecs is imported when a codec list
-is built, not when this module is (the CLI builds every bench parser at start-up).
+have a thread option (OpenJPEG, libjxl, libwebp) are given ``numthreads=1``. Speed is MB of raw
+frames per CPU second of the calling thread (a shared machine's wall clock would count the time
+other work held the core); the process's CPU time against the thread's shows that no other thread
+helped, the thread's CPU time against the wall time how much of the run it got a core.
+imagecodecs is imported when a codec list is built, not when this module is (the CLI builds every
+bench parser at start-up).
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ class Plan:
     size: int = 256  # pixels per side of the simulated frames
     frames: int = 200  # frames per lossy trial (the maps' window N)
     speed_frames: int = 16  # frames per timed pass and per lossless ratio
-    repeats: int = 5  # timed passes; the median counts
+    repeats: int = 7  # timed passes; the median counts
     lag: int = 5  # m of S1-S3 (the paper's Fig. 10-11 processing)
     max_lag: int = 20  # K of τc
 
@@ -76,13 +79,32 @@ class Codec:
 
 
 @dataclass(frozen=True)
-class Speed:
-    """Encode and decode MB/s of raw data on one core, and CPU seconds per wall second of each."""
+class Timing:
+    """One operation over the frames: median CPU seconds of the calling thread per pass, and over
+    all passes the share of wall time that thread was on a CPU and the process's CPU time per
+    thread CPU time (1.0: the codec used no other thread)."""
 
-    encode_mb_s: float
-    decode_mb_s: float
-    encode_cpu: float
-    decode_cpu: float
+    thread_s: float
+    on_cpu: float
+    threads: float
+
+
+@dataclass(frozen=True)
+class Speed:
+    """Encode and decode of ``raw_mb`` megabytes (10^6 bytes) of raw frames on one core."""
+
+    raw_mb: float
+    encode: Timing
+    decode: Timing
+
+    @property
+    def encode_mb_s(self) -> float:
+        """MB of raw frames per CPU second of the encoding thread."""
+        return self.raw_mb / self.encode.thread_s if self.encode.thread_s > 0 else float("inf")
+
+    @property
+    def decode_mb_s(self) -> float:
+        return self.raw_mb / self.decode.thread_s if self.decode.thread_s > 0 else float("inf")
 
 
 @dataclass(frozen=True)
@@ -285,17 +307,19 @@ def depth_stats(frames: np.ndarray, bits: int) -> DepthStats:
 
 
 # ----------------------------------------------------------------------------- measures
-def _timed(work: Callable[[], object], repeats: int) -> tuple[float, float]:
-    """Median wall seconds of ``work`` over ``repeats`` passes, and CPU seconds per wall second of
-    all passes together (about 1 for one thread, 2 for two busy threads)."""
-    walls = []
-    cpu_start, wall_start = time.process_time(), time.perf_counter()
+def _timed(work: Callable[[], object], repeats: int) -> Timing:
+    """``work`` run ``repeats`` times, timed by the calling thread's CPU clock: on a shared machine
+    the wall clock also counts the time other work held the core."""
+    thread_times = []
+    wall_start, process_start = time.perf_counter(), time.process_time()
     for _ in range(repeats):
-        start = time.perf_counter()
+        start = time.thread_time()
         work()
-        walls.append(time.perf_counter() - start)
-    wall = time.perf_counter() - wall_start
-    return statistics.median(walls), (time.process_time() - cpu_start) / wall if wall > 0 else float("nan")
+        thread_times.append(time.thread_time() - start)
+    wall, process = time.perf_counter() - wall_start, time.process_time() - process_start
+    thread_total = sum(thread_times)
+    return Timing(statistics.median(thread_times), thread_total / wall if wall > 0 else float("nan"),
+                  process / thread_total if thread_total > 0 else float("nan"))
 
 
 def encode_all(codec: Codec, frames: np.ndarray, bits: int) -> list[bytes]:
@@ -307,14 +331,12 @@ def decode_all(codec: Codec, encoded: list[bytes], like: np.ndarray) -> np.ndarr
 
 
 def speed(codec: Codec, frames: np.ndarray, bits: int, repeats: int) -> tuple[Speed, list[bytes]]:
-    """MB/s (10^6 bytes of raw frames per second) to encode and to decode ``frames``, after one
-    untimed warm-up frame; with the encoded frames."""
+    """Encoding and decoding ``frames`` timed after one untimed warm-up frame; with the encoded frames."""
     codec.decode(codec.encode(frames[0], bits), frames[0])
     encoded = encode_all(codec, frames, bits)
-    encode_s, encode_cpu = _timed(lambda: encode_all(codec, frames, bits), repeats)
-    decode_s, decode_cpu = _timed(lambda: decode_all(codec, encoded, frames), repeats)
-    raw = frames.nbytes / 1e6
-    return Speed(raw / encode_s, raw / decode_s, encode_cpu, decode_cpu), encoded
+    encode = _timed(lambda: encode_all(codec, frames, bits), repeats)
+    decode = _timed(lambda: decode_all(codec, encoded, frames), repeats)
+    return Speed(frames.nbytes / 1e6, encode, decode), encoded
 
 
 def ratio(frames: np.ndarray, encoded: list[bytes]) -> float:
