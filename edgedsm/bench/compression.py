@@ -143,12 +143,14 @@ def default_codec(results: Results, need_mb_s: float,
     return max(fit, key=lambda rows: sum(r.ratio for r in rows.values()) / len(rows), default=None)
 
 
-def _codec_line(rows: dict[int, LosslessRow]) -> str:
+def _codec_line(rows: dict[int, LosslessRow], results: Results) -> str:
     first = next(iter(rows.values()))
+    bound = {d.bits: d.entropy_ratio for d in results.depths}
     readers = [name for name, ok in (("OpenCV", first.tiff and first.tiff.opencv),
                                      ("Pillow", first.tiff and first.tiff.pillow)) if ok]
     return (f"**{first.codec.label}**: ratio {' / '.join(f'{rows[b].ratio:.3f}' for b in DEPTHS)} at "
-            f"{' / '.join(f'{b}' for b in DEPTHS)} bits, encode "
+            f"{' / '.join(f'{b}' for b in DEPTHS)} bits "
+            f"({' / '.join(f'{rows[b].ratio / bound[b]:.0%}' for b in DEPTHS)} of the order-0 entropy's), encode "
             f"{' / '.join(_mb(rows[b].speed.encode_mb_s) for b in DEPTHS)} MB/s, decode "
             f"{' / '.join(_mb(rows[b].speed.decode_mb_s) for b in DEPTHS)} MB/s; its TIFF is read back by "
             f"tifffile{''.join(', ' + r for r in readers)}")
@@ -201,10 +203,10 @@ def conclusions(results: Results, need_mb_s: float) -> list[str]:
     chosen = default_codec(results, need_mb_s)
     lines.append(f"- One default for every depth (a TIFF that tifffile reads back, ≥ {need_mb_s:g} MB/s encode on "
                  "one core at every depth, best mean ratio): "
-                 + (_codec_line(chosen) + "." if chosen else "none qualifies in this run."))
+                 + (_codec_line(chosen, results) + "." if chosen else "none qualifies in this run."))
     portable = default_codec(results, 0.0, _everywhere)
     lines.append("- The best mean ratio among TIFFs that OpenCV and Pillow read too, at any speed: "
-                 + (_codec_line(portable) + "." if portable else "none in this run."))
+                 + (_codec_line(portable, results) + "." if portable else "none in this run."))
     bad = [f"{row.codec.label} at {row.bits} bits" for row in results.lossless if not row.identical]
     lines += ["", "Every lossless codec gave back every pixel." if not bad else
               f"**Not bit-identical**: {', '.join(bad)}.", "", "### Lossy: what each setting costs", ""]
