@@ -150,7 +150,7 @@ def _codec_line(rows: dict[int, LosslessRow], results: Results) -> str:
                                      ("Pillow", first.tiff and first.tiff.pillow)) if ok]
     return (f"**{first.codec.label}**: ratio {' / '.join(f'{rows[b].ratio:.3f}' for b in DEPTHS)} at "
             f"{' / '.join(f'{b}' for b in DEPTHS)} bits "
-            f"({' / '.join(f'{rows[b].ratio / bound[b]:.0%}' for b in DEPTHS)} of the order-0 entropy's), encode "
+            f"({' / '.join(f'{rows[b].ratio / bound[b]:.0%}' for b in DEPTHS)} of the order-0 entropy bound), encode "
             f"{' / '.join(_mb(rows[b].speed.encode_mb_s) for b in DEPTHS)} MB/s, decode "
             f"{' / '.join(_mb(rows[b].speed.decode_mb_s) for b in DEPTHS)} MB/s; its TIFF is read back by "
             f"tifffile{''.join(', ' + r for r in readers)}")
