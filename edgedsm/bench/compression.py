@@ -267,8 +267,8 @@ def write_report(report: Report, results: Results, command: str, header: str, ne
                 "Codecs that model which levels occur (JPEG-XL's palette) gain from it; byte-stream codecs "
                 "(deflate, zstd, LZW) see the spread-out low byte as noise. A real sensor adds read noise "
                 "that fills the gaps: on its 12/16-bit frames expect lower ratios, from JPEG-XL above all. "
-                "Speckle (fully developed, 2 px grains, shot noise) is close to independent pixels, so the "
-                "order-0 entropy is about what any lossless codec can reach.")
+                "The order-0 entropy treats pixels as independent; speckle of 2 px grains is not quite, so a "
+                "codec that models neighbours (JPEG-XL at effort 7) can beat that bound a little.")
     report.line()
     report.line("## Lossless codecs")
     report.line()
