@@ -18,7 +18,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     """Fill numba's disk cache before the first daemon process starts, when the daemon-process
     suites (integration, faults) run: on a fresh checkout a daemon's first start compiles its
     kernels (tens of seconds on 2 cores), longer than the tests wait for a daemon to answer; each
-    later start loads them (tests/unit/test_warm_start.py). Here, outside any test's timeout."""
+    later start loads them (tests/unit/daemon/test_warm_start.py). Here, outside any test's timeout."""
     if config.option.collectonly or not any({"integration", "faults"} & set(item.path.parts) for item in items):
         return
     for estimator in ESTIMATORS:

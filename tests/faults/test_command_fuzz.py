@@ -1,5 +1,5 @@
 """Fuzzing the command payloads against the real command channel's validation (config files are
-fuzzed in tests/unit/test_config_fuzz.py). Property: every non-empty message on ``cmd/<name>``
+fuzzed in tests/unit/config/test_config_fuzz.py). Property: every non-empty message on ``cmd/<name>``
 gets exactly one reply, a JSON object with ``ok`` true, or ``ok`` false and a reason; never an
 exception, never no reply. (An empty payload is how a retained message is cleared: no reply.)
 """

@@ -13,7 +13,7 @@ from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, boundin
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_stats import RegionPlan, _moments_from_maps, region_moments
 from edgedsm.estimators.snapshot import maps_from
-from tests.unit.test_streaming import MODES, feed
+from tests.unit.estimators.test_streaming import MODES, feed
 
 HAS_NUMBA = importlib.util.find_spec("numba") is not None
 RTOL = 1e-12

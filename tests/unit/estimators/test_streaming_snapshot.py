@@ -11,7 +11,7 @@ import pytest
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
-from tests.unit.test_streaming import KERNELS, MODES, feed
+from tests.unit.estimators.test_streaming import KERNELS, MODES, feed
 
 
 @pytest.mark.parametrize("kernel", KERNELS)

@@ -5,7 +5,7 @@ slowed down (2400 frames of drying) and made small (48²), is run through the st
 as the daemon runs it (τc sums snapshot -> region covariances -> pooled fit, S3 region mean)
 with N = 100 and 400, sliding and tumbling, and a drying monitor judges each. Each observation
 is stamped at the centre of its window, so that the different delays of the windows (N/2 frames)
-do not count as a difference of the estimator. ``python tests/unit/test_tau_thresholds.py``
+do not count as a difference of the estimator. ``python tests/unit/estimators/test_tau_thresholds.py``
 prints the table of docs/tau_c.md ("Thresholds in seconds").
 """
 
@@ -23,7 +23,7 @@ from edgedsm.estimators.snapshot import tau_covariances
 from edgedsm.estimators.tau_stream import tau_region
 from edgedsm.sim import Simulator, load_scene
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 SIZE, FRAMES, DRYING_FRAMES = 48, 3000, 2400
 LAG, MAX_LAG = 5, 20  # K·Δt = 1 s: τc is measured up to 1 s
 EVERY = 20  # sliding: one evaluation a second (20 frames/s); tumbling: at each completed block

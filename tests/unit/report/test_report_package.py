@@ -7,7 +7,7 @@ from pathlib import Path
 
 from edgedsm.report.plan import Settings, logo_regions, plan_runs
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 def test_logo_geometry_comes_from_package_data_not_the_repository(monkeypatch, tmp_path) -> None:

@@ -11,7 +11,7 @@ from edgedsm.config import load_config
 from edgedsm.daemon.reload import ReloadRefused, check_reload
 from edgedsm.devices.laser import forget_simulated_boards, simulated_board
 
-SCENE = Path(__file__).resolve().parents[2] / "config" / "scenes" / "drying_demo.toml"  # 128x128
+SCENE = Path(__file__).resolve().parents[3] / "config" / "scenes" / "drying_demo.toml"  # 128x128
 
 
 def config_text(camera: str, laser: str | None = None, region: str = "") -> str:

@@ -177,7 +177,7 @@ def test_the_grafana_dashboard_uses_only_metrics_the_daemon_exposes(sink: Metric
     sink.publish_stats(_stats(10))
     exposed = {family.name for family in text_string_to_metric_families(_get(sink, "/metrics")[1].decode())}
     exposed |= {f"{name}_total" for name in exposed}
-    dashboard = json.loads((Path(__file__).parents[2] / "docs" / "grafana-edgedsm.json").read_text())
+    dashboard = json.loads((Path(__file__).parents[3] / "docs" / "grafana-edgedsm.json").read_text())
     used = {name for panel in dashboard["panels"] for target in panel["targets"]
             for name in re.findall(r"edgedsm_[a-z_]+", target["expr"])}
     assert len(used) >= 10 and used <= exposed, used - exposed

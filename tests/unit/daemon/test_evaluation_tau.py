@@ -17,7 +17,7 @@ from edgedsm.publish.sink import RecordingSink
 from edgedsm.publish.sparkplug.metrics import declared_readings, stats_readings
 from edgedsm.sim import load_scene
 from edgedsm.validation import validate
-from tests.unit.test_pipeline import hold_back, make_pipeline
+from tests.unit.daemon.test_pipeline import hold_back, make_pipeline
 
 DT = 0.05  # the drying demo scene's frame interval
 

@@ -12,7 +12,7 @@ from edgedsm.report.markdown import headline
 from edgedsm.report.plan import Settings
 from edgedsm.report.reproduce import reproduce
 
-RESULTS = Path(__file__).resolve().parents[2] / "docs" / "reproduction" / "results.json"
+RESULTS = Path(__file__).resolve().parents[3] / "docs" / "reproduction" / "results.json"
 
 
 def _stored() -> tuple[Settings, dict]:
