@@ -48,12 +48,14 @@ def test_replay_of_a_file_that_is_not_a_recording_exits_65(tmp_path, capsys):
 
 
 def test_a_replay_frame_of_another_size_mid_stream_is_bad_data(tmp_path):
-    camera = ReplayCamera(_folder(tmp_path, [(16, 16), (16, 16)]))
+    folder = _folder(tmp_path, [(16, 16), (16, 16)])
+    camera = ReplayCamera(folder)
     with camera:
         frames = camera.frames(1, timeout_s=1.0)
         assert next(iter(frames)).shape == (16, 16)
-        camera._stack = np.zeros((2, 8, 8), np.uint8)  # what a video whose size changes delivers
-        with pytest.raises(DataError, match="8x8 frame"):
+        # replaced after the headers were checked at open: found when it is decoded
+        cv2.imwrite(str(folder / "001.png"), np.zeros((8, 8), np.uint8))
+        with pytest.raises(DataError, match=r"001\.png: frame 1 is a 8x8 frame"):
             list(camera.frames(1, timeout_s=1.0))
 
 
