@@ -41,9 +41,18 @@ class TiffReader(FrameReader):
     kind = "tiff"
 
     def __init__(self, path: Path, channel: str | None = None) -> None:
+        super().__init__(path, channel)
+        self._tif = None
+        try:
+            self._open()
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self) -> None:
         import tifffile
 
-        super().__init__(path, channel)
+        path = self.path
         tiff_log = _TiffLog()
         logger = logging.getLogger("tifffile")
         logger.addHandler(tiff_log)
@@ -56,6 +65,9 @@ class TiffReader(FrameReader):
         finally:
             logger.removeHandler(tiff_log)
             logger.propagate = propagate
+        if count == 0:
+            why = tiff_log.messages[0] if tiff_log.messages else "no pages"
+            raise ReaderError(f"{path}: cannot be read as a TIFF: {why}")
         first = self._tif.pages.first
         self.recording = is_recording(first.description)
         self._records: list[dict[str, Any]] | None = None
@@ -63,7 +75,6 @@ class TiffReader(FrameReader):
             self.kind = "recording"
             self._header = self._record(0, first.description)
         if tiff_log.messages and not self.recording:
-            self.close()
             raise ReaderError(f"{path}: damaged or truncated TIFF after {count} pages: {tiff_log.messages[0]}")
         self.count = count
         compression = getattr(first.compression, "name", str(first.compression))
@@ -92,13 +103,19 @@ class TiffReader(FrameReader):
         if last == 0:
             return
         try:
-            page = self._tif.pages[last]
-            self._record(last, page.description)
+            description = self._tif.pages[last].description
+        except Exception:  # an unreadable page header: the incomplete page itself
+            description = ""
+        try:
+            if not description:  # its header not written yet: the recorder died in the middle of it
+                raise ReaderError("no page header")
             self._page(last)
         except ReaderError as exc:
             self.count = last
             self.note(f"{self.path}: last page incomplete (recorder stopped while writing it?); "
                       f"{last} complete frames kept ({exc})")
+            return
+        self._record(last, description)  # a complete page with a bad record is a corrupt index
 
     def _page(self, index: int) -> np.ndarray:
         try:
@@ -133,6 +150,5 @@ class TiffReader(FrameReader):
         return dict(self._header) if self.recording else {}
 
     def close(self) -> None:
-        tif = getattr(self, "_tif", None)
-        if tif is not None:
-            tif.close()
+        if self._tif is not None:
+            self._tif.close()

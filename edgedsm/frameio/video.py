@@ -12,6 +12,7 @@ their count is unknown). A file that ends before the count it announces is trunc
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,6 +20,10 @@ import cv2
 import numpy as np
 
 from edgedsm.frameio.base import FrameReader, ReaderError
+
+# FFmpeg's own lines about a damaged stream ("Slice pointer chain broken") would come on top of
+# the one line edgedsm says about the file; read when OpenCV first loads FFmpeg. Overridable.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mj2")
 #: FOURCCs of codecs that keep every pixel ("\0\0\0\0" and "DIB " are raw frames in an AVI).
@@ -49,6 +54,14 @@ class VideoReader(FrameReader):
             raise ReaderError(f"{path}: cannot be opened as a video (damaged or truncated file, or a codec "
                               f"this OpenCV build lacks)")
         self._capture = capture
+        try:
+            self._inspect()
+        except BaseException:
+            self.close()
+            raise
+
+    def _inspect(self) -> None:
+        path, capture = self.path, self._capture
         self.fourcc = fourcc_text(capture.get(cv2.CAP_PROP_FOURCC))
         fps = capture.get(cv2.CAP_PROP_FPS)
         self.dt = 1.0 / fps if fps and fps > 0 else None
@@ -58,7 +71,6 @@ class VideoReader(FrameReader):
         self._position = 0
         ok, first = capture.read()
         if not ok or first is None:
-            self.close()
             raise ReaderError(f"{path}: no frame can be decoded (empty, damaged or truncated video)")
         self._first: np.ndarray | None = first
         self._settle(first, 1 if first.ndim == 2 else first.shape[2], order="bgr")
