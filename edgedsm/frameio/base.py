@@ -75,7 +75,7 @@ class FrameReader(abc.ABC):
 
     def __init__(self, path: Path, channel: str | None) -> None:
         if channel is not None and channel not in CHANNELS:
-            raise ReaderError(f"unknown channel {channel!r}: choose one of {', '.join(CHANNELS)}")
+            raise ReaderError(f"{path}: unknown channel {channel!r}: choose one of {', '.join(CHANNELS)}")
         self.path = path
         self.channel = channel
         self.count: int | None = None  # frames, when the source says (some videos do not)
@@ -151,7 +151,7 @@ class FrameReader(abc.ABC):
                               f"{describe_shape(self.shape)} ones; a recording keeps one frame size")
         if image.dtype != self.dtype:
             raise ReaderError(f"{self.path}: frame {index} is {image.dtype} after {self.dtype} frames")
-        return image
+        return image if image.flags.c_contiguous else np.ascontiguousarray(image)  # what the engine takes
 
     def window(self, start: int, count: int) -> np.ndarray:
         """Frames ``start`` .. ``start+count-1`` as one (count, H, W) array: the only place a
