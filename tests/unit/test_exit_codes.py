@@ -3,6 +3,8 @@ message on stderr, never a traceback for bad input."""
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -72,3 +74,18 @@ def test_analyze_of_a_corrupt_recording_exits_65(tmp_path, capsys):
                  "-o", str(tmp_path / "map.npy")]) == 65
     err = capsys.readouterr().err
     assert "rec.npy" in err and "Traceback" not in err
+
+
+def test_probe_of_a_colour_replay_needs_a_channel(tmp_path, capsys):
+    folder = tmp_path / "colour"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, (12, 16, 3), dtype=np.uint8) for _ in range(3)]
+    for index, frame in enumerate(frames, start=1):
+        cv2.imwrite(str(folder / f"img_{index}.bmp"), frame)
+    assert main(["probe", "camera", f"replay:{folder}", "--frames", "2"]) == 65
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "colour" in err and "channel=" in err
+    assert main(["probe", "camera", f"replay:{folder}?channel=green", "--frames", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["mean"] == pytest.approx(np.mean([f[:, :, 1] for f in frames]))  # green is index 1 of B, G, R

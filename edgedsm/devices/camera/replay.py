@@ -14,6 +14,7 @@ other than uint8/uint16, colour without a channel) raises ``DataError`` naming t
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +25,8 @@ from edgedsm.devices.camera.base import Camera, EndOfStream, pace
 from edgedsm.errors import DataError, DeviceError, EdgedsmError
 from edgedsm.frameio import FrameReader, InputMissing, Stamps, open_frames
 from edgedsm.frames import Frame
+
+log = logging.getLogger(__name__)
 
 
 class ReplayCamera(Camera):
@@ -63,6 +66,8 @@ class ReplayCamera(Camera):
             reader.close()
             raise DataError(f"{self.path}: frames must be uint8 or uint16, not {reader.dtype}")
         self._reader = reader
+        for note in reader.notes:  # a lossy codec, numbers missing in a series
+            log.warning("%s", note)
         self._stamps = reader.stamps()
         recorded_dt = self.dt if self.dt is not None else reader.dt
         if self.rate == "recorded":
