@@ -41,7 +41,7 @@ from edgedsm.commands.common import add_progress_flag, progress
 from edgedsm.commands.timeline_output import add_timeline_arguments, open_reader, run_timeline
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import s1, s2, s3
-from edgedsm.frameio import CHANNELS, FrameReader, ReaderError
+from edgedsm.frameio import CHANNELS, FrameReader
 from edgedsm.imageio import save_map_png
 
 NAME = "analyze"
@@ -111,18 +111,10 @@ def read_window(reader: FrameReader, args: argparse.Namespace) -> np.ndarray:
     window = args.window if args.window is not None else (total - args.start if total is not None else None)
     if window is not None and (window < 2 or (total is not None and args.start + window > total)):
         raise EstimatorError(f"--window {window} from --start {args.start} does not fit the {total} frames")
-    stop = None if window is None else args.start + window
-    frames = progress(reader.frames(args.start, stop), window, "read", args.progress)
     if window is None:  # a video of unknown length: all from --start, as asked
-        stack = np.stack(list(frames))
+        stack = np.stack(list(progress(reader.frames(args.start), None, "read", args.progress)))
     else:
-        stack = np.empty((window, *reader.shape), reader.dtype)
-        taken = 0
-        for taken, frame in enumerate(frames, start=1):
-            stack[taken - 1] = frame
-        if taken < window:
-            raise ReaderError(f"{args.frames}: ends after {args.start + taken} frames; --window {window} from "
-                              f"--start {args.start} does not fit")
+        stack = reader.window(args.start, window, lambda frames: progress(frames, window, "read", args.progress))
     if len(stack) < 2:
         raise EstimatorError(f"{args.frames}: {len(stack)} frame(s) from --start {args.start}; a map needs 2 or more")
     return stack

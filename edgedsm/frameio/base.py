@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import abc
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -153,12 +153,15 @@ class FrameReader(abc.ABC):
             raise ReaderError(f"{self.path}: frame {index} is {image.dtype} after {self.dtype} frames")
         return image if image.flags.c_contiguous else np.ascontiguousarray(image)  # what the engine takes
 
-    def window(self, start: int, count: int) -> np.ndarray:
+    def window(self, start: int, count: int,
+               wrap: Callable[[Iterator[np.ndarray]], Iterator[np.ndarray]] | None = None) -> np.ndarray:
         """Frames ``start`` .. ``start+count-1`` as one (count, H, W) array: the only place a
-        reader holds more than a frame, on purpose (a batch map needs its window)."""
+        reader holds more than a frame, on purpose (a batch map needs its window). ``wrap``
+        wraps the frames as they are read (a progress bar)."""
         stack = np.empty((count, *self.shape), self.dtype)
+        frames = self.frames(start, start + count)
         taken = 0
-        for taken, frame in enumerate(self.frames(start, start + count), start=1):
+        for taken, frame in enumerate(wrap(frames) if wrap is not None else frames, start=1):
             stack[taken - 1] = frame
         if taken < count:
             raise ReaderError(f"{self.path}: ends after {start + taken} frames; frames {start}.."

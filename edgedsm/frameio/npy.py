@@ -3,7 +3,7 @@ order (numpy's convention). Only the frames read are paged in."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -33,10 +33,11 @@ class NpyReader(FrameReader):
         for index in range(start, self.count or 0):
             yield index, np.asarray(self._stack[index])
 
-    def window(self, start: int, count: int) -> np.ndarray:
+    def window(self, start: int, count: int,
+               wrap: Callable[[Iterator[np.ndarray]], Iterator[np.ndarray]] | None = None) -> np.ndarray:
         if self._stack.ndim == 3 and start + count <= (self.count or 0):
             return np.array(self._stack[start:start + count])  # one copy of the window, nothing else
-        return super().window(start, count)
+        return super().window(start, count, wrap)
 
     def close(self) -> None:
         # the map is unmapped when the last frame handed out (a view into it) is gone, not here

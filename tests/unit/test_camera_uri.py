@@ -127,3 +127,13 @@ def test_list_cameras_of_an_unlistable_kind_is_refused():
     with pytest.raises(ConfigError, match="aravis and v4l2"):
         list_cameras("replay")
     assert all(uri.startswith("v4l2:/dev/video") for uri in list_cameras("v4l2"))
+
+
+def test_a_replay_pattern_resolves_against_its_folder(tmp_path):
+    from edgedsm.devices.camera.uri import resolve_camera_spec
+
+    (tmp_path / "seq").mkdir()
+    spec = resolve_camera_spec(parse_camera_uri("replay:seq/%04d.png?channel=red"), tmp_path)
+    assert spec.target == str(tmp_path / "seq" / "%04d.png")
+    with pytest.raises(ConfigError, match="no such directory"):
+        resolve_camera_spec(parse_camera_uri("replay:missing/%04d.png"), tmp_path)

@@ -202,6 +202,10 @@ def resolve_camera_spec(spec: CameraSpec, base_dir: Path) -> CameraSpec:
     target = Path(spec.target)
     target = (target if target.is_absolute() else base_dir / target).resolve()
     if spec.scheme == "replay":
+        if "%" in target.name:  # a numbered series: frames/%05d.png
+            if not target.parent.is_dir():
+                raise _fail(spec.uri, f"{target.parent}: no such directory")
+            return dataclasses.replace(spec, target=str(target))
         if not target.exists():
             raise _fail(spec.uri, f"{target}: no such file or directory")
         if not (target.is_file() or target.is_dir()):
