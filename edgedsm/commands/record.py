@@ -3,7 +3,7 @@
   edgedsm record sim:default -o run.tif --frames 400
   edgedsm record aravis: -c /etc/edgedsm/edgedsm.toml -o run.tif --seconds 60
   edgedsm record -c edgedsm.toml -o run.tif --frames 1200        (the config's camera)
-  edgedsm record v4l2:/dev/video0?fourcc=YUYV&channel=red -o red.tif --seconds 10
+  edgedsm record 'v4l2:/dev/video0?fourcc=YUYV&channel=red' -o red.tif --seconds 10
 
 The file is a BigTIFF, one page per frame, compressed losslessly (zstd by default; --codec
 deflate, lzw or none), each page carrying its frame's sequence number, timestamp and laser

@@ -168,13 +168,6 @@ class FrameReader(abc.ABC):
                               f"{start + count - 1} were asked for")
         return stack
 
-    def describe(self) -> str:
-        count = f"{self.count} frames" if self.count is not None else "frames (count unknown)"
-        bits = f", {self.bits} bits" if self.bits else ""
-        colour = f", channel {self.channel} of {self.colour_order.upper()}" if self.colour_order else ""
-        rate = f", Δt {self.dt:g} s" if self.dt else ""
-        return f"{self.kind} {self.path}: {count} of {describe_shape(self.shape)} {self.dtype}{bits}{colour}{rate}"
-
     def __enter__(self) -> Self:
         return self
 
