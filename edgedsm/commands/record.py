@@ -18,7 +18,7 @@ the daemon does. Stop the edgedsm service first: it holds the camera and the rel
 
 Exit status: 0 recorded; 130 Ctrl-C and 143 SIGTERM (the file keeps the frames recorded so
 far); 65 bad frames, 69 camera or relay unavailable (the laser is said to be off, or NOT off),
-73 the output exists, 78 bad URI or config.
+73 the output exists, 74 the file could not be written (disk full), 78 bad URI or config.
 """
 
 from __future__ import annotations

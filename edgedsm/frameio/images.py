@@ -10,6 +10,7 @@ time with OpenCV (colour comes as B, G, R). A pattern's missing numbers are note
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -55,14 +56,17 @@ def pattern_files(pattern: str) -> tuple[list[Path], list[int]]:
 
 
 def _header(path: Path) -> tuple[tuple[int, int], int] | None:
-    """((rows, columns), channels) from the file's header; None when Pillow cannot tell."""
-    from PIL import Image, UnidentifiedImageError
+    """((rows, columns), channels) from the file's header; None when Pillow cannot tell (the
+    frame is then checked when it is decoded)."""
+    from PIL import Image
 
     try:
-        with Image.open(path) as image:
-            width, height = image.size
-            return (height, width), len(image.getbands())
-    except (UnidentifiedImageError, OSError, ValueError):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # a header is no bomb
+            with Image.open(path) as image:
+                width, height = image.size
+                return (height, width), len(image.getbands())
+    except Exception:  # any file Pillow does not know or refuses (very large images): OpenCV decides
         return None
 
 

@@ -45,6 +45,13 @@ DEFAULT_CODEC = "zstd"
 LASER_STATES = ("on", "off", "unknown", "none")
 
 
+class WriteFailed(EdgedsmError):
+    """The recording could not be written (disk full, file too large, I/O error): exit code 74
+    (EX_IOERR). The frames written before stay readable."""
+
+    exit_code = 74
+
+
 class OutputExists(EdgedsmError):
     """The output file exists already (exit code 73, EX_CANTCREAT): recordings are not overwritten."""
 
@@ -118,8 +125,11 @@ class RecordingWriter:
                                 f"after {describe_shape(self._shape)} {self._dtype} ones")
             description = page_description(frame.seq, frame.t_ns, laser)
         compression, arguments = CODECS[self.codec]
-        self._writer.write(pixels, description=description, metadata=None, compression=compression,
-                           compressionargs=arguments or None, contiguous=False)
+        try:
+            self._writer.write(pixels, description=description, metadata=None, compression=compression,
+                               compressionargs=arguments or None, contiguous=False)
+        except OSError as exc:
+            raise WriteFailed(f"{self.path}: frame {frame.seq} could not be written: {exc.strerror or exc}") from None
         self.count += 1
 
     def close(self) -> None:
@@ -128,6 +138,8 @@ class RecordingWriter:
             return
         try:
             self._writer.close()
+        except OSError as exc:
+            raise WriteFailed(f"{self.path}: could not be finished: {exc.strerror or exc}") from None
         finally:
             self._file.close()
             if self.count == 0:

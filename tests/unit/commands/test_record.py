@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -134,3 +136,20 @@ def test_seconds_a_config_camera_and_refusals(tmp_path, scene, board, capsys):
     assert main(["record", "-o", str(tmp_path / "x.tif"), "--frames", "3"]) == 78
     assert main(["record", "sim:default?bogus=1", "-o", str(tmp_path / "y.tif"), "--frames", "3"]) == 78
     assert not (tmp_path / "x.tif").exists() and not (tmp_path / "y.tif").exists()
+
+
+def test_a_full_disk_is_one_line_exit_74_and_the_frames_before_stay_readable(tmp_path, scene):
+    # RLIMIT_FSIZE makes writes past 300 kB fail with EFBIG, as a full disk fails them with ENOSPC
+    out = tmp_path / "full.tif"
+    script = ("import resource, sys\n"
+              "resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, resource.RLIM_INFINITY))\n"
+              "from edgedsm.cli import main\n"
+              f"sys.exit(main(['record', 'sim:{scene}?time_scale=0', '-o', '{out}', '--frames', '100',"
+              " '--no-progress', '--codec', 'none']))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 74, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "could not be written" in done.stderr
+    with open_frames(out) as reader:  # 48x48 uint16 = 4.6 kB per page: about 60 frames fit
+        kept = reader.count
+        assert 40 < kept < 66 and sum(1 for _ in reader.frames()) == kept
+    assert f"keeps the {kept} frames recorded before" in done.stderr
