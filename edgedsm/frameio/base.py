@@ -111,6 +111,8 @@ class FrameReader(abc.ABC):
             raise ReaderError(f"{self.path}: pixels of type {first.dtype} are not grey levels")
         if self.bits is None and first.dtype.kind in "ui":
             self.bits = 8 * first.dtype.itemsize
+        if channels not in (1, 3, 4):
+            raise ReaderError(f"{self.path}: images of {channels} channels are neither grey nor colour")
         if channels > 1 and self.channel is None and _grey(first):
             self._grey_as_colour = True  # e.g. a grey video decoded to B, G, R: its channels agree
         elif channels > 1:
