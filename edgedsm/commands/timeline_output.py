@@ -47,8 +47,9 @@ def open_reader(args: argparse.Namespace) -> FrameReader:
 
 
 def _frames(args: argparse.Namespace, stack: contextlib.ExitStack
-            ) -> tuple[Iterator[np.ndarray], int | None, float | None, int | None]:
-    """(frames, bits, the source's dt if it knows one, count if known), streamed."""
+            ) -> tuple[Iterator[np.ndarray], int | None, float | None, int | None, np.ndarray | None]:
+    """(frames, bits, the source's dt if it knows one, count if known, a recording's frame times
+    in seconds from the first frame used), streamed."""
     source = args.frames
     if source == "default" or Path(source).suffix.lower() in SCENE_SUFFIXES:
         from edgedsm.commands.common import scene_argument
@@ -56,7 +57,8 @@ def _frames(args: argparse.Namespace, stack: contextlib.ExitStack
 
         scene = scene_argument(source)
         count = args.frame_count or scene.scene.frames
-        return Simulator(scene).frames(count), scene.detector.bits if scene.detector else None, scene.scene.dt, count
+        return (Simulator(scene).frames(count), scene.detector.bits if scene.detector else None, scene.scene.dt,
+                count, None)
     reader = stack.enter_context(open_reader(args))
     if reader.count is not None and args.start >= reader.count:
         raise EstimatorError(f"--start {args.start} is outside the {reader.count} frames of {source}")
@@ -64,7 +66,12 @@ def _frames(args: argparse.Namespace, stack: contextlib.ExitStack
     count = reader.count - args.start if reader.count is not None else None
     if count is not None and args.frame_count is not None:
         count = min(count, args.frame_count)
-    return reader.frames(args.start, stop), reader.bits, reader.dt, count
+    stamps = reader.stamps()
+    times = None
+    if stamps is not None and args.dt is None:  # --dt overrides the recording's clock
+        used = stamps.t_ns[args.start:stop]
+        times = (used - used[0]) / 1e9
+    return reader.frames(args.start, stop), reader.bits, reader.dt, count, times
 
 
 def _regions(args: argparse.Namespace, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray], float | None]:
@@ -85,7 +92,7 @@ def run_timeline(args: argparse.Namespace) -> int:
 
 def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     window = args.window or 100
-    frames, bits, scene_dt, count = _frames(args, stack)
+    frames, bits, scene_dt, count, times = _frames(args, stack)
     frames = progress(frames, count, "timeline", getattr(args, "progress", True))
     first = next(frames, None)
     if first is None:
@@ -103,7 +110,7 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
             read[0] += 1
 
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
-                      max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits)
+                      max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times)
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)
@@ -157,7 +164,7 @@ def plot_activity(path: Path, result: Timeline, title: str) -> None:
 def plot_histograms(path: Path, result: Timeline, title: str) -> None:
     plt = _pyplot()
     image = result.histogram_image()
-    times = np.asarray(result.sample_frames, np.float64) * result.dt
+    times = np.asarray(result.sample_times, np.float64)
     edges = result.histogram_edges
     fig, ax = plt.subplots(figsize=(8, 4.5))
     span = (times[0], times[-1] if times[-1] > times[0] else times[0] + result.dt)

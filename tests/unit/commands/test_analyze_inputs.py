@@ -126,3 +126,24 @@ def test_timeline_memory_does_not_grow_with_the_recording(tmp_path, capsys):
     assert long - short < 40 * frame_bytes, (short, long)
     out = capsys.readouterr().out
     assert "from 480 frames" in out
+
+
+def test_timeline_of_a_recording_keeps_its_clock(tmp_path, capsys):
+    from edgedsm.frameio.recording import RecordingWriter
+    from edgedsm.frames import Frame
+
+    rng = np.random.default_rng(4)
+    t_ns = [i * 100_000_000 + (300_000_000 if i >= 12 else 0) for i in range(24)]  # 3 frames lost after 11
+    path = tmp_path / "rec.tif"
+    with RecordingWriter(path) as writer:
+        for seq, t in enumerate(t_ns):
+            writer.write(Frame(rng.integers(0, 256, (16, 16), dtype=np.uint8), seq, 10**9 + t, 8))
+    out = tmp_path / "tl"
+    assert main(["analyze", str(path), "--timeline", str(out), "--window", "6", "--lag", "1", "--every", "6",
+                 "--max-lag", "3", "--start", "2", "--no-progress"]) == 0
+    rows = (out / "timeline.csv").read_text().splitlines()[1:]
+    frames = [int(row.split(",")[0]) for row in rows]
+    times = [float(row.split(",")[1]) for row in rows]
+    # frame k of the timeline is frame k + 2 of the file; the clock jumps by 0.3 s after file frame 11
+    assert frames == [5, 11, 17] and times == pytest.approx([0.5, 1.4, 2.0])
+    assert "Δt = 0.1 s" in capsys.readouterr().out  # the median interval
