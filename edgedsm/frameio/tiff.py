@@ -21,9 +21,11 @@ from edgedsm.frameio.base import FrameReader, ReaderError, Stamps
 from edgedsm.frameio.recording import is_recording, parse_description
 
 TIFF_SUFFIXES = (".tif", ".tiff", ".btf", ".tf8")
-#: TIFF compression schemes that lose information (tifffile's COMPRESSION names).
-LOSSY_COMPRESSION = {"JPEG", "OJPEG", "JPEG_2000_LOSSY", "WEBP", "JPEGXR", "JPEGXL_DNG", "JXL_DNG",
-                     "JPEG_LOSSY", "LERC"}
+#: TIFF compression schemes that lose information (tifffile's COMPRESSION names) ...
+LOSSY_COMPRESSION = {"JPEG", "OJPEG", "JPEG_99", "ALT_JPEG", "JPEG_LOSSY", "JPEG_2000_LOSSY", "APERIO_JP2000_YCBC",
+                     "APERIO_JP2000_RGB", "WEBP", "WEBP_DEPRECATED", "JPEGXR", "JPEGXR_NDPI"}
+#: ... and those that may or may not (the file does not say which mode wrote it).
+MAYBE_LOSSY_COMPRESSION = {"JPEG2000", "JPEGXL", "JPEGXL_DNG", "LERC"}
 
 
 class _TiffLog(logging.Handler):
@@ -82,6 +84,9 @@ class TiffReader(FrameReader):
             self.lossy = compression
             self.note(f"{path}: pages are {compression}-compressed, a lossy codec: compression artefacts change "
                       f"the speckle statistics (analysed all the same)")
+        elif compression in MAYBE_LOSSY_COMPRESSION:
+            self.note(f"{path}: pages are {compression}-compressed, which may be lossy (the file does not say): "
+                      f"if so, compression artefacts change the speckle statistics")
         image = self._page(0)
         self._settle(image, 1 if image.ndim == 2 else image.shape[2], order="rgb")
         if self.recording:
