@@ -76,14 +76,10 @@ class ImageSeriesReader(FrameReader):
     def __init__(self, path: Path, channel: str | None = None) -> None:
         super().__init__(path, channel)
         text = str(path)
-        if "%" in text:
-            self.files, missing = pattern_files(text)
-            if missing:
-                shown = ", ".join(str(n) for n in missing[:10]) + (" ..." if len(missing) > 10 else "")
-                self.note(f"{path}: {len(missing)} numbers missing in the series ({shown}); the frames "
-                          f"around them are read as consecutive")
-        else:
-            self.files = folder_files(path)
+        try:
+            self._list(path, text)
+        except OSError as exc:
+            raise ReaderError(f"{path}: cannot be listed: {exc.strerror or exc}") from None
         if not self.files:
             raise ReaderError(f"{path}: no images ({', '.join(s.lstrip('.') for s in IMAGE_SUFFIXES)})")
         self.count = len(self.files)
@@ -95,6 +91,16 @@ class ImageSeriesReader(FrameReader):
             self.lossy = "JPEG"
             self.note(f"{path}: JPEG images are lossy: compression artefacts change the speckle "
                       f"statistics (analysed all the same)")
+
+    def _list(self, path: Path, text: str) -> None:
+        if "%" in text:
+            self.files, missing = pattern_files(text)
+            if missing:
+                shown = ", ".join(str(n) for n in missing[:10]) + (" ..." if len(missing) > 10 else "")
+                self.note(f"{path}: {len(missing)} numbers missing in the series ({shown}); the frames "
+                          f"around them are read as consecutive")
+        else:
+            self.files = folder_files(path)
 
     def _check_headers(self) -> None:
         """Name the first image whose size differs from the first one's, before any pixel is used."""
