@@ -1,7 +1,8 @@
 """Video files (AVI, MP4, MKV, MOV ...) decoded frame by frame with OpenCV (its FFmpeg backend).
 
 OpenCV decodes to B, G, R: a grey video gives three equal channels and is read as grey; a
-colour one needs a channel. Lossless codecs (raw, FFV1, HuffYUV, Lagarith, PNG ...) give the
+colour one needs a channel. A grey video of more than 8 bits (FFV1 gray16le) is read unconverted,
+as uint16. Lossless codecs (raw, FFV1, HuffYUV, Lagarith, PNG ...) give the
 frames as recorded; any other codec (MJPG, H.264, MPEG-4 ...) is accepted for analysis with a
 note naming its FOURCC, because its artefacts change the speckle statistics.
 
@@ -43,24 +44,42 @@ def shown_fourcc(fourcc: str) -> str:
     return "raw (no FOURCC)" if fourcc == "\0\0\0\0" else repr(fourcc.strip("\0 ") or fourcc)
 
 
+def _deep_capture(path: Path) -> tuple[cv2.VideoCapture, np.ndarray] | None:
+    """A capture and its first frame when the video is grey with more than 8 bits (FFV1 gray16le):
+    OpenCV's default conversion to B, G, R would cut it to 8 bits, so it is read unconverted.
+    None for every other video (OpenCV's warnings about unconverted colour formats silenced)."""
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG, [cv2.CAP_PROP_CONVERT_RGB, 0])
+        ok, image = capture.read() if capture.isOpened() else (False, None)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+    if ok and image is not None and image.ndim == 2 and image.dtype == np.uint16:
+        return capture, image
+    capture.release()
+    return None
+
+
 class VideoReader(FrameReader):
     kind = "video"
 
     def __init__(self, path: Path, channel: str | None = None) -> None:
         super().__init__(path, channel)
-        capture = cv2.VideoCapture(str(path))
+        deep = _deep_capture(path)
+        capture = deep[0] if deep is not None else cv2.VideoCapture(str(path))
         if not capture.isOpened():
             capture.release()
             raise ReaderError(f"{path}: cannot be opened as a video (damaged or truncated file, or a codec "
                               f"this OpenCV build lacks)")
         self._capture = capture
         try:
-            self._inspect()
+            self._inspect(deep[1] if deep is not None else None)
         except BaseException:
             self.close()
             raise
 
-    def _inspect(self) -> None:
+    def _inspect(self, first: np.ndarray | None) -> None:
         path, capture = self.path, self._capture
         self.fourcc = fourcc_text(capture.get(cv2.CAP_PROP_FOURCC))
         fps = capture.get(cv2.CAP_PROP_FPS)
@@ -69,8 +88,10 @@ class VideoReader(FrameReader):
         self._announced = announced if announced > 0 and path.suffix.lower() not in _ESTIMATED_COUNT else None
         self.count = self._announced
         self._position = 0
-        ok, first = capture.read()
-        if not ok or first is None:
+        if first is None:
+            ok, first = capture.read()
+            first = first if ok else None
+        if first is None:
             raise ReaderError(f"{path}: no frame can be decoded (empty, damaged or truncated video)")
         self._first: np.ndarray | None = first
         self._settle(first, 1 if first.ndim == 2 else first.shape[2], order="bgr")

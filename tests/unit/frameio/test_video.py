@@ -71,3 +71,18 @@ def test_not_a_video_is_named(tmp_path):
     path.write_bytes(b"\x00" * 100)
     with pytest.raises(ReaderError, match=r"fake\.mp4: cannot be opened as a video"):
         open_frames(path)
+
+
+def test_a_16_bit_grey_video_stays_16_bit(tmp_path):
+    frames = np.random.default_rng(2).integers(0, 4096, (5, 32, 48)).astype(np.uint16)
+    path = tmp_path / "deep.mkv"
+    writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter.fourcc(*"FFV1"), 10.0, (48, 32),
+                             [cv2.VIDEOWRITER_PROP_DEPTH, cv2.CV_16U, cv2.VIDEOWRITER_PROP_IS_COLOR, 0])
+    assert writer.isOpened()
+    for frame in frames:
+        writer.write(frame)
+    writer.release()
+    with open_frames(path) as reader:
+        assert reader.dtype == np.uint16 and reader.bits == 16 and reader.lossy is None
+        assert np.array_equal(np.stack(list(reader.frames())), frames)
+        assert np.array_equal(reader.window(2, 2), frames[2:4])
