@@ -1,7 +1,8 @@
-"""Reading and writing frame stacks and activity-map pictures (OpenCV + numpy).
+"""Writing frame stacks and activity-map pictures (OpenCV + numpy).
 
-Frame stacks: ``.npy`` (N, H, W), multi-page ``.tif``/``.tiff``, a directory of images
-(PNG, TIFF, BMP; sorted by name) or a ``printf`` pattern such as ``frames/%05d.png``.
+Frame stacks: ``.npy`` (N, H, W), multi-page ``.tif``/``.tiff`` or a ``printf`` pattern such as
+``frames/%05d.png``. Reading any frame source is ``edgedsm.frameio`` (streaming, one layer for
+every command); recordings with timestamps are ``edgedsm record`` (``edgedsm.frameio.recording``).
 """
 
 from __future__ import annotations
@@ -15,57 +16,15 @@ import numpy as np
 
 from edgedsm.errors import DataError
 
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp")
-
 
 class ImageIOError(DataError):
     """A frame file could not be read or written (exit code 65: the data, not the program)."""
-
-
-class InputMissing(ImageIOError):
-    """The input named does not exist (exit code 66, EX_NOINPUT)."""
-
-    exit_code = 66
 
 
 def _check_frame(frame: np.ndarray) -> np.ndarray:
     if frame.ndim != 2:
         raise ImageIOError(f"expected 2-D monochrome frames, got shape {frame.shape}")
     return frame
-
-
-def read_stack(path: str | Path) -> np.ndarray:
-    """A (N, H, W) stack from a .npy file (memory-mapped), a multi-page TIFF or an image folder."""
-    path = Path(path)
-    if path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if not files:
-            raise ImageIOError(f"{path}: no PNG, TIFF or BMP images in this directory")
-        return np.stack([_read_image(p) for p in files])
-    if not path.exists():
-        raise InputMissing(f"{path}: no such file or directory")
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        try:
-            stack = np.load(path, mmap_mode="r", allow_pickle=False)
-        except ValueError as exc:
-            raise ImageIOError(f"{path}: not a valid .npy array: {exc}") from None
-        if stack.ndim != 3:
-            raise ImageIOError(f"{path}: expected a (N, H, W) stack, got shape {stack.shape}")
-        return stack
-    if suffix in (".tif", ".tiff"):
-        ok, pages = cv2.imreadmulti(str(path), flags=cv2.IMREAD_UNCHANGED)
-        if not ok or not pages:
-            raise ImageIOError(f"{path}: cannot read as a (multi-page) TIFF")
-        return np.stack([_check_frame(p) for p in pages])
-    raise ImageIOError(f"{path}: unsupported frame format {suffix!r} (use .npy, .tif or an image folder)")
-
-
-def _read_image(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise ImageIOError(f"{path}: cannot be read as an image")
-    return _check_frame(image)
 
 
 def write_stack(path: str | Path, frames: Iterable[np.ndarray], count: int) -> Path:

@@ -9,7 +9,7 @@ histogram of one estimator's map over the whole frame. Pure: frames in, arrays o
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +33,7 @@ class Timeline:
     histogram_edges: np.ndarray = field(default_factory=lambda: np.zeros(0))
     histograms: list[np.ndarray] = field(default_factory=list)  # density per sample
     sample_frames: list[int] = field(default_factory=list)
+    sample_times: list[float] = field(default_factory=list)  # seconds, one per sample
 
     def series(self, region: str, column: str) -> np.ndarray:
         """One column of one region against the samples, as float64."""
@@ -46,10 +47,13 @@ class Timeline:
 
 def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], window: int, lag: int,
              every: int, dt: float = 1.0, max_lag: int = 20, bins: int = 64, histogram_estimator: str = "s2",
-             histogram_range: tuple[float, float] | None = None, bits: int | None = None) -> Timeline:
+             histogram_range: tuple[float, float] | None = None, bits: int | None = None,
+             times_s: Sequence[float] | None = None) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
-    The first sample is at the frame that fills the window (index window-1), time = frame · dt.
+    The first sample is at the frame that fills the window (index window-1), time = frame · dt,
+    or ``times_s[frame]`` when given (a recording's own timestamps, in seconds: frames lost
+    upstream then do not shift the time axis; τc in seconds still uses ``dt``).
     ``histogram_range`` defaults to 0 … 1.25 x the first sample's 99.5th percentile (activity
     maps are >= 0; one range for all samples so the picture compares like with like).
     """
@@ -75,9 +79,10 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         if not engine.ready or (index - (window - 1)) % every:
             continue
         maps = engine.maps()
+        time = index * dt if times_s is None else float(times_s[index])
         for name, mask in regions.items():
             tau = engine.region_tau_c(mask)
-            result.rows.append((index, index * dt, name, float(maps["s1"][mask].mean()),
+            result.rows.append((index, time, name, float(maps["s1"][mask].mean()),
                                 float(maps["s2"][mask].mean()), float(maps["s3"][mask].mean()),
                                 float(tau.tau), float(tau.tau) * dt, STATUS_NAMES[int(tau.status)]))
         values = maps[histogram_estimator]
@@ -88,6 +93,7 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         result.histograms.append(density)
         result.histogram_edges = edges
         result.sample_frames.append(index)
+        result.sample_times.append(time)
     if not result.rows:
         raise EstimatorError(f"{count} frames do not fill one window of N = {window}")
     return result

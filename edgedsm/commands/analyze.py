@@ -1,4 +1,11 @@
-"""Compute an activity map S1, S2 or S3 (paper Eq. 1-4) from a stack of frames.
+"""Compute an activity map S1, S2 or S3 (paper Eq. 1-4) from recorded frames.
+
+FRAMES is anything edgedsm reads: a .npy stack, a multi-page TIFF or BigTIFF (compressed or
+not), an edgedsm recording (`edgedsm record`), a video (AVI, MP4, MKV, MOV; a lossy codec is
+analysed with a warning), an image folder or a pattern such as frames/%05d.png (natural
+numeric order: img_2 before img_10). Colour input needs --channel: red, green or blue, or luma
+(ITU-R BT.601: 0.299 R + 0.587 G + 0.114 B). 10/12/16-bit data are used at full depth. Frames
+are streamed: a map holds its window, not the recording.
 
 The map is computed from WINDOW consecutive frames starting at --start, comparing frames LAG
 apart: S1 = mean |I_i - I_{i+m}| (grey levels), S2 = mean |I_i - I_{i+m}|/(I_i + I_{i+m} + q)
@@ -18,6 +25,8 @@ Examples:
   edgedsm analyze frames/ --estimator s3 --window 50 --lag 4 -o s3.npy --png s3.png
   edgedsm analyze config/scenes/drying_demo.toml --frames 1200 --timeline out/ --window 100 --lag 2
   edgedsm analyze recording.npy --timeline out/ -c edgedsm.toml --dt 0.05
+  edgedsm analyze drying/ --channel red --start 200 --window 200 --lag 5 --estimator s2 -o s2.npy
+  edgedsm analyze run-12.tif --timeline out/ --window 200 --lag 5 --every 200
 """
 
 from __future__ import annotations
@@ -28,17 +37,23 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.commands.timeline_output import add_timeline_arguments, run_timeline
+from edgedsm.commands.common import add_progress_flag, progress
+from edgedsm.commands.timeline_output import add_timeline_arguments, open_reader, run_timeline
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import s1, s2, s3
-from edgedsm.imageio import read_stack, save_map_png
+from edgedsm.frameio import CHANNELS, FrameReader
+from edgedsm.imageio import save_map_png
 
 NAME = "analyze"
 HELP = "compute an S1/S2/S3 activity map from frames"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("frames", metavar="FRAMES", help=".npy stack, multi-page .tif, or a folder of images")
+    parser.add_argument("frames", metavar="FRAMES",
+                        help=".npy, .tif (also BigTIFF, edgedsm recordings), a video, an image folder or "
+                             "a pattern such as frames/%%05d.png")
+    parser.add_argument("--channel", metavar="|".join(CHANNELS),
+                        help="the channel of a colour input: red, green, blue, or luma (ITU-R BT.601 weights)")
     parser.add_argument("--estimator", choices=("s1", "s2", "s3"), default="s1",
                         help="s1: plain; s2: normalised by intensity; s3: normalised by σ (default s1)")
     parser.add_argument("--window", type=int, metavar="N", help="frames per map (default: all from --start)")
@@ -50,6 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write a colour-mapped picture (default: MAP.png beside the .npy)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
     add_timeline_arguments(parser)
+    add_progress_flag(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,14 +73,9 @@ def run(args: argparse.Namespace) -> int:
         return run_timeline(args)
     if args.output is None:
         raise EstimatorError("give -o MAP.npy (or --timeline OUT_DIR)")
-    stack = read_stack(args.frames)
-    total = stack.shape[0]
-    if not 0 <= args.start < total:
-        raise EstimatorError(f"--start {args.start} is outside the {total} frames of {args.frames}")
-    window = total - args.start if args.window is None else args.window
-    if window < 2 or args.start + window > total:
-        raise EstimatorError(f"--window {window} from --start {args.start} does not fit the {total} frames")
-    frames = np.asarray(stack[args.start:args.start + window])
+    with open_reader(args) as reader:
+        frames = read_window(reader, args)
+    window = len(frames)
     if args.estimator == "s1":
         result = s1(frames, args.lag)
     elif args.estimator == "s2":
@@ -89,3 +100,21 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(message)
     return 0
+
+
+def read_window(reader: FrameReader, args: argparse.Namespace) -> np.ndarray:
+    """Frames --start .. --start + --window - 1 (all from --start without --window), read one by
+    one into one array: the only frames held."""
+    total = reader.count
+    if args.start < 0 or (total is not None and args.start >= total):
+        raise EstimatorError(f"--start {args.start} is outside the {total} frames of {args.frames}")
+    window = args.window if args.window is not None else (total - args.start if total is not None else None)
+    if window is not None and (window < 2 or (total is not None and args.start + window > total)):
+        raise EstimatorError(f"--window {window} from --start {args.start} does not fit the {total} frames")
+    if window is None:  # a video of unknown length: all from --start, as asked
+        stack = np.stack(list(progress(reader.frames(args.start), None, "read", args.progress)))
+    else:
+        stack = reader.window(args.start, window, lambda frames: progress(frames, window, "read", args.progress))
+    if len(stack) < 2:
+        raise EstimatorError(f"{args.frames}: {len(stack)} frame(s) from --start {args.start}; a map needs 2 or more")
+    return stack

@@ -20,7 +20,7 @@ def scene_argument(value: str) -> Scene:
     return default_scene() if value == "default" else load_scene(value)
 
 
-def progress(items: Iterable[T], total: int, description: str, enabled: bool = True) -> Iterator[T]:
+def progress(items: Iterable[T], total: int | None, description: str, enabled: bool = True) -> Iterator[T]:
     """A progress bar on stderr for long runs (hidden when stderr is not a terminal)."""
     from tqdm import tqdm
 

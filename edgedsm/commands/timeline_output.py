@@ -1,16 +1,23 @@
 """`edgedsm analyze --timeline`: frames from a recording or a scene, regions from a config, and the
-CSV and pictures of :mod:`edgedsm.timeline`."""
+CSV and pictures of :mod:`edgedsm.timeline`.
+
+Frames are pushed one by one into the streaming engine as they are read (``edgedsm.frameio``):
+memory holds the engine's window, never the recording."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from edgedsm.commands.common import progress
 from edgedsm.errors import EstimatorError
+from edgedsm.frameio import FrameReader, open_frames
 from edgedsm.timeline import COLUMNS, Timeline, timeline
 
 SCENE_SUFFIXES = (".toml",)
@@ -31,8 +38,18 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
                        help="estimator whose map histogram is drawn against time (default s2)")
 
 
-def _frames(args: argparse.Namespace) -> tuple[Iterator[np.ndarray], int | None, float | None, int]:
-    """(frames, bits, the source's dt if it knows one, count)."""
+def open_reader(args: argparse.Namespace) -> FrameReader:
+    """The reader of FRAMES with --channel; its notes (a lossy codec, gaps) go to stderr."""
+    reader = open_frames(args.frames, getattr(args, "channel", None))
+    for note in reader.notes:
+        print(f"edgedsm: warning: {note}", file=sys.stderr)
+    return reader
+
+
+def _frames(args: argparse.Namespace, stack: contextlib.ExitStack
+            ) -> tuple[Iterator[np.ndarray], int | None, float | None, int | None, np.ndarray | None]:
+    """(frames, bits, the source's dt if it knows one, count if known, a recording's frame times
+    in seconds from the first frame used), streamed."""
     source = args.frames
     if source == "default" or Path(source).suffix.lower() in SCENE_SUFFIXES:
         from edgedsm.commands.common import scene_argument
@@ -40,13 +57,21 @@ def _frames(args: argparse.Namespace) -> tuple[Iterator[np.ndarray], int | None,
 
         scene = scene_argument(source)
         count = args.frame_count or scene.scene.frames
-        return Simulator(scene).frames(count), scene.detector.bits if scene.detector else None, scene.scene.dt, count
-    from edgedsm.imageio import read_stack
-
-    stack = read_stack(source)[args.start:]
-    if args.frame_count is not None:
-        stack = stack[: args.frame_count]
-    return (np.asarray(frame) for frame in stack), None, None, len(stack)
+        return (Simulator(scene).frames(count), scene.detector.bits if scene.detector else None, scene.scene.dt,
+                count, None)
+    reader = stack.enter_context(open_reader(args))
+    if reader.count is not None and args.start >= reader.count:
+        raise EstimatorError(f"--start {args.start} is outside the {reader.count} frames of {source}")
+    stop = None if args.frame_count is None else args.start + args.frame_count
+    count = reader.count - args.start if reader.count is not None else None
+    if count is not None and args.frame_count is not None:
+        count = min(count, args.frame_count)
+    stamps = reader.stamps()
+    times = None
+    if stamps is not None and args.dt is None:  # --dt overrides the recording's clock
+        used = stamps.t_ns[args.start:stop]
+        times = (used - used[0]) / 1e9
+    return reader.frames(args.start, stop), reader.bits, reader.dt, count, times
 
 
 def _regions(args: argparse.Namespace, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray], float | None]:
@@ -61,27 +86,38 @@ def _regions(args: argparse.Namespace, shape: tuple[int, int]) -> tuple[dict[str
 
 
 def run_timeline(args: argparse.Namespace) -> int:
+    with contextlib.ExitStack() as stack:
+        return _run_timeline(args, stack)
+
+
+def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     window = args.window or 100
-    frames, bits, scene_dt, count = _frames(args)
+    frames, bits, scene_dt, count, times = _frames(args, stack)
+    frames = progress(frames, count, "timeline", getattr(args, "progress", True))
     first = next(frames, None)
     if first is None:
         raise EstimatorError(f"{args.frames}: no frames")
     regions, config_dt = _regions(args, first.shape)
     dt = args.dt or scene_dt or config_dt or 1.0
 
+    read = [0]
+
     def all_frames() -> Iterator[np.ndarray]:
         yield first
-        yield from frames
+        read[0] = 1
+        for frame in frames:
+            yield frame
+            read[0] += 1
 
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
-                      max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits)
+                      max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times)
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)
     plot_activity(out / "timeline.png", result, f"{args.frames}: N = {window}, m = {args.lag}")
     plot_histograms(out / "histogram.png", result, f"{args.frames}: N = {window}, m = {args.lag}")
     samples = len(result.sample_frames)
-    print(f"{samples} samples of {len(regions)} region(s) from {count} frames (Δt = {dt:g} s) -> "
+    print(f"{samples} samples of {len(regions)} region(s) from {read[0]} frames (Δt = {dt:g} s) -> "
           f"{out / 'timeline.csv'}, {out / 'timeline.png'}, {out / 'histogram.png'}")
     return 0
 
@@ -128,7 +164,7 @@ def plot_activity(path: Path, result: Timeline, title: str) -> None:
 def plot_histograms(path: Path, result: Timeline, title: str) -> None:
     plt = _pyplot()
     image = result.histogram_image()
-    times = np.asarray(result.sample_frames, np.float64) * result.dt
+    times = np.asarray(result.sample_times, np.float64)
     edges = result.histogram_edges
     fig, ax = plt.subplots(figsize=(8, 4.5))
     span = (times[0], times[-1] if times[-1] > times[0] else times[0] + result.dt)

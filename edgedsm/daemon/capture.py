@@ -52,6 +52,19 @@ def queue_capacity(settings: AcquisitionSection, rate: float | None, frame_bytes
     return max(MIN_QUEUE_FRAMES, min(by_time, by_memory))
 
 
+def apply_camera_settings(camera: Camera, settings: CameraSection) -> dict[str, object]:
+    """Apply a config's pixel format, exposure and frame interval to an open camera; returns the
+    values the camera took (by name), for whoever wants to record them."""
+    taken: dict[str, object] = {}
+    if settings.pixel_format:
+        taken["pixel_format"] = camera.set_pixel_format(settings.pixel_format)
+    if settings.exposure_us:
+        taken["exposure_us"] = camera.set_exposure(settings.exposure_us)
+    if settings.frame_interval_s:
+        taken["frame_interval_s"] = camera.set_frame_interval(settings.frame_interval_s)
+    return taken
+
+
 class Capture:
     """Owns the capture thread and its queue (see the module docstring)."""
 
@@ -75,13 +88,7 @@ class Capture:
     def open(self) -> None:
         """Open the camera and apply the configured settings (they are re-applied on reconnect)."""
         self.camera.open()
-        cam = self.settings
-        if cam.pixel_format:
-            self.camera.set_pixel_format(cam.pixel_format)
-        if cam.exposure_us:
-            self.camera.set_exposure(cam.exposure_us)
-        if cam.frame_interval_s:
-            self.camera.set_frame_interval(cam.frame_interval_s)
+        apply_camera_settings(self.camera, self.settings)
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="edgedsm-capture", daemon=True)

@@ -1,27 +1,32 @@
-"""Replay of recorded frames as a camera: an image folder, a multi-page TIFF, a video, a .npy stack.
+"""Replay of recorded frames as a camera: anything ``edgedsm.frameio`` reads (an image folder or
+pattern, a multi-page TIFF, an edgedsm recording, a video, a .npy stack), streamed frame by frame.
 
 Pacing: ``rate`` frames per second, the recording's own interval where it has one
-(``rate="recorded"``: a video's frame rate, or the ``dt`` given), or ``rate=0`` for as fast
-as possible. ``loop`` starts again at the end; otherwise ``frames()`` simply ends with the recording.
+(``rate="recorded"``: a recording's timestamps, a video's frame rate, or the ``dt`` given), or
+``rate=0`` for as fast as possible. ``loop`` starts again at the end; otherwise ``frames()``
+simply ends with the recording. An edgedsm recording gives back its frames' own sequence
+numbers and timestamps (continued past the end when looping); other sources count from 0 at
+``dt`` (the host clock without one). ``channel`` picks red, green, blue or luma of a colour source.
 
 A recording that cannot be used (not readable as frames, frames that change size, a pixel type
-other than uint8/uint16) raises ``DataError`` naming the file (exit code 65).
+other than uint8/uint16, colour without a channel) raises ``DataError`` naming the file (exit 65).
 """
 
 from __future__ import annotations
 
+import logging
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from edgedsm.devices.camera.base import Camera, EndOfStream, pace
-from edgedsm.errors import DataError, DeviceError
+from edgedsm.errors import DataError, DeviceError, EdgedsmError
+from edgedsm.frameio import FrameReader, InputMissing, Stamps, open_frames
 from edgedsm.frames import Frame
-from edgedsm.imageio import IMAGE_SUFFIXES, ImageIOError, read_stack
 
-VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov")
+log = logging.getLogger(__name__)
 
 
 class ReplayCamera(Camera):
@@ -30,7 +35,7 @@ class ReplayCamera(Camera):
     kind = "replay"
 
     def __init__(self, path: str | Path, rate: float | str = 0.0, dt: float | None = None,
-                 loop: bool = False, bits: int | None = None) -> None:
+                 loop: bool = False, bits: int | None = None, channel: str | None = None) -> None:
         super().__init__(f"replay of {path}")
         self.path = Path(path)
         if isinstance(rate, str) and rate != "recorded":
@@ -40,31 +45,31 @@ class ReplayCamera(Camera):
         self.rate = rate
         self.dt = dt
         self.loop = loop
+        self.channel = channel
         self._bits = bits
-        self._stack: np.ndarray | None = None
-        self._video: cv2.VideoCapture | None = None
-        self._index = 0
+        self._reader: FrameReader | None = None
+        self._frames: Iterator[np.ndarray] | None = None
+        self._stamps: Stamps | None = None
+        self._index = 0  # frames taken in the current pass
+        self._passes = 0
         self._seq = 0
         self._interval = 0.0
         self._due = 0.0
-        self._frame_shape: tuple[int, ...] | None = None
+        self._timestamp_dt: float | None = None
 
     def _do_open(self) -> None:
-        if not self.path.exists():
-            raise DeviceError(f"{self.path}: no such file or directory")
-        recorded_dt = self.dt
-        if self.path.suffix.lower() in VIDEO_SUFFIXES:
-            video = cv2.VideoCapture(str(self.path))
-            if not video.isOpened():
-                raise DeviceError(f"{self.path}: cannot be opened as a video")
-            self._video = video
-            fps = video.get(cv2.CAP_PROP_FPS)
-            if recorded_dt is None and fps > 0:
-                recorded_dt = 1.0 / fps
-        else:
-            self._stack = _read_recording(self.path)
-            if self._stack.dtype not in (np.uint8, np.uint16):
-                raise DataError(f"{self.path}: frames must be uint8 or uint16, not {self._stack.dtype}")
+        try:
+            reader = open_frames(self.path, self.channel)
+        except InputMissing:
+            raise DeviceError(f"{self.path}: no such file or directory") from None
+        if reader.dtype not in (np.uint8, np.uint16):
+            reader.close()
+            raise DataError(f"{self.path}: frames must be uint8 or uint16, not {reader.dtype}")
+        self._reader = reader
+        for note in reader.notes:  # a lossy codec, numbers missing in a series
+            log.warning("%s", note)
+        self._stamps = reader.stamps()
+        recorded_dt = self.dt if self.dt is not None else reader.dt
         if self.rate == "recorded":
             if recorded_dt is None:
                 raise DeviceError(f"{self.path}: the recording has no frame interval; give dt or a rate")
@@ -72,119 +77,86 @@ class ReplayCamera(Camera):
         else:
             self._interval = 0.0 if self.rate == 0 else 1.0 / float(self.rate)
         self._timestamp_dt = recorded_dt if recorded_dt is not None else (self._interval or None)
+        self._rewind()
+        self._passes = 0
 
     @property
     def paced(self) -> bool:
         return self.rate != 0  # "recorded" or a rate: paced; 0: as fast as the consumer takes them
 
     def _do_close(self) -> None:
-        if self._video is not None:
-            self._video.release()
-            self._video = None
-        self._stack = None
+        if self._reader is not None:
+            self._reader.close()
+            self._reader = None
+        self._frames = None
 
     def _do_start(self) -> None:
         self._due = 0.0
 
     @property
     def frame_count(self) -> int | None:
-        if self._stack is not None:
-            return int(self._stack.shape[0])
-        if self._video is not None:
-            return int(self._video.get(cv2.CAP_PROP_FRAME_COUNT))
-        return None
+        return self._reader.count if self._reader is not None else None
 
-    def _next_pixels(self) -> np.ndarray | None:
-        if self._stack is not None:
-            if self._index >= self._stack.shape[0]:
-                return None
-            pixels = np.ascontiguousarray(self._stack[self._index])
-        else:
-            assert self._video is not None
-            ok, image = self._video.read()
-            if not ok:
-                return None
-            pixels = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-        self._index += 1
-        return pixels
+    @property
+    def reader(self) -> FrameReader | None:
+        """The open reader (its notes, shape, stamps), None while closed."""
+        return self._reader
 
     def _rewind(self) -> None:
+        assert self._reader is not None
+        self._frames = self._reader.frames()
         self._index = 0
-        if self._video is not None:
-            self._video.set(cv2.CAP_PROP_POS_FRAMES, 0)
+
+    def _next_pixels(self) -> np.ndarray | None:
+        assert self._frames is not None
+        try:
+            pixels = next(self._frames)
+        except StopIteration:
+            return None
+        except EdgedsmError as exc:
+            raise DataError(str(exc)) from None
+        self._index += 1
+        return pixels
 
     def _do_grab(self, timeout_s: float) -> Frame | None:
         pixels = self._next_pixels()
         if pixels is None and self.loop and self._index > 0:
             self._rewind()
+            self._passes += 1
             pixels = self._next_pixels()
         if pixels is None:
             raise EndOfStream(f"{self.description}: end of recording after {self._index} frames")
-        if pixels.ndim != 2:
-            self._dropped("invalid")
-            return None
-        if self._frame_shape is None:
-            self._frame_shape = pixels.shape
-        elif pixels.shape != self._frame_shape:
-            raise DataError(f"{self.path}: frame {self._index - 1} is a {_size(pixels.shape)} frame after "
-                            f"{_size(self._frame_shape)} ones; a recording keeps one frame size")
         if self._interval > 0:
             self._due = pace(self._due, self._interval)
+        seq, t_ns = self._numbers()
+        bits = self._bits or (self._reader.bits if self._reader is not None else None) or 8 * pixels.itemsize
+        return Frame(np.ascontiguousarray(pixels), seq, t_ns, bits)
+
+    def _numbers(self) -> tuple[int, int]:
+        """(seq, t_ns) of the frame just taken: the recording's own, else counted at dt."""
+        stamps = self._stamps
+        if stamps is not None and self._index - 1 < len(stamps.seq):
+            index = self._index - 1
+            seq_span = int(stamps.seq[-1] - stamps.seq[0]) + 1
+            step_ns = round((stamps.interval_s() or 0.0) * 1e9)
+            t_span = int(stamps.t_ns[-1] - stamps.t_ns[0]) + step_ns
+            return (int(stamps.seq[index]) + self._passes * seq_span,
+                    int(stamps.t_ns[index]) + self._passes * t_span)
         seq = self._seq
         self._seq += 1
-        bits = self._bits or (8 if pixels.dtype == np.uint8 else 16)
         t_ns = round(seq * self._timestamp_dt * 1e9) if self._timestamp_dt else time.monotonic_ns()
-        return Frame(pixels, seq, t_ns, bits)
+        return seq, t_ns
 
     def _do_set_frame_interval(self, seconds: float) -> float:
         self._interval = seconds
         return seconds
 
 
-def _read_recording(path: Path) -> np.ndarray:
-    """The (N, H, W) stack of a recording; DataError names the file that spoils it."""
-    try:
-        return read_stack(path)
-    except ImageIOError as exc:
-        raise DataError(str(exc)) from None
-    except ValueError:
-        # np.stack of a folder whose images differ in size: find the first odd one out
-        if not path.is_dir():
-            raise DataError(f"{path}: frames of different sizes; a recording keeps one frame size") from None
-        first: tuple[int, ...] | None = None
-        for file in sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
-            image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-            if image is None:
-                continue
-            if first is None:
-                first = image.shape
-            elif image.shape != first:
-                raise DataError(f"{file}: {_size(image.shape)} frame among {_size(first)} ones; "
-                                f"a recording keeps one frame size") from None
-        raise DataError(f"{path}: frames of different sizes; a recording keeps one frame size") from None
-
-
-def _size(shape: tuple[int, ...]) -> str:
-    return "x".join(str(n) for n in shape[:2])
-
-
 def first_frame_shape(path: Path) -> tuple[int, int] | None:
-    """(rows, columns) of a recording's first frame, reading only that frame; None when it
+    """(rows, columns) of a recording's frames, reading only its first frame; None when it
     cannot be read (opening the recording will then say why)."""
     try:
-        if path.is_dir():
-            files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-            image = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED) if files else None
-        elif path.suffix.lower() == ".npy":
-            stack = np.load(path, mmap_mode="r", allow_pickle=False)
-            return (int(stack.shape[1]), int(stack.shape[2])) if stack.ndim == 3 else None
-        elif path.suffix.lower() in VIDEO_SUFFIXES:
-            video = cv2.VideoCapture(str(path))
-            ok, image = video.read()
-            video.release()
-            image = image if ok else None
-        else:
-            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # a TIFF's first page
-    except (OSError, ValueError):
+        with open_frames(path, "luma") as reader:  # the size is the same whichever channel
+            return reader.shape
+    except EdgedsmError:
         return None
-    return (int(image.shape[0]), int(image.shape[1])) if image is not None else None

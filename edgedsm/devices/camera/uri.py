@@ -18,6 +18,7 @@ Examples::
     v4l2:0                               ... or by index
     replay:/data/run-12.npy?rate=30&loop=true
     replay:frames/?rate=recorded&dt=0.04
+    replay:drying/%04d.bmp?channel=red   the red channel of a colour series (a red laser's speckle)
     sim:config/scenes/logos.toml?time_scale=0
     sim:default                          the built-in default scene (also plain "sim:")
 
@@ -32,11 +33,14 @@ never goes unnoticed. Options per scheme:
 ``v4l2``
     ``fourcc`` the uncompressed format to ask for: GREY, Y10, Y12, Y16, YUYV or UYVY (default:
     the device's; compressed formats such as MJPG are refused for measurement);
-    ``width``, ``height`` the resolution to ask for, 1..16384.
+    ``width``, ``height`` the resolution to ask for, 1..16384; ``channel`` red, green, blue or
+    luma of a YUYV/UYVY device (default luma: the Y the device sends).
 ``replay``
     ``rate`` frames/s (0 = as fast as possible, the default) or ``recorded`` (the recording's
     own interval); ``dt`` the recording's frame interval in seconds where the file has none;
-    ``loop`` true/false; ``bits`` significant bits per pixel 1..16 (default from the dtype).
+    ``loop`` true/false; ``bits`` significant bits per pixel 1..16 (default: the recording's, else
+    from the dtype); ``channel`` red, green, blue or luma (ITU-R BT.601) of a colour recording
+    (required for one: colour frames are refused without it).
 ``sim``
     ``time_scale`` pacing factor on the scene's Δt, >= 0 (0 = as fast as possible; default 1);
     ``precision`` single or double; ``lose_after`` frames before one simulated loss (tests);
@@ -65,8 +69,8 @@ V4L2_RAW_FOURCCS = {"GREY": 8, "Y10 ": 10, "Y12 ": 12, "Y16 ": 16, "YUYV": 8, "U
 
 _KEYS = {
     "aravis": {"buffers", "packet_size"},
-    "v4l2": {"fourcc", "width", "height"},
-    "replay": {"rate", "dt", "loop", "bits"},
+    "v4l2": {"fourcc", "width", "height", "channel"},
+    "replay": {"rate", "dt", "loop", "bits", "channel"},
     "sim": {"time_scale", "precision", "lose_after", "corrupt_every"},
 }
 _DEVICE_ID = re.compile(r"^[\w.:\-]+$")  # Aravis ids: vendor-model-serial, IP addresses, Fake_1
@@ -139,7 +143,17 @@ def _parse_v4l2(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict[s
     for key in ("width", "height"):
         if key in raw:
             options[key] = _opts(uri).integer(key, raw[key], 1, 16384)
+    if "channel" in raw:
+        options["channel"] = _channel(uri, raw["channel"])
     return target, options
+
+
+def _channel(uri: str, text: str) -> str:
+    from edgedsm.frameio.channels import CHANNELS
+
+    if text not in CHANNELS:
+        raise _fail(uri, f"channel={text!r} must be one of {', '.join(CHANNELS)}")
+    return text
 
 
 def _parse_replay(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict[str, object]]:
@@ -154,6 +168,8 @@ def _parse_replay(uri: str, target: str, raw: dict[str, str]) -> tuple[str, dict
         options["loop"] = _opts(uri).boolean("loop", raw["loop"])
     if "bits" in raw:
         options["bits"] = _opts(uri).integer("bits", raw["bits"], 1, 16)
+    if "channel" in raw:
+        options["channel"] = _channel(uri, raw["channel"])
     return target, options
 
 
@@ -186,6 +202,10 @@ def resolve_camera_spec(spec: CameraSpec, base_dir: Path) -> CameraSpec:
     target = Path(spec.target)
     target = (target if target.is_absolute() else base_dir / target).resolve()
     if spec.scheme == "replay":
+        if "%" in target.name:  # a numbered series: frames/%05d.png
+            if not target.parent.is_dir():
+                raise _fail(spec.uri, f"{target.parent}: no such directory")
+            return dataclasses.replace(spec, target=str(target))
         if not target.exists():
             raise _fail(spec.uri, f"{target}: no such file or directory")
         if not (target.is_file() or target.is_dir()):

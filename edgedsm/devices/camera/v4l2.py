@@ -5,7 +5,8 @@ conversion switched off, so the luminance arrives as the sensor gave it. Rules f
 
 - **Uncompressed only.** A device that delivers a compressed format (MJPG, H264, ...) is
   refused at open: compression artefacts change the speckle statistics. Ask for a raw
-  format with ``fourcc`` (GREY, Y10, Y12, Y16, YUYV, UYVY; YUYV/UYVY give their luma).
+  format with ``fourcc`` (GREY, Y10, Y12, Y16, YUYV, UYVY; YUYV/UYVY give their luma, or the
+  red, green or blue channel asked for with ``channel``: a colour camera under a red laser).
 - **Fixed exposure and gain** where the device allows: automatic exposure is switched to
   manual, white balance and autofocus off, gain pinned at its current value. What could not
   be locked is logged and listed in ``unlocked`` (OpenCV cannot reach every V4L2 control,
@@ -32,6 +33,7 @@ import numpy as np
 
 from edgedsm.devices.camera.base import Camera, Region
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
+from edgedsm.frameio.channels import select_channel
 from edgedsm.frames import Frame
 
 log = logging.getLogger(__name__)
@@ -65,14 +67,22 @@ def check_uncompressed(fourcc: str, device: str) -> int:
                       f"'v4l2-ctl -d {device} --list-formats'")
 
 
-def to_mono(image: np.ndarray, fourcc: str, width: int, height: int) -> np.ndarray:
-    """The luminance of one V4L2 frame as delivered by OpenCV with RGB conversion off.
+COLOUR_CHANNELS = ("red", "green", "blue")
+_YUV_TO_BGR = {"YUYV": cv2.COLOR_YUV2BGR_YUYV, "UYVY": cv2.COLOR_YUV2BGR_UYVY}
+
+
+def to_mono(image: np.ndarray, fourcc: str, width: int, height: int, channel: str | None = None) -> np.ndarray:
+    """The luminance (or the colour ``channel`` asked for) of one V4L2 frame as delivered by
+    OpenCV with RGB conversion off.
 
     OpenCV hands back either a decoded 2-D image, a (H, W, 2) YUYV/UYVY image or the raw
     buffer as one row of bytes, depending on the format and its version; all become a 2-D
     uint8 (GREY, YUYV, UYVY) or little-endian-decoded uint16 (Y10, Y12, Y16) array.
+    ``channel`` red, green or blue converts YUYV/UYVY to B, G, R (OpenCV) and keeps that one.
     Raises ``DeviceError`` for data that do not fit the format.
     """
+    if channel in COLOUR_CHANNELS:
+        return _colour_channel(image, fourcc, width, height, channel)  # type: ignore[arg-type]
     if image.ndim == 2 and image.shape == (height, width) and image.dtype in (np.uint8, np.uint16):
         return image
     luma_channel = 1 if fourcc == "UYVY" else 0
@@ -93,6 +103,18 @@ def to_mono(image: np.ndarray, fourcc: str, width: int, height: int) -> np.ndarr
                       f"{image.shape}")
 
 
+def _colour_channel(image: np.ndarray, fourcc: str, width: int, height: int, channel: str) -> np.ndarray:
+    if image.ndim == 3 and image.shape == (height, width, 3):  # converted by OpenCV anyway: B, G, R
+        return select_channel(image, channel, "bgr")
+    if fourcc not in _YUV_TO_BGR:
+        raise DeviceError(f"a {fourcc.strip()} frame is monochrome: it has no {channel} channel")
+    raw = image.reshape(-1).view(np.uint8)
+    if raw.size < 2 * width * height:
+        raise DeviceError(f"a {fourcc.strip()} frame of {width}x{height} cannot come as {image.dtype} {image.shape}")
+    packed = raw[:2 * width * height].reshape(height, width, 2)
+    return select_channel(cv2.cvtColor(packed, _YUV_TO_BGR[fourcc]), channel, "bgr")
+
+
 def list_devices() -> list[str]:
     """The V4L2 video device nodes present now (``/dev/video*``), in numeric order."""
     def number(path: str) -> int:
@@ -108,7 +130,8 @@ class V4L2Camera(Camera):
     kind = "v4l2"
 
     def __init__(self, device: str | int, fourcc: str | None = None, width: int | None = None,
-                 height: int | None = None, capture_factory: Callable[..., Any] | None = None) -> None:
+                 height: int | None = None, channel: str | None = None,
+                 capture_factory: Callable[..., Any] | None = None) -> None:
         super().__init__(f"V4L2 camera {device}")
         if fourcc is not None:
             fourcc = fourcc.upper().ljust(4)
@@ -117,6 +140,7 @@ class V4L2Camera(Camera):
         self.fourcc = fourcc
         self.width = width
         self.height = height
+        self.channel = channel
         self.unlocked: list[str] = []
         self._factory = capture_factory or cv2.VideoCapture
         self._capture: Any = None
@@ -172,6 +196,9 @@ class V4L2Camera(Camera):
             raise DeviceError(f"{self.description}: asked for {expected.strip()}, the device gives "
                               f"{fourcc.strip() or 'nothing'}")
         self._bits = check_uncompressed(fourcc, self.path)
+        if self.channel in COLOUR_CHANNELS and fourcc not in _YUV_TO_BGR:
+            raise DeviceError(f"{self.description}: channel={self.channel} needs a colour format (YUYV or UYVY); "
+                              f"the device gives {fourcc.strip()}, which is monochrome")
         self._format = fourcc
         self._size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
 
@@ -206,7 +233,7 @@ class V4L2Camera(Camera):
             raise DeviceTimeout(f"{self.description}: no frame within {timeout_s:g} s")
         width, height = self._size
         try:
-            pixels = to_mono(image, self._format, width, height)
+            pixels = to_mono(image, self._format, width, height, self.channel)
         except DeviceError as exc:
             log.debug("%s: %s", self.description, exc)
             self._dropped("corrupt")

@@ -3,6 +3,8 @@ message on stderr, never a traceback for bad input."""
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
@@ -48,12 +50,14 @@ def test_replay_of_a_file_that_is_not_a_recording_exits_65(tmp_path, capsys):
 
 
 def test_a_replay_frame_of_another_size_mid_stream_is_bad_data(tmp_path):
-    camera = ReplayCamera(_folder(tmp_path, [(16, 16), (16, 16)]))
+    folder = _folder(tmp_path, [(16, 16), (16, 16)])
+    camera = ReplayCamera(folder)
     with camera:
         frames = camera.frames(1, timeout_s=1.0)
         assert next(iter(frames)).shape == (16, 16)
-        camera._stack = np.zeros((2, 8, 8), np.uint8)  # what a video whose size changes delivers
-        with pytest.raises(DataError, match="8x8 frame"):
+        # replaced after the headers were checked at open: found when it is decoded
+        cv2.imwrite(str(folder / "001.png"), np.zeros((8, 8), np.uint8))
+        with pytest.raises(DataError, match=r"001\.png: frame 1 is a 8x8 frame"):
             list(camera.frames(1, timeout_s=1.0))
 
 
@@ -70,3 +74,18 @@ def test_analyze_of_a_corrupt_recording_exits_65(tmp_path, capsys):
                  "-o", str(tmp_path / "map.npy")]) == 65
     err = capsys.readouterr().err
     assert "rec.npy" in err and "Traceback" not in err
+
+
+def test_probe_of_a_colour_replay_needs_a_channel(tmp_path, capsys):
+    folder = tmp_path / "colour"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, (12, 16, 3), dtype=np.uint8) for _ in range(3)]
+    for index, frame in enumerate(frames, start=1):
+        cv2.imwrite(str(folder / f"img_{index}.bmp"), frame)
+    assert main(["probe", "camera", f"replay:{folder}", "--frames", "2"]) == 65
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "colour" in err and "channel=" in err
+    assert main(["probe", "camera", f"replay:{folder}?channel=green", "--frames", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["mean"] == pytest.approx(np.mean([f[:, :, 1] for f in frames]))  # green is index 1 of B, G, R

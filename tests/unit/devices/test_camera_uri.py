@@ -36,6 +36,8 @@ bits = 8
     ("replay:/data/run.npy?rate=30&loop=true", "replay", "/data/run.npy", {"rate": 30.0, "loop": True}),
     ("replay:frames/?rate=recorded&dt=0.04&bits=12", "replay", "frames/",
      {"rate": "recorded", "dt": 0.04, "bits": 12}),
+    ("replay:drying/%04d.bmp?channel=red", "replay", "drying/%04d.bmp", {"channel": "red"}),
+    ("v4l2:0?fourcc=YUYV&channel=luma", "v4l2", "0", {"fourcc": "YUYV", "channel": "luma"}),
     ("sim:scene.toml?time_scale=0", "sim", "scene.toml", {"time_scale": 0.0}),
     ("sim:default", "sim", "", {}),
     ("sim:", "sim", "", {}),
@@ -71,6 +73,8 @@ def test_valid_uris(uri, scheme, target, options):
     ("replay:x.npy?loop=sometimes", "loop='sometimes' must be true or false"),
     ("replay:x.npy?bits=17", "bits=17 is out of range 1..16"),
     ("replay:x.npy?time_scale=0", "unknown option 'time_scale' for replay"),
+    ("replay:x.npy?channel=purple", "channel='purple' must be one of red, green, blue, luma"),
+    ("v4l2:0?channel=Red", "channel='Red' must be one of"),
     ("sim:default?time_scale=nan", "time_scale=nan must be >= 0"),
     ("sim:default?precision=half", "precision='half' must be single or double"),
     ("sim:default?corrupt_every=1", "corrupt_every=1 is out of range"),
@@ -123,3 +127,13 @@ def test_list_cameras_of_an_unlistable_kind_is_refused():
     with pytest.raises(ConfigError, match="aravis and v4l2"):
         list_cameras("replay")
     assert all(uri.startswith("v4l2:/dev/video") for uri in list_cameras("v4l2"))
+
+
+def test_a_replay_pattern_resolves_against_its_folder(tmp_path):
+    from edgedsm.devices.camera.uri import resolve_camera_spec
+
+    (tmp_path / "seq").mkdir()
+    spec = resolve_camera_spec(parse_camera_uri("replay:seq/%04d.png?channel=red"), tmp_path)
+    assert spec.target == str(tmp_path / "seq" / "%04d.png")
+    with pytest.raises(ConfigError, match="no such directory"):
+        resolve_camera_spec(parse_camera_uri("replay:missing/%04d.png"), tmp_path)

@@ -174,3 +174,18 @@ def test_fourcc_helpers():
     assert fourcc_text(fourcc_code("MJPG")) == "MJPG" and fourcc_text(fourcc_code("Y16")) == "Y16 "
     assert check_uncompressed("Y12 ", "/dev/video0") == 12
     assert all(path.startswith("/dev/video") for path in list_devices())
+
+
+def test_yuyv_gives_the_colour_channel_asked_for(node):
+    height, width = 2, 4
+    packed = np.empty((height, width, 2), np.uint8)
+    packed[..., 0] = 120  # Y
+    packed[:, 0::2, 1], packed[:, 1::2, 1] = 90, 200  # U low, V high: a red light
+    red, blue = to_mono(packed, "YUYV", width, height, "red"), to_mono(packed, "YUYV", width, height, "blue")
+    assert red.shape == (height, width) and red.min() > 200 and blue.max() < 70  # BT.601: R ≈ 221-236, B ≈ 44-53
+    assert np.array_equal(to_mono(packed.reshape(1, -1), "YUYV", width, height, "red"), red)  # as one raw row
+    assert np.array_equal(to_mono(packed, "YUYV", width, height, "luma"), packed[..., 0])
+    with pytest.raises(DeviceError, match="monochrome"):
+        to_mono(np.zeros((height, width), np.uint8), "GREY", width, height, "red")
+    with pytest.raises(DeviceError, match="channel=red needs a colour format"):
+        V4L2Camera(node, channel="red", capture_factory=FakeCapture("GREY")).open()
