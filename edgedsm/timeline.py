@@ -78,7 +78,7 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         count = index + 1
         if not engine.ready or (index - (window - 1)) % every:
             continue
-        maps = engine.maps()
+        maps = engine.maps(("s1", "s2", "s3"))  # τc per region below: the per-pixel τc map is not needed
         time = index * dt if times_s is None else float(times_s[index])
         for name, mask in regions.items():
             tau = engine.region_tau_c(mask)

@@ -503,24 +503,30 @@ class SlidingWindow:
         self._arrays.update(fresh)
 
     # ----------------------------------------------------------------- maps
-    def maps(self) -> dict[str, np.ndarray]:
-        """The requested maps of the current window as new float64 (H, W) arrays.
+    def maps(self, names: Iterable[str] | None = None) -> dict[str, np.ndarray]:
+        """The requested maps of the current window as new float64 (H, W) arrays; ``names``
+        only some of them (a τc map costs a fit per pixel: a caller that needs S1-S3 only
+        leaves it out).
 
         sliding: last N frames; tumbling: last completed block of N frames; exponential:
         the exponentially weighted estimates (module docstring). Raises EstimatorError
         before N frames were pushed.
         """
+        wanted = self.estimators if names is None else tuple(names)
+        unknown = sorted(set(wanted) - set(self.estimators))
+        if unknown:
+            raise EstimatorError(f"maps {unknown} were not requested from this engine (it has {self.estimators})")
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
                                  f"{self.window} frames pushed (check .ready)")
         if self.mode == "exponential":
             flat = self._exponential_maps()
-        elif self.estimators == ("tau_c",):
+        elif set(wanted) <= {"tau_c"}:
             flat = {}
         else:
             flat = self._window_maps("" if self.mode == "sliding" else "done_")
         return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
-                for name in self.estimators}
+                for name in wanted}
 
     # ----------------------------------------------------------------- τc
     def _tau_covariances(self, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -528,3 +528,17 @@ def test_memory_per_pixel_is_as_documented():
         assert sum(a.nbytes for a in engine._arrays.values()) == value * 256
     wide = SlidingWindow((16, 16), 200, 10, bits=16)
     assert wide.bytes_per_pixel == 2 * 200 + 4 + 8 + 4 + 8  # ΣI² needs int64 at 16 bits
+
+
+def test_maps_can_leave_the_costly_tau_map_out():
+    frames = np.random.default_rng(8).integers(0, 256, (12, 9, 7), dtype=np.uint8)
+    engine = SlidingWindow((9, 7), 8, 2, bits=8, estimators=("s1", "s2", "s3", "tau_c"), max_lag=3)
+    for frame in frames:
+        engine.push(frame)
+    everything = engine.maps()
+    some = engine.maps(("s1", "s3"))
+    assert list(some) == ["s1", "s3"]
+    assert np.array_equal(some["s1"], everything["s1"]) and np.array_equal(some["s3"], everything["s3"])
+    assert np.array_equal(engine.maps(("tau_c",))["tau_c"], everything["tau_c"])
+    with pytest.raises(EstimatorError, match=r"\['s4'\] were not requested"):
+        engine.maps(("s4",))

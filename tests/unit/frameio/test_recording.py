@@ -65,7 +65,8 @@ def test_a_recording_killed_with_sigkill_keeps_every_complete_frame(tmp_path, de
     child = subprocess.Popen([sys.executable, "-c", _CHILD, str(path)])
     try:
         deadline = time.monotonic() + 60
-        while (not path.exists() or path.stat().st_size < 40 * 131_072) and time.monotonic() < deadline:
+        # 42 frames of bytes: at least 40 complete pages whatever the page overhead and the partial last one
+        while (not path.exists() or path.stat().st_size < 42 * 131_072) and time.monotonic() < deadline:
             time.sleep(0.01)
         time.sleep(delay)  # a different moment of the write cycle each time
     finally:
