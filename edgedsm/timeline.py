@@ -5,6 +5,11 @@ moves. :func:`timeline` streams frames through a sliding window (:class:`Sliding
 daemon's engine) and, every ``every`` frames once the window is full, records for each region
 the mean of S1, S2 and S3 and the region's τc (from region-averaged correlations), plus the
 histogram of one estimator's map over the whole frame. Pure: frames in, arrays out.
+
+When the samples fall on disjoint sets of N frames (``every`` a multiple of N, the paper's
+Figs. 10–11 processing: sets of 200 frames), the engine runs in tumbling mode: the same maps at
+the same frames, from exact sums of each completed set, without the ring of N frames a sliding
+window keeps (the memory of a set follows the lag m, not N).
 """
 
 from __future__ import annotations
@@ -48,7 +53,7 @@ class Timeline:
 def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], window: int, lag: int,
              every: int, dt: float = 1.0, max_lag: int = 20, bins: int = 64, histogram_estimator: str = "s2",
              histogram_range: tuple[float, float] | None = None, bits: int | None = None,
-             times_s: Sequence[float] | None = None) -> Timeline:
+             times_s: Sequence[float] | None = None, mode: str | None = None) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
     The first sample is at the frame that fills the window (index window-1), time = frame · dt,
@@ -56,6 +61,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     upstream then do not shift the time axis; τc in seconds still uses ``dt``).
     ``histogram_range`` defaults to 0 … 1.25 x the first sample's 99.5th percentile (activity
     maps are >= 0; one range for all samples so the picture compares like with like).
+    ``mode``: the engine's window mode; None picks tumbling when ``every`` is a multiple of
+    ``window`` (see the module docstring), else sliding.
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
@@ -64,11 +71,13 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     if histogram_estimator not in ("s1", "s2", "s3"):
         raise EstimatorError(f"histogram estimator must be s1, s2 or s3, got {histogram_estimator!r}")
     result = Timeline(dt=dt, max_lag=max_lag, histogram_estimator=histogram_estimator)
+    if mode is None:
+        mode = "tumbling" if every % window == 0 else "sliding"
     engine: SlidingWindow | None = None
     count = 0
     for index, frame in enumerate(frames):
         if engine is None:
-            engine = SlidingWindow(frame.shape, window, lag, bits=bits,
+            engine = SlidingWindow(frame.shape, window, lag, bits=bits, mode=mode,
                                    estimators=("s1", "s2", "s3", "tau_c"), max_lag=max_lag)
             for name, mask in regions.items():
                 if mask.shape != frame.shape:

@@ -85,3 +85,36 @@ def test_timeline_refuses_too_few_frames() -> None:
     frames = [np.zeros((8, 8), np.uint8) + i for i in range(5)]
     with pytest.raises(EstimatorError, match="5 frames do not fill one window of N = 10"):
         timeline(frames, {"frame": np.ones((8, 8), bool)}, window=10, lag=1, every=1, max_lag=5)
+
+
+def test_disjoint_sets_run_tumbling_with_the_sliding_windows_values() -> None:
+    # every = N: the samples are disjoint sets of N frames (the paper's Figs. 10-11); the
+    # tumbling engine gives the same region values as a sliding one at those frames
+    rng = np.random.default_rng(5)
+    frames = rng.poisson(40.0, size=(96, 24, 24)).astype(np.uint8)
+    regions = {"left": np.zeros((24, 24), bool), "all": np.ones((24, 24), bool)}
+    regions["left"][:, :12] = True
+    auto = timeline(iter(frames), regions, window=32, lag=2, every=32, max_lag=4)
+    sliding = timeline(iter(frames), regions, window=32, lag=2, every=32, max_lag=4, mode="sliding")
+    assert [row[:3] for row in auto.rows] == [row[:3] for row in sliding.rows] and len(auto.rows) == 6
+    for a, b in zip(auto.rows, sliding.rows, strict=True):
+        np.testing.assert_allclose(a[3:7], b[3:7], rtol=1e-12)
+        assert a[8] == b[8]
+
+
+def test_a_disjoint_timeline_holds_m_frames_not_n() -> None:
+    # tumbling keeps the lag's frames, not the window's: a 10x longer window barely grows memory
+    import tracemalloc
+
+    rng = np.random.default_rng(6)
+    frames = rng.integers(0, 255, size=(400, 64, 64), dtype=np.uint8)
+    regions = {"all": np.ones((64, 64), bool)}
+    timeline(iter(frames[:40]), regions, window=40, lag=2, every=40, max_lag=4)  # one-time allocations first
+    peaks = []
+    for window in (40, 400):
+        tracemalloc.start()
+        timeline(iter(frames[:window]), regions, window=window, lag=2, every=window, max_lag=4)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    ring = 64 * 64 * 360  # what 360 more frames of a sliding ring would hold (a sliding timeline grows by it)
+    assert peaks[1] - peaks[0] < ring / 4, peaks
