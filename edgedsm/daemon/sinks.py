@@ -135,7 +135,7 @@ class SinkSet:
         running ones (one new to this config, a metrics server moving to another address) start
         first: when one of them cannot, nothing running was touched."""
         wanted = wanted_sinks(config)
-        changed = [name for name in self._built if self._built[name][0] != wanted.get(name)]
+        changed = [name for name in _SPECS if name in self._built and self._built[name][0] != wanted.get(name)]
         early: dict[str, Sink] = {}
         try:
             for name in wanted:  # in SINKS order: a needed sink before the sinks built on it
