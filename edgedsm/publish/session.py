@@ -313,6 +313,8 @@ class MqttSession:
     def _on_connect_fail(self, client: mqtt.Client, userdata: Any) -> None:
         self.connected.clear()
         self.ready.clear()
+        if self._leaving:  # an attempt that ends after close(): no retry to announce, nothing to diagnose
+            return
         if self._problems.due() or self.last_error is None:
             # Costs one extra connection attempt, so only when we are about to log anyway.
             self.last_error = diagnose(self.settings, self.ssl_context)
