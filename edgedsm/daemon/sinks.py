@@ -1,13 +1,14 @@
 """The daemon's sinks, kept across reloads: a sink whose settings did not change keeps its
 session (no ``offline``/``online``, no new Sparkplug ``bdSeq``); one whose settings changed is
-closed and built again. The one place sinks are registered (``docs/architecture.md``).
+closed and built again, and so is every sink built on it (Home Assistant publishes through the
+JSON link's session). The one place sinks are registered (``docs/architecture.md``).
 """
 
 from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,14 +37,14 @@ def _regions(config: DaemonConfig) -> list[str]:
     return [region.name for region in config.regions]
 
 
-def _build_mqtt(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+def _build_mqtt(config: DaemonConfig, on_command: CommandHandler, needed: Sink | None) -> Sink:
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
     return MqttSink(config.mqtt, config.device.state_dir, on_command).start()
 
 
-def _build_sparkplug(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+def _build_sparkplug(config: DaemonConfig, on_command: CommandHandler, needed: Sink | None) -> Sink:
     from edgedsm.publish.sparkplug.node import SparkplugSink
 
     assert config.mqtt is not None and config.sparkplug is not None
@@ -51,16 +52,17 @@ def _build_sparkplug(config: DaemonConfig, on_command: CommandHandler) -> Sink:
                          maps=engine_estimators(config)).start()
 
 
-def _build_homeassistant(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+def _build_homeassistant(config: DaemonConfig, on_command: CommandHandler, needed: Sink | None) -> Sink:
     from edgedsm.publish.homeassistant import HomeAssistantSink
+    from edgedsm.publish.json_sink import MqttSink
 
     ha = config.homeassistant
-    assert config.mqtt is not None and ha is not None
-    return HomeAssistantSink(config.mqtt, ha.discovery_prefix, _regions(config), config.device.state_dir,
+    assert isinstance(needed, MqttSink) and ha is not None  # SINKS: homeassistant needs mqtt
+    return HomeAssistantSink(needed.session, ha.discovery_prefix, _regions(config), config.device.state_dir,
                              colormap=ha.colormap if ha.color_maps else None).start()
 
 
-def _build_http(config: DaemonConfig, on_command: CommandHandler) -> Sink:
+def _build_http(config: DaemonConfig, on_command: CommandHandler, needed: Sink | None) -> Sink:
     from edgedsm.publish.prometheus import MetricsSink
 
     assert config.http is not None
@@ -78,33 +80,42 @@ class SinkSpec:
     the sink is rebuilt when it changes), how to build it, and whether a new one can start while
     the running one still runs (a metrics server moving to another address can; an MQTT client
     cannot, the broker throws off the older of two clients with one id, nor a server on the same
-    address)."""
+    address). ``needs``: the sink this one is built on (listed before it, wanted whenever it is);
+    ``build`` is handed it, and it being rebuilt rebuilds this one."""
 
     name: str
     wanted: Callable[[DaemonConfig], bool]
     fingerprint: Callable[[DaemonConfig], str]
-    build: Callable[[DaemonConfig, CommandHandler], Sink]
+    build: Callable[[DaemonConfig, CommandHandler, Sink | None], Sink]
     beside: Callable[[DaemonConfig, DaemonConfig | None], bool] = lambda new, running: False
+    needs: str | None = None
 
 
 #: Every sink the daemon can run, in fan-out order: the one table of sinks.
 SINKS: tuple[SinkSpec, ...] = (
-    SinkSpec("log", lambda c: c.mqtt is None, lambda c: "", lambda c, on_command: LogSink()),
+    SinkSpec("log", lambda c: c.mqtt is None, lambda c: "", lambda c, on_command, needed: LogSink()),
     SinkSpec("mqtt", lambda c: c.mqtt is not None,
              lambda c: _fingerprint(_broker(c), str(c.device.state_dir)), _build_mqtt),
     SinkSpec("sparkplug", lambda c: c.mqtt is not None and c.sparkplug is not None,
              lambda c: _fingerprint(c.sparkplug, _broker(c), str(c.device.state_dir), _regions(c)), _build_sparkplug),
     SinkSpec("homeassistant", lambda c: c.mqtt is not None and c.homeassistant is not None,
-             lambda c: _fingerprint(c.homeassistant, _broker(c), str(c.device.state_dir), _regions(c)),
-             _build_homeassistant),
+             lambda c: _fingerprint(c.homeassistant, str(c.device.state_dir), _regions(c)), _build_homeassistant,
+             needs="mqtt"),
     SinkSpec("http", lambda c: c.http is not None, lambda c: _fingerprint(c.http), _build_http, _http_moves),
 )
 _SPECS = {spec.name: spec for spec in SINKS}
 
 
 def wanted_sinks(config: DaemonConfig) -> dict[str, str]:
-    """Each sink the config asks for, in fan-out order, with the fingerprint of its settings."""
-    return {spec.name: spec.fingerprint(config) for spec in SINKS if spec.wanted(config)}
+    """Each sink the config asks for, in fan-out order, with the fingerprint of its settings; a
+    sink built on another one (``needs``) has that one's fingerprint in its own, so it is
+    rebuilt with it."""
+    wanted: dict[str, str] = {}
+    for spec in SINKS:
+        if spec.wanted(config):
+            own = spec.fingerprint(config)
+            wanted[spec.name] = own if spec.needs is None else _fingerprint(own, wanted[spec.needs])
+    return wanted
 
 
 class SinkSet:
@@ -124,17 +135,21 @@ class SinkSet:
         running ones (one new to this config, a metrics server moving to another address) start
         first: when one of them cannot, nothing running was touched."""
         wanted = wanted_sinks(config)
-        changed = [name for name in self._built if self._built[name][0] != wanted.get(name)]
+        changed = [name for name in _SPECS if name in self._built and self._built[name][0] != wanted.get(name)]
         early: dict[str, Sink] = {}
         try:
-            for name in wanted:
-                if name not in self._built or (name in changed and self._beside(name, config)):
-                    early[name] = self._build(name, config)
+            for name in wanted:  # in SINKS order: a needed sink before the sinks built on it
+                need = _SPECS[name].needs
+                waits = need is not None and need in changed and need not in early  # built again later
+                if not waits and (name not in self._built or (name in changed and self._beside(name, config))):
+                    early[name] = self._build(name, config, early)
         except ConfigError:
-            for name, sink in early.items():
+            for name, sink in reversed(early.items()):
                 _close(name, sink)
             raise
-        for name in changed:  # closed first: a new client with the same id would be thrown off
+        # closed first (a new client with the same id would be thrown off), a sink built on
+        # another before that one
+        for name in reversed(changed):
             _, sink = self._built.pop(name)
             self.fanout.sinks = [s for s in self.fanout.sinks if s is not sink]
             _close(name, sink)
@@ -143,7 +158,7 @@ class SinkSet:
         self._config = config
         for name in built:
             if name not in early:
-                self._built[name] = (wanted[name], self._build(name, config))
+                self._built[name] = (wanted[name], self._build(name, config, early))
         self.fanout.sinks = [self._built[name][1] for name in wanted]
         self._wire(config)
         if changed or built:
@@ -154,8 +169,11 @@ class SinkSet:
         """Whether the sink ``name`` for ``config`` can start while the running one still runs."""
         return _SPECS[name].beside(config, self._config)
 
-    def _build(self, name: str, config: DaemonConfig) -> Sink:
-        return _SPECS[name].build(config, self.on_command)
+    def _build(self, name: str, config: DaemonConfig, early: Mapping[str, Sink]) -> Sink:
+        """Build ``name``, handing it the sink it needs: one just built (``early``) or the running one."""
+        need = _SPECS[name].needs
+        needed = None if need is None else early[need] if need in early else self._built[need][1]
+        return _SPECS[name].build(config, self.on_command, needed)
 
     def _wire(self, config: DaemonConfig) -> None:
         """The metrics sink reads the MQTT link's health and is the pipeline's frame probes."""

@@ -504,17 +504,12 @@ class SlidingWindow:
 
     # ----------------------------------------------------------------- maps
     def maps(self, names: Iterable[str] | None = None) -> dict[str, np.ndarray]:
-        """The requested maps of the current window as new float64 (H, W) arrays; ``names``
-        only some of them (a τc map costs a fit per pixel: a caller that needs S1-S3 only
-        leaves it out).
-
-        sliding: last N frames; tumbling: last completed block of N frames; exponential:
-        the exponentially weighted estimates (module docstring). Raises EstimatorError
-        before N frames were pushed.
-        """
+        """The requested maps (``names``: some of them; a τc map costs a fit per pixel) of the
+        current window as new float64 (H, W) arrays: sliding, the last N frames; tumbling, the
+        last completed block; exponential, the weighted estimates (module docstring). Raises
+        EstimatorError before N frames were pushed."""
         wanted = self.estimators if names is None else tuple(names)
-        unknown = sorted(set(wanted) - set(self.estimators))
-        if unknown:
+        if unknown := sorted(set(wanted) - set(self.estimators)):
             raise EstimatorError(f"maps {unknown} were not requested from this engine (it has {self.estimators})")
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "

@@ -3,7 +3,8 @@
 The daemon builds one :class:`MqttSink` from the ``[mqtt]`` table (:class:`MqttSettings`) and
 its state directory; ``edgedsm watch`` and any other subscriber decode maps with
 :func:`decode_map`. Topics and delivery guarantees are described in ``edgedsm.publish.mqtt``,
-commands in ``edgedsm.publish.commands`` and ``edgedsm.publish.command_channel``.
+commands in ``edgedsm.publish.commands`` and ``edgedsm.publish.command_channel``; one MQTT
+connection's life cycle in ``edgedsm.publish.session``.
 
 The names below are loaded on first use (PEP 562): reading a config needs the settings, not
 paho, OpenCV or sqlite.
@@ -35,6 +36,7 @@ _SOURCES: dict[str, str] = {
     "downsample_map": "mapcodec",
     "encode_map": "mapcodec",
     "MqttPublisher": "mqtt",
+    "MqttSession": "session",
     "CREDENTIAL_NAME": "settings",
     "PASSWORD_ENV": "settings",
     "MqttSettings": "settings",
@@ -55,6 +57,7 @@ __all__ = [
     "LaserCommand",
     "MapCodecError",
     "MqttPublisher",
+    "MqttSession",
     "MqttSettings",
     "MqttSink",
     "MqttTlsSettings",
@@ -98,6 +101,7 @@ if TYPE_CHECKING:
     from edgedsm.publish.json_sink import MqttSink
     from edgedsm.publish.mapcodec import decode_map, downsample_map, encode_map
     from edgedsm.publish.mqtt import MqttPublisher
+    from edgedsm.publish.session import MqttSession
     from edgedsm.publish.settings import (
         CREDENTIAL_NAME,
         PASSWORD_ENV,

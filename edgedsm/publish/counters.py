@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 
-COUNTER_NAMES = ("connects", "disconnects", "alerts_sent", "alerts_acked", "alerts_refused", "stats_dropped",
+COUNTER_NAMES = ("alerts_sent", "alerts_acked", "alerts_refused", "stats_dropped",
                  "maps_sent", "maps_dropped", "commands", "commands_refused", "storage_faults",
                  "alerts_memory_dropped")
 

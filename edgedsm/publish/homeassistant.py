@@ -1,8 +1,10 @@
 """The Home Assistant sink: MQTT discovery configs (``edgedsm.publish.ha_discovery``) and colour
-maps for the image entities, on its own MQTT connection beside the JSON sink's.
+maps for the image entities, published through the JSON link's MQTT session (no connection of
+its own: the broker sees one client for the JSON topics and Home Assistant).
 
-- Configs are retained (QoS 1) and published again at every (re)connection and whenever Home
-  Assistant announces itself (``<discovery_prefix>/status`` = ``online``).
+- Configs are retained (QoS 1) and published again at every (re)connection of that session and
+  whenever Home Assistant announces itself (``<discovery_prefix>/status`` = ``online``, a
+  subscription on the shared session).
 - Entities that depend on data (one activity sensor per estimator the stats carry, one image
   per map) are announced when they first appear.
 - The discovery topics published are remembered in ``<state_dir>/homeassistant-<device>.json``;
@@ -10,6 +12,8 @@ maps for the image entities, on its own MQTT connection beside the JSON sink's.
   which removes it from Home Assistant.
 - Colour maps: the latest map per name waits for a worker thread that renders and publishes
   it (retained, QoS 0) on ``<base>/map/<name>/color``; ``publish_map`` never waits.
+
+The session belongs to the JSON link: closing this sink leaves it (and ``online``) alone.
 """
 
 from __future__ import annotations
@@ -20,21 +24,17 @@ import os
 import threading
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import paho.mqtt.client as mqtt
-from paho.mqtt.properties import Properties
-from paho.mqtt.reasoncodes import ReasonCode
 
 from edgedsm import _json
 from edgedsm.errors import ConfigError
 from edgedsm.messages import Alert, MapFrame, StateReport, Stats
 from edgedsm.publish.colormap import encode_colour_png
-from edgedsm.publish.connection import build_ssl_context, connect_in_background, make_client
 from edgedsm.publish.ha_discovery import Discovery, Entity, colour_map_topic
 from edgedsm.publish.latest_worker import LatestWorker
-from edgedsm.publish.settings import MqttSettings, resolve_password
+from edgedsm.publish.session import MqttSession
 from edgedsm.publish.topics import Topics
 
 log = logging.getLogger(__name__)
@@ -43,13 +43,15 @@ log = logging.getLogger(__name__)
 class HomeAssistantSink:
     """Implements :class:`edgedsm.publish.sink.Sink` for Home Assistant (see the module docstring).
 
-    ``regions``: the configured region names; ``colormap``: an OpenCV colour map name, or None
-    for no colour maps (and no image entities).
+    ``session``: the JSON link's (:attr:`edgedsm.publish.json_sink.MqttSink.session`), started by
+    its owner; ``regions``: the configured region names; ``colormap``: an OpenCV colour map
+    name, or None for no colour maps (and no image entities).
     """
 
-    def __init__(self, settings: MqttSettings, discovery_prefix: str, regions: Iterable[str], state_dir: str | Path,
-                 *, colormap: str | None = "turbo", password: str | None = None) -> None:
-        self.settings = settings
+    def __init__(self, session: MqttSession, discovery_prefix: str, regions: Iterable[str], state_dir: str | Path,
+                 *, colormap: str | None = "turbo") -> None:
+        self.session = session
+        self.settings = settings = session.settings
         self.topics = Topics.from_settings(settings)
         self.discovery = Discovery(discovery_prefix, self.topics, settings.device)
         self.regions = list(regions)
@@ -64,28 +66,26 @@ class HomeAssistantSink:
             for entity in self.discovery.region_entities(region):
                 self._entities[entity.topic] = entity
         self._stale = self._forgotten_topics()
-        self._connected = threading.Event()
         self._maps: LatestWorker[np.ndarray] = LatestWorker("edgedsm-ha-maps", "Home Assistant colour map",
                                                             self._render)
+        self._attached = False
         self.maps_sent = 0
-        password = password if password is not None else resolve_password()
-        ssl_context = build_ssl_context(settings.tls) if settings.tls is not None else None
-        self._client = make_client(settings, client_id=f"{settings.effective_client_id}-ha"[:128], password=password,
-                                   ssl_context=ssl_context)
-        self._client.on_connect = self._on_connect
-        self._client.on_disconnect = self._on_disconnect
-        self._client.message_callback_add(self.status_topic, self._on_status)
 
     def start(self) -> HomeAssistantSink:
-        """Connect in the background (returns at once)."""
-        connect_in_background(self._client, self.settings)
+        """Attach to the session: announce now if it is connected, and at every connection to
+        come (returns at once)."""
+        if not self._attached:
+            self._attached = True
+            self.session.subscribe(self.status_topic, 1, self._on_status, what="Home Assistant's restarts")
+            self.session.on_connected(self._on_connected)
         if self.colormap is not None:
             self._maps.start()
         return self
 
     @property
     def connected(self) -> bool:
-        return self._connected.is_set()
+        """Whether the shared session is connected."""
+        return self.session.connected.is_set()
 
     def entities(self) -> list[Entity]:
         with self._lock:
@@ -118,35 +118,26 @@ class HomeAssistantSink:
         except OSError as exc:
             raise ConfigError(f"device.state_dir: cannot write {self.memory}: {exc.strerror or exc}") from None
 
-    # -- MQTT (paho's thread) -------------------------------------------------------------------------
-    def _on_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
-                    properties: Properties | None) -> None:
-        if reason.is_failure:
-            log.error("Home Assistant: broker refused the connection: %s", reason)
-            return
-        client.subscribe(self.status_topic, qos=1)
-        for topic in self._stale:
-            client.publish(topic, b"", qos=1, retain=True)
+    # -- MQTT (paho's network thread, or the caller's when attached to a connected session) ----------
+    def _on_connected(self) -> None:
+        with self._lock:  # cleared once, by the first connection that runs this
+            stale, self._stale = self._stale, []
+        for topic in stale:
+            self.session.client.publish(topic, b"", qos=1, retain=True)
             log.info("Home Assistant: removed %s (its region is no longer configured)", topic)
-        self._stale = []
         self._announce(self.entities())
-        self._connected.set()
         try:
             self._remember()
         except ConfigError as exc:
             log.error("Home Assistant: %s", exc)
 
-    def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
-                       properties: Properties | None) -> None:
-        self._connected.clear()
-
-    def _on_status(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
+    def _on_status(self, message: mqtt.MQTTMessage) -> None:
         if message.payload == b"online":  # Home Assistant (re)started: announce again
             self._announce(self.entities())
 
     def _announce(self, entities: Iterable[Entity]) -> None:
         for entity in entities:
-            self._client.publish(entity.topic, _json.dumps(entity.config), qos=1, retain=True)
+            self.session.client.publish(entity.topic, _json.dumps(entity.config), qos=1, retain=True)
 
     def _add(self, entities: Iterable[Entity]) -> None:
         """Announce entities not announced yet."""
@@ -183,11 +174,12 @@ class HomeAssistantSink:
         return True
 
     def close(self, timeout_s: float) -> None:
-        self._maps.stop(timeout_s=max(0.0, timeout_s / 2))
-        self._client.disconnect()
-        stopper = threading.Thread(target=self._client.loop_stop, daemon=True)
-        stopper.start()
-        stopper.join(timeout=max(0.0, timeout_s / 2))
+        """Stop the colour maps and leave the session (which stays connected for its owner)."""
+        if self._attached:
+            self._attached = False
+            self.session.remove_hooks(self._on_connected)
+            self.session.unsubscribe(self.status_topic, self._on_status)
+        self._maps.stop(timeout_s=max(0.0, timeout_s))
 
     # -- colour maps (worker thread) -----------------------------------------------------------------
     def _render(self, name: str, values: np.ndarray) -> None:
@@ -195,5 +187,5 @@ class HomeAssistantSink:
             return
         png = encode_colour_png(values, colormap=self.colormap or "turbo", max_size=self.settings.map_max_size,
                                 title=name.upper(), compression=self.settings.map_png_compression)
-        self._client.publish(colour_map_topic(self.topics, name), png, qos=0, retain=True)
+        self.session.client.publish(colour_map_topic(self.topics, name), png, qos=0, retain=True)
         self.maps_sent += 1

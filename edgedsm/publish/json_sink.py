@@ -16,6 +16,7 @@ from typing import Any
 from edgedsm.messages import Alert, MapFrame, StateReport, Stats
 from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.mqtt import MqttPublisher
+from edgedsm.publish.session import MqttSession
 from edgedsm.publish.settings import MqttSettings
 from edgedsm.publish.topics import Topics
 
@@ -43,6 +44,11 @@ class MqttSink:
     @property
     def topics(self) -> Topics:
         return self.publisher.topics
+
+    @property
+    def session(self) -> MqttSession:
+        """The link's MQTT connection, which Home Assistant's discovery shares."""
+        return self.publisher.session
 
     def start(self) -> MqttSink:
         """Start connecting in the background (returns at once)."""

@@ -1,5 +1,6 @@
 """The MQTT link of the daemon (paho-mqtt 2.x, callback API version 2, paho's network thread):
-one connection, composed of small collaborators.
+one connection (:class:`edgedsm.publish.session.MqttSession`, which Home Assistant's discovery
+shares), composed of small collaborators.
 
 =================================  =========================================================
 ``<base>/availability``            ``online`` / ``offline``; retained; ``offline`` is also the
@@ -43,7 +44,6 @@ which all take bounded timeouts.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
 import time
@@ -63,18 +63,11 @@ from edgedsm.publish.alert_sender import AlertSender
 from edgedsm.publish.alertqueue import AlertQueue
 from edgedsm.publish.alertstore import AlertStore
 from edgedsm.publish.command_channel import CommandChannel, CommandHandler
-from edgedsm.publish.connection import (
-    ProblemLog,
-    build_ssl_context,
-    connect_in_background,
-    describe_refusal,
-    diagnose,
-    make_client,
-)
 from edgedsm.publish.counters import Counters
 from edgedsm.publish.errors import PublishError, StorageError
 from edgedsm.publish.map_sender import MapSender
-from edgedsm.publish.settings import MqttSettings, resolve_password
+from edgedsm.publish.session import MqttSession
+from edgedsm.publish.settings import MqttSettings
 from edgedsm.publish.topics import Topics
 
 log = logging.getLogger(__name__)
@@ -108,24 +101,19 @@ class MqttPublisher:
                  *, password: str | None = None) -> None:
         self.settings = settings
         self.topics = Topics.from_settings(settings)
-        self._password = password if password is not None else resolve_password()
-        self._ssl_context = build_ssl_context(settings.tls) if settings.tls is not None else None
+        #: The connection; Home Assistant publishes through it too (``homeassistant``).
+        self.session = MqttSession(settings, client_id=settings.effective_client_id, label="MQTT", logger=log,
+                                   password=password, will_topic=self.topics.availability)
         self._counters = Counters()
         self._store = AlertStore(open_alert_queue(settings, state_dir), self._counters)
-        self._connected = threading.Event()
-        self._ready = threading.Event()  # connected AND subscribed to commands (SUBACK seen)
-        self._subscribe_mid: int | None = None
+        self._client = self.session.client
+        self._connected = self.session.connected
         # Held around QoS 0 state publishes only: paho's QoS 0 path takes none of its own locks
         # in threaded mode, so this cannot deadlock with the network thread.
         self._state_lock = threading.Lock()
         self._retained: dict[str, bytes] = {}  # topic -> the newest retained payload, resent on reconnection
-        self._refusal: str | None = None
-        self._last_error: str | None = None
-        self._problems = ProblemLog(log)
         self._started = False
         self._closed = False
-        self._client = make_client(settings, client_id=settings.effective_client_id, password=self._password,
-                                   ssl_context=self._ssl_context, will_topic=self.topics.availability)
         self._alerts = AlertSender(self._store, self._client, self.topics.alerts, self._connected, self._counters,
                                    in_flight=settings.alerts_in_flight)
         self._maps = MapSender(settings, self.topics, self._client, self._connected, self._counters)
@@ -133,12 +121,9 @@ class MqttPublisher:
             "laser": "cmd/laser is disabled by configuration ([mqtt] laser_command = false)"}
         self._commands = CommandChannel(self.topics, self._client.publish, on_command, self._counters,
                                         mqtt5=settings.protocol == "5", disabled=disabled)
-        self._client.on_connect = self._on_connect
-        self._client.on_connect_fail = self._on_connect_fail
-        self._client.on_disconnect = self._on_disconnect
-        self._client.on_subscribe = self._on_subscribe
+        self.session.subscribe(self.topics.command_filter, 1, self._commands.receive, what="commands")
+        self.session.on_connected(self._on_connected)
         self._client.on_publish = self._on_publish
-        self._client.on_message = self._on_message
 
     # -- life cycle --------------------------------------------------------------------------
 
@@ -151,20 +136,13 @@ class MqttPublisher:
         self._started = True
         for worker in (self._alerts, self._maps, self._commands):
             worker.start()
-        connect_in_background(self._client, self.settings)
+        self.session.start()
         return self
 
     def wait_connected(self, timeout: float) -> None:
         """Wait (at most ``timeout`` s) until the broker accepted us and our command subscription;
         PublishError saying why not. A refusal by the broker (bad password...) raises at once."""
-        deadline = time.monotonic() + timeout
-        while not self._ready.wait(0.05):
-            if self._refusal is not None:
-                raise PublishError(self._refusal)
-            if time.monotonic() >= deadline:
-                why = self._last_error or "no answer yet"
-                raise PublishError(f"no connection to the MQTT broker {self.settings.host}:{self.settings.port} "
-                                   f"within {timeout:g} s: {why}")
+        self.session.wait_ready(timeout)
 
     @property
     def connected(self) -> bool:
@@ -173,7 +151,7 @@ class MqttPublisher:
     @property
     def last_error(self) -> str | None:
         """The latest connection problem, or None while all is well."""
-        return self._last_error
+        return self.session.last_error
 
     def close(self, timeout: float | None = None) -> None:
         """Publish ``offline`` (waiting at most ``shutdown_timeout_s`` for the broker's ack),
@@ -191,17 +169,10 @@ class MqttPublisher:
             for worker in workers:
                 worker.thread.join(timeout=max(0.0, min(0.3, deadline - time.monotonic())))
             if self._connected.is_set():
-                info = self._client.publish(self.topics.availability, b"offline", qos=1, retain=True)
-                with contextlib.suppress(RuntimeError, ValueError):  # not queued: nothing to wait for
-                    info.wait_for_publish(timeout=max(0.0, min(self.settings.shutdown_timeout_s,
-                                                              deadline - time.monotonic())))
-            self._client.disconnect()
-            # loop_stop() joins paho's thread, which may sit in a connect attempt: bound it.
-            stopper = threading.Thread(target=self._client.loop_stop, name="edgedsm-mqtt-stop", daemon=True)
-            stopper.start()
-            stopper.join(timeout=max(0.05, deadline - time.monotonic()))
-        self._connected.clear()
-        self._ready.clear()
+                self.session.publish_and_wait(self.topics.availability, b"offline", qos=1, retain=True,
+                                              timeout=min(self.settings.shutdown_timeout_s,
+                                                          deadline - time.monotonic()))
+        self.session.close(deadline - time.monotonic())
         if any(worker.thread.is_alive() for worker in workers):
             log.warning("MQTT worker still busy at shutdown; leaving the alert queue open")
         else:
@@ -277,67 +248,19 @@ class MqttPublisher:
         and the storage fault (``storage_error``: the disk's refusal, None while it takes writes)."""
         return {"connected": self._connected.is_set(), "alerts_pending": len(self._store),
                 "alerts_dropped": self._store.queue.dropped, "alerts_in_memory": self._store.in_memory,
-                "storage_error": self._store.fault, **self._counters.snapshot()}
+                "storage_error": self._store.fault, "connects": self.session.connects,
+                "disconnects": self.session.disconnects, **self._counters.snapshot()}
 
-    # -- paho callbacks (paho's network thread) -------------------------------------------------
+    # -- on paho's network thread ---------------------------------------------------------------
 
-    def _on_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
-                    properties: Properties | None) -> None:
-        if reason.is_failure:
-            message = describe_refusal(reason, self.settings, self._password is not None)
-            self._refusal = self._last_error = message
-            self._problems.report(message, logging.ERROR)
-            return
-        self._refusal = self._last_error = None
-        self._problems.reset()
-        self._counters.add("connects")
-        log.info("MQTT connected to %s:%d as %r", self.settings.host, self.settings.port,
-                 self.settings.effective_client_id)
-        client.publish(self.topics.availability, b"online", qos=1, retain=True)
-        _, self._subscribe_mid = client.subscribe(self.topics.command_filter, qos=1)
+    def _on_connected(self) -> None:
+        """Every (re)connection: ``online``, then the retained messages, then pending alerts."""
+        self._client.publish(self.topics.availability, b"online", qos=1, retain=True)
         with self._state_lock:
-            self._connected.set()
             for topic, payload in self._retained.items():
-                client.publish(topic, payload, qos=0, retain=True)
+                self._client.publish(topic, payload, qos=0, retain=True)
         self._alerts.wake()
-
-    def _on_subscribe(self, client: mqtt.Client, userdata: Any, mid: int, reasons: list[ReasonCode],
-                      properties: Properties | None) -> None:
-        if mid != self._subscribe_mid:
-            return
-        failed = [str(reason) for reason in reasons if reason.is_failure]
-        if failed:  # e.g. an ACL: publishing still works, commands will not arrive
-            self._last_error = f"broker refused the subscription to {self.topics.command_filter}: {failed[0]}"
-            log.error("MQTT: %s; commands will not be received", self._last_error)
-        self._ready.set()
-
-    def _on_connect_fail(self, client: mqtt.Client, userdata: Any) -> None:
-        self._connected.clear()
-        self._ready.clear()
-        if self._problems.due() or self._last_error is None:
-            # Costs one extra connection attempt, so only when we are about to log anyway.
-            self._last_error = diagnose(self.settings, self._ssl_context)
-        self._problems.report(f"MQTT: {self._last_error}; retrying", logging.WARNING)
-
-    def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
-                       properties: Properties | None) -> None:
-        was_connected = self._connected.is_set()
-        self._connected.clear()
-        self._ready.clear()
-        if self._closed:
-            return
-        if was_connected:
-            self._counters.add("disconnects")
-            self._last_error = f"connection lost: {reason}"
-            log.warning("MQTT connection to %s:%d lost (%s); reconnecting", self.settings.host,
-                        self.settings.port, reason)
 
     def _on_publish(self, client: mqtt.Client, userdata: Any, mid: int, reason: ReasonCode,
                     properties: Properties | None) -> None:
         self._alerts.on_publish(mid, reason)
-
-    def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
-        try:
-            self._commands.receive(message)
-        except Exception:  # never let one message take the network thread down
-            log.exception("MQTT: error while handling a message on %r", message.topic)

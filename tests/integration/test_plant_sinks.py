@@ -184,12 +184,14 @@ def test_new_estimators_appear_and_home_assistant_restarting_gets_every_config_a
 
     from edgedsm.messages import MapStats, Stats
     from edgedsm.publish.homeassistant import HomeAssistantSink
+    from edgedsm.publish.session import MqttSession
     from edgedsm.publish.settings import MqttSettings
 
     settings = MqttSettings(host="127.0.0.1", port=broker.port, device="line3", reconnect_min_s=0.1,
                             reconnect_max_s=0.5)
     watcher = subscribers(broker.port, [f"{PREFIX}/#"])
-    sink = HomeAssistantSink(settings, PREFIX, ["panel"], tmp_path / "state", colormap=None, password="").start()
+    session = MqttSession(settings, client_id="line3-link", password="").start()
+    sink = HomeAssistantSink(session, PREFIX, ["panel"], tmp_path / "state", colormap=None).start()
     try:
         wait_until(lambda: sink.connected and len(_configs(watcher)) == 4, WAIT_S, "the static entities")
         one = MapStats(pixels=4, mean=0.2, std=0.1, p05=0.1, median=0.2, p95=0.3)
@@ -209,3 +211,4 @@ def test_new_estimators_appear_and_home_assistant_restarting_gets_every_config_a
         assert remembered[tau] == "panel" and len(remembered) == 6
     finally:
         sink.close(1.0)
+        session.close(1.0)

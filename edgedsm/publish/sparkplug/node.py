@@ -1,4 +1,6 @@
-"""The Sparkplug B 3.0 edge node: a :class:`edgedsm.publish.sink.Sink` with its own MQTT session.
+"""The Sparkplug B 3.0 edge node: a :class:`edgedsm.publish.sink.Sink` with its own MQTT session
+(an :class:`edgedsm.publish.session.MqttSession` of its own: its client id, its NDEATH will, clean
+start, the bdSeq of each CONNECT).
 
 The daemon is the edge node (``spBv1.0/<group>/N*/<edge_node>``: its session, bdSeq, rebirth
 command); the camera with its regions is one device (``spBv1.0/<group>/D*/<edge_node>/<device>``),
@@ -14,31 +16,21 @@ order in which messages are queued). See docs/sparkplug.md.
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import logging
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import paho.mqtt.client as mqtt
 from paho.mqtt.packettypes import PacketTypes
-from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 
 from edgedsm import __version__
 from edgedsm.messages import Alert, Clock, MapFrame, StateReport, Stats
-from edgedsm.publish.connection import (
-    ProblemLog,
-    build_ssl_context,
-    connect_in_background,
-    describe_refusal,
-    diagnose,
-    make_client,
-)
-from edgedsm.publish.settings import MqttSettings, resolve_password
+from edgedsm.publish.session import MqttSession
+from edgedsm.publish.settings import MqttSettings
 from edgedsm.publish.sparkplug import commands as ncmd
 from edgedsm.publish.sparkplug.book import Deadband, MetricBook
 from edgedsm.publish.sparkplug.metrics import Reading, alert_readings, declared_readings, state_readings, stats_readings
@@ -50,16 +42,8 @@ log = logging.getLogger(__name__)
 
 NAMESPACE = "spBv1.0"
 BDSEQ = "bdSeq"
-COUNTER_NAMES = ("connects", "disconnects", "births", "rebirth_requests", "commands_refused", "ndata_sent",
+COUNTER_NAMES = ("births", "rebirth_requests", "commands_refused", "ndata_sent",
                  "ddata_sent", "state_refused")
-
-
-def _release_wakeup_sockets(client: mqtt.Client) -> None:
-    """Close the socket pair paho 2.2's ``loop_start`` opens and never closes (a second
-    ``loop_start`` after a session restart would leak the first pair)."""
-    reset = getattr(client, "_reset_sockets", None)
-    if reset is not None:
-        reset(sockpair_only=True)
 
 
 @dataclass(frozen=True)
@@ -108,23 +92,23 @@ class SparkplugSink:
         self._limiter = BirthLimiter(settings.rebirth_min_interval_s)
         self._lock = threading.RLock()
         self._wake = threading.Condition(self._lock)
-        self._connected = self._subscribed = self.born = False
-        self._birth_wanted = self._restart_wanted = self._closing = False
-        self._subscribe_mid: int | None = None
+        self.born = self._birth_wanted = self._restart_wanted = self._closing = False
         self._alerts_seen = 0
         self._counts = dict.fromkeys(COUNTER_NAMES, 0)
         self._refusals = ncmd.RefusalLog(log)
-        self._problems = ProblemLog(log)
-        self._password = password if password is not None else resolve_password()
-        self._ssl_context = build_ssl_context(mqtt_settings.tls) if mqtt_settings.tls is not None else None
-        self._client = make_client(mqtt_settings, client_id=self.client_id, password=self._password,
-                                   ssl_context=self._ssl_context, clean_session=True)
-        self._client.on_pre_connect = self._on_pre_connect
-        self._client.on_connect = self._on_connect
-        self._client.on_connect_fail = self._on_connect_fail
-        self._client.on_disconnect = self._on_disconnect
-        self._client.on_subscribe = self._on_subscribe
-        self._client.on_message = self._on_message
+        # spec: clean session (v5: clean start, no session expiry), the NDEATH as will
+        self.session = MqttSession(mqtt_settings, client_id=self.client_id, label="Sparkplug", logger=log,
+                                   password=password, clean_start=True)
+        self._client = self.session.client
+        self.session.before_connect(self._on_pre_connect)
+        self.session.on_refused(self._on_refused)
+        # spec: QoS 1, subscribed before the NBIRTH (births wait for the SUBACK: on_ready)
+        self.session.subscribe(self.topics.node("NCMD"), 1, self._on_ncmd, what="rebirth requests (NCMD)")
+        if self.host is not None:
+            self.session.subscribe(self.host.topic, 1, self._on_host_message, what="the primary host's STATE")
+        self.session.on_connected(self._on_connected)
+        self.session.on_ready(self._on_ready)
+        self.session.on_disconnected(self._on_disconnected)
         self._worker = threading.Thread(target=self._run, name="edgedsm-sparkplug", daemon=True)
         self._started = False
 
@@ -132,7 +116,7 @@ class SparkplugSink:
         """Start connecting in the background (returns at once)."""
         self._started = True
         self._worker.start()
-        connect_in_background(self._client, self.mqtt_settings, clean_start=True)  # spec: clean session
+        self.session.start()
         return self
 
     # -- the Sink protocol (evaluator thread) -----------------------------------------------------
@@ -164,29 +148,23 @@ class SparkplugSink:
             if self._closing:
                 return
             self._closing = True
-            connected, self.born = self._connected, False
+            connected, self.born = self.connected, False
             self._wake.notify_all()
         if self._started:
             self._worker.join(timeout=max(0.05, (deadline - time.monotonic()) / 3))  # no restart under way
             if connected:
                 self._send_death(max(0.0, min(0.5, deadline - time.monotonic())))
-            self._client.disconnect(reasoncode=self._disconnect_reason())
-            # loop_stop() joins paho's thread, which may sit in a connect attempt: bound it
-            stopper = threading.Thread(target=self._client.loop_stop, name="edgedsm-sparkplug-stop", daemon=True)
-            stopper.start()
-            stopper.join(timeout=max(0.05, deadline - time.monotonic()))
-            if not stopper.is_alive():
-                _release_wakeup_sockets(self._client)
+        self.session.close(deadline - time.monotonic(), reasoncode=self._disconnect_reason())
 
     # -- health, for tests and the docs -----------------------------------------------------------
 
     @property
     def connected(self) -> bool:
-        return self._connected
+        return self.session.connected.is_set()
 
     def counters(self) -> dict[str, int]:
         with self._lock:
-            return dict(self._counts)
+            return {"connects": self.session.connects, "disconnects": self.session.disconnects, **self._counts}
 
     # -- metrics and data messages ----------------------------------------------------------------
 
@@ -245,9 +223,8 @@ class SparkplugSink:
             bdseq = self.session_bdseq
         if bdseq is None:
             return
-        info = self._client.publish(self.topics.node("NDEATH"), self._death_payload(bdseq), qos=1, retain=False)
-        with contextlib.suppress(RuntimeError, ValueError):  # not queued: nothing to wait for
-            info.wait_for_publish(timeout=wait_s)
+        self.session.publish_and_wait(self.topics.node("NDEATH"), self._death_payload(bdseq), qos=1, retain=False,
+                                      timeout=wait_s)
 
     def _disconnect_reason(self) -> ReasonCode | None:
         # MQTT 5: 'Disconnect with Will Message' so the broker sends the NDEATH too
@@ -259,7 +236,7 @@ class SparkplugSink:
     # -- the worker: births when allowed, session restarts ----------------------------------------
 
     def _can_birth(self) -> bool:
-        return self._connected and self._subscribed and (self.host is None or self.host.online)
+        return self.session.ready.is_set() and (self.host is None or self.host.online)
 
     def _run(self) -> None:
         while True:
@@ -284,79 +261,47 @@ class SparkplugSink:
         log.warning("Sparkplug: primary host %r is offline: ending the session and connecting again",
                     self.settings.primary_host_id)
         self._send_death(0.5)
-        self._client.disconnect(reasoncode=self._disconnect_reason())
-        self._client.loop_stop()
-        _release_wakeup_sockets(self._client)
-        with self._lock:
-            if self._closing:
-                return
-        connect_in_background(self._client, self.mqtt_settings, clean_start=True)
+        self.session.restart(self._disconnect_reason())
 
-    # -- paho callbacks (network thread) ----------------------------------------------------------
+    # -- session hooks (paho's network thread) ------------------------------------------------------
 
-    def _on_pre_connect(self, client: mqtt.Client, userdata: Any) -> None:
+    def _on_pre_connect(self) -> None:
         # the will is the NDEATH with the bdSeq of this CONNECT; the NBIRTH will repeat it
         with self._lock:
             self._connect_bdseq = self._bdseq.next()
-            client.will_set(self.topics.node("NDEATH"), self._death_payload(self._connect_bdseq), qos=1, retain=False)
+            self._client.will_set(self.topics.node("NDEATH"), self._death_payload(self._connect_bdseq), qos=1,
+                                  retain=False)
 
-    def _on_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
-                    properties: Properties | None) -> None:
+    def _commit_bdseq(self) -> None:
+        """A CONNECT went out with ``_connect_bdseq``, accepted or not: it is used (lock held)."""
+        if self._connect_bdseq is not None:
+            self._bdseq.commit(self._connect_bdseq)
+
+    def _on_refused(self, reason: str) -> None:
         with self._lock:
-            if self._connect_bdseq is not None:
-                self._bdseq.commit(self._connect_bdseq)  # a CONNECT went out with it, accepted or not
-            if reason.is_failure:
-                refusal = describe_refusal(reason, self.mqtt_settings, self._password is not None)
-                self._problems.report(f"Sparkplug: {refusal}", logging.ERROR)
-                return
-            self._problems.reset()
+            self._commit_bdseq()
+
+    def _on_connected(self) -> None:
+        with self._lock:
+            self._commit_bdseq()
             self.session_bdseq = self._connect_bdseq
-            self._connected, self._subscribed, self.born = True, False, False
-            self._birth_wanted = True
-            self._counts["connects"] += 1
-            topics = [(self.topics.node("NCMD"), 1)]  # spec: QoS 1, before the NBIRTH
-            if self.host is not None:
-                topics.append((self.host.topic, 1))
-            _, self._subscribe_mid = client.subscribe(topics)
-        log.info("Sparkplug connected as %s (bdSeq %d)%s", self.client_id, self.session_bdseq,
+            self.born, self._birth_wanted = False, True
+        log.info("Sparkplug session with bdSeq %s%s", self.session_bdseq,
                  f"; waiting for primary host {self.host.host_id!r}" if self.host and not self.host.online else "")
 
-    def _on_subscribe(self, client: mqtt.Client, userdata: Any, mid: int, reasons: list[ReasonCode],
-                      properties: Properties | None) -> None:
-        failed = [str(reason) for reason in reasons if reason.is_failure]
-        if failed:  # an ACL: rebirth requests (or the host's STATE) will not arrive
-            log.error("Sparkplug: the broker refused a subscription (%s)", failed[0])
+    def _on_ready(self) -> None:
         with self._lock:
-            if mid == self._subscribe_mid:
-                self._subscribed = True
-                self._wake.notify_all()
+            self._wake.notify_all()  # subscribed: a birth may go out
 
-    def _on_connect_fail(self, client: mqtt.Client, userdata: Any) -> None:
+    def _on_disconnected(self) -> None:
         with self._lock:
-            self._connected = self._subscribed = self.born = False
-        if self._problems.due():  # diagnosing costs a connection attempt: only when it will be logged
-            self._problems.report(f"Sparkplug: {diagnose(self.mqtt_settings, self._ssl_context)}; retrying",
-                                  logging.WARNING)
+            self.born = False
 
-    def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,
-                       properties: Properties | None) -> None:
-        with self._lock:
-            was_connected = self._connected
-            self._connected = self._subscribed = self.born = False
-            if was_connected:
-                self._counts["disconnects"] += 1
-            closing = self._closing
-        if was_connected and not closing:
-            log.warning("Sparkplug connection lost (%s); reconnecting with a new bdSeq", reason)
+    def _on_ncmd(self, message: mqtt.MQTTMessage) -> None:
+        self._on_command(bytes(message.payload), bool(message.retain))
 
-    def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
-        try:
-            if message.topic == self.topics.node("NCMD"):
-                self._on_command(bytes(message.payload), bool(message.retain))
-            elif self.host is not None and message.topic == self.host.topic:
-                self._on_host_state(bytes(message.payload))
-        except Exception:  # never let one message take the network thread down
-            log.exception("Sparkplug: error while handling a message on %r", message.topic)
+    def _on_host_message(self, message: mqtt.MQTTMessage) -> None:
+        self._on_host_state(bytes(message.payload))
 
     def _on_command(self, payload: bytes, retained: bool) -> None:
         with self._lock:
