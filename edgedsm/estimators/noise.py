@@ -1,0 +1,240 @@
+"""Camera noise model: the temporal noise variance of a pixel as a function of its mean signal.
+
+EMVA 1288 (release 4.0, §2 "linear camera model") writes a linear camera's temporal variance
+in digital numbers (DN) as::
+
+    σ²(μ) = K·(μ - μ_dark) + σ_d² + 1/12          (DN²; μ, μ_dark in DN)
+
+with K the system gain (DN per electron: the shot noise of μ_e electrons is K²·μ_e = K·μ_e·K),
+σ_d² the dark (read + thermal) noise in DN² and 1/12 DN² the quantization noise of rounding to
+integers (a uniform error of one step; absent for float data). The model assumes shot noise
+that is Poisson in electrons (so linear in μ), noise independent from frame to frame and from
+pixel to pixel, and no saturation or clipping at 0 (pixels that touch either are left out of
+every fit). Three sources give K, σ_d² and μ_dark (docs/noise.md says when each is used):
+
+* :func:`from_datasheet`: the camera's EMVA 1288 datasheet (K in DN/e⁻, σ_d in e⁻).
+* :func:`photon_transfer`: a photon-transfer measurement, dark frames and frames of a static
+  target. Each pixel's temporal variance is taken from frame differences, E[(I_t - I_{t+1})²]/2,
+  EMVA 1288's difference of two frames (it removes the fixed pattern, which does not change
+  between frames); K is the slope of σ² - σ²_dark against μ - μ_dark through the origin
+  (EMVA 1288 §6.3), over pixels grouped by mean below 70 % of saturation. A static speckle
+  target spreads the pixels' means over the range, so one exposure is enough.
+* :func:`from_frames`: neither given; the measurement's own frames. Their structure function
+  D(k) = E[(I_t - I_{t+k})²] = 2σ_n² + 2σ_s²(1 - ρ(k)) (as differential dynamic microscopy
+  separates noise from dynamics) has a white, lag-independent part 2σ_n²: fitted per group of
+  pixels with equal means, with ρ(k) = exp(-k/τ) (the simulator's and the τc fit's model), and
+  then σ_n² fitted against the groups' means as the line above. Differences need no window-mean
+  correction. It cannot separate noise from activity faster than the frame rate (τc below about
+  a frame: the signal is white too): such groups are left out, and with none left there is no
+  estimate (:class:`~edgedsm.errors.EstimatorError`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from edgedsm.errors import EstimatorError
+from edgedsm.estimators.ambient import mean_square_difference
+from edgedsm.estimators.batch import check_frames
+
+#: DN²: variance of the rounding error of a quantizer with a step of 1 DN (uniform on ±1/2).
+QUANTIZATION_VARIANCE = 1.0 / 12.0
+#: EMVA 1288 fits the photon-transfer slope below this fraction of saturation (nonlinearity).
+PTC_MAX_FRACTION = 0.7
+GROUPS = 16  # pixels are grouped by mean into this many equal-count groups
+MIN_GROUP_PIXELS = 32
+#: the white part is separable from the activity only where the signal stays correlated for
+#: about a frame: groups whose fitted τ is below this many frames are left out
+MIN_RESOLVED_TAU = 1.0
+_TAU_GRID = 0.25 * 2.0 ** (np.arange(0, 161) / 8.0)  # 0.25 ... 2^20·0.25 frames, 9 % steps
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """σ²(μ) = K·max(μ - μ_dark, 0) + σ_d² (+ 1/12 if quantized), in DN².
+
+    ``gain`` K (DN/e⁻), ``dark_mean`` μ_dark (DN), ``dark_variance`` σ_d² (DN², before
+    quantization), ``quantized`` (integer frames), ``relative_error`` the 1-σ relative
+    uncertainty of the modelled variance (0: exact), ``source`` where it came from.
+    """
+
+    gain: float
+    dark_mean: float = 0.0
+    dark_variance: float = 0.0
+    quantized: bool = True
+    relative_error: float = 0.0
+    source: str = "datasheet"
+
+    def __post_init__(self) -> None:
+        for name in ("gain", "dark_mean", "dark_variance", "relative_error"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) \
+                    or value < 0:
+                raise EstimatorError(f"noise model: {name} must be a finite number >= 0, got {value!r}")
+        if self.relative_error >= 1.0:
+            raise EstimatorError(f"noise model: relative_error must be below 1, got {self.relative_error}")
+
+    def analog_variance(self, mean: np.ndarray | float) -> np.ndarray:
+        """Temporal variance before quantization, K·max(μ - μ_dark, 0) + σ_d² (DN²)."""
+        mu = np.asarray(mean, np.float64)
+        return self.gain * np.maximum(mu - self.dark_mean, 0.0) + self.dark_variance
+
+    def variance(self, mean: np.ndarray | float) -> np.ndarray:
+        """Temporal noise variance σ²(μ) of a pixel whose mean is ``mean`` (DN²)."""
+        quantization = QUANTIZATION_VARIANCE if self.quantized else 0.0
+        return self.analog_variance(mean) + quantization
+
+
+def from_datasheet(gain: float, dark_noise_e: float, dark_mean: float = 0.0, quantized: bool = True,
+                   relative_error: float = 0.05) -> NoiseModel:
+    """The model from an EMVA 1288 datasheet: system gain K (DN/e⁻), dark noise σ_d (e⁻) and
+    the dark offset μ_dark (DN); σ_d² in DN² is (K·σ_d)². ``relative_error`` defaults to 5 %,
+    the spread EMVA 1288 datasheets allow between cameras of one model."""
+    if not (isinstance(dark_noise_e, int | float) and math.isfinite(dark_noise_e) and dark_noise_e >= 0):
+        raise EstimatorError(f"dark_noise_e must be a finite number >= 0, got {dark_noise_e!r}")
+    return NoiseModel(gain=float(gain), dark_mean=float(dark_mean), dark_variance=(gain * dark_noise_e) ** 2,
+                      quantized=quantized, relative_error=relative_error, source="datasheet")
+
+
+def _stack(frames: np.ndarray, what: str, minimum: int) -> np.ndarray:
+    stack = check_frames(frames)
+    if stack.shape[0] < minimum:
+        raise EstimatorError(f"{what}: need at least {minimum} frames, got {stack.shape[0]}")
+    return stack
+
+
+def _top(stack: np.ndarray, saturation: float | None) -> float:
+    if saturation is not None:
+        if not math.isfinite(saturation) or saturation <= 0:
+            raise EstimatorError(f"saturation must be a finite grey level > 0, got {saturation!r}")
+        return float(saturation)
+    if np.issubdtype(stack.dtype, np.integer):
+        return float(np.iinfo(stack.dtype).max)
+    return math.inf
+
+
+def _unclipped(stack: np.ndarray, top: float) -> np.ndarray:
+    """Pixels (flat) that never touch 0 or saturation: their variance is not cut by clipping."""
+    flat = stack.reshape(stack.shape[0], -1)
+    return (flat.min(axis=0) > 0) & (flat.max(axis=0) < top)
+
+
+def _groups(means: np.ndarray, keep: np.ndarray) -> list[np.ndarray]:
+    """Indices of the kept pixels in up to GROUPS equal-count groups by mean."""
+    index = np.flatnonzero(keep)
+    if index.size < MIN_GROUP_PIXELS:
+        raise EstimatorError(f"only {index.size} unclipped pixels (need {MIN_GROUP_PIXELS}): "
+                             "too many pixels at 0 or at saturation")
+    order = index[np.argsort(means[index], kind="stable")]
+    count = max(1, min(GROUPS, index.size // MIN_GROUP_PIXELS))
+    return np.array_split(order, count)
+
+
+def photon_transfer(dark: np.ndarray, bright: np.ndarray, saturation: float | None = None) -> NoiseModel:
+    """K, σ_d² and μ_dark from ``dark`` frames (no light) and ``bright`` frames of a static
+    target (each (N >= 2, H, W), same camera settings), EMVA 1288 §6 (module docstring)."""
+    dark_stack = _stack(dark, "dark frames", 2)
+    stack = _stack(bright, "frames of a static target", 2)
+    quantized = bool(np.issubdtype(stack.dtype, np.integer))
+    quantization = QUANTIZATION_VARIANCE if quantized else 0.0
+    dark_mean = float(dark_stack.mean(dtype=np.float64))
+    dark_total = float(mean_square_difference(dark_stack, 1).mean()) / 2.0  # σ_d² + 1/12
+    top = _top(stack, saturation)
+    means = stack.mean(axis=0, dtype=np.float64).reshape(-1)
+    variances = mean_square_difference(stack, 1).reshape(-1) / 2.0
+    keep = _unclipped(stack, top) & (means < PTC_MAX_FRACTION * top) & (means > dark_mean)
+    groups = _groups(means, keep)
+    x = np.array([means[g].mean() for g in groups]) - dark_mean
+    y = np.array([variances[g].mean() for g in groups]) - dark_total
+    if float((x * x).sum()) <= 0.0:
+        raise EstimatorError("the static target is no brighter than the dark frames")
+    gain = max(float((x * y).sum() / (x * x).sum()), 0.0)  # through the origin, EMVA 1288 §6.3
+    spread = math.sqrt(float(((y - gain * x) ** 2).mean()))
+    level = float((y + dark_total).mean())
+    return NoiseModel(gain=gain, dark_mean=dark_mean, dark_variance=max(dark_total - quantization, 0.0),
+                      quantized=quantized, relative_error=min(spread / level / math.sqrt(len(groups)), 0.5),
+                      source="photon_transfer")
+
+
+def white_variance(structure: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """σ_n² (DN²) and τ (frames) of rows of structure functions D(k) (shape (G, L), at ``lags``).
+
+    Least squares of D(k) = 2σ_n² + B·(1 - exp(-k/τ)) with σ_n², B >= 0: closed form in
+    (σ_n², B) at each τ of a log grid, the best τ kept (no refinement: σ_n² varies slowly with τ
+    near the minimum).
+    """
+    d = np.asarray(structure, np.float64)
+    k = np.asarray(lags, np.float64)
+    rise = 1.0 - np.exp(-k[None, :] / _TAU_GRID[:, None])  # (T, L)
+    ones = np.ones_like(k)
+    best = np.full(d.shape[0], np.inf)
+    noise = np.zeros(d.shape[0])
+    tau = np.zeros(d.shape[0])
+    for t in range(_TAU_GRID.size):
+        basis = np.stack([ones, rise[t]], axis=1)  # (L, 2)
+        coef, *_ = np.linalg.lstsq(basis, d.T, rcond=None)  # (2, G)
+        white, slope = coef
+        # a bound active: the other parameter alone, by least squares
+        flat = slope < 0
+        white = np.where(flat, d.mean(axis=1), white)
+        slope = np.where(flat, 0.0, slope)
+        through = white < 0
+        if through.any():
+            slope = np.where(through, d @ rise[t] / float(rise[t] @ rise[t]), slope)
+            white = np.where(through, 0.0, white)
+        resid = ((d - white[:, None] - slope[:, None] * rise[t][None, :]) ** 2).sum(axis=1)
+        better = resid < best
+        best = np.where(better, resid, best)
+        noise = np.where(better, white / 2.0, noise)
+        tau = np.where(better, _TAU_GRID[t], tau)
+    return noise, tau
+
+
+def from_frames(frames: np.ndarray, max_lag: int = 20, saturation: float | None = None,
+                mask: np.ndarray | None = None) -> NoiseModel:
+    """The model from the measurement's own frames (module docstring), over the pixels of the
+    boolean (H, W) ``mask`` (default all); lags 1..``max_lag`` (at most N/4)."""
+    stack = _stack(frames, "frames", 8)
+    n = stack.shape[0]
+    if isinstance(max_lag, bool) or not isinstance(max_lag, int) or max_lag < 2:
+        raise EstimatorError(f"max_lag must be an integer >= 2, got {max_lag!r}")
+    top_lag = min(max_lag, n // 4)
+    if top_lag < 2:
+        raise EstimatorError(f"{n} frames are too few to separate the noise (need at least 8)")
+    lags = np.arange(1, top_lag + 1)
+    quantized = bool(np.issubdtype(stack.dtype, np.integer))
+    keep = _unclipped(stack, _top(stack, saturation))
+    if mask is not None:
+        region = np.asarray(mask)
+        if region.dtype != np.bool_ or region.shape != stack.shape[1:]:
+            raise EstimatorError(f"mask must be a boolean {stack.shape[1:]} array")
+        keep &= region.reshape(-1)
+    means = stack.mean(axis=0, dtype=np.float64).reshape(-1)
+    groups = _groups(means, keep)
+    structure = np.stack([mean_square_difference(stack, int(k)).reshape(-1) for k in lags])  # (L, P)
+    pooled = np.array([structure[:, g].mean(axis=1) for g in groups])  # (G, L)
+    noise, tau = white_variance(pooled, lags)
+    resolved = tau >= MIN_RESOLVED_TAU
+    if not resolved.any():
+        raise EstimatorError("the frames cannot tell noise from activity (the activity decorrelates "
+                             "within a frame): give the camera's noise (datasheet or photon transfer)")
+    x = np.array([means[g].mean() for g in groups])[resolved]
+    y = noise[resolved]
+    if x.size >= 3 and float(np.ptp(x)) > 0.0:
+        gain, intercept = np.polyfit(x, y, 1)
+        gain = max(float(gain), 0.0)
+        intercept = float(y.mean() - gain * x.mean())
+        spread = math.sqrt(float(((y - gain * x - intercept) ** 2).sum()) / (x.size - 2))
+    else:  # one level of light: all noise read as shot noise through the origin
+        gain, intercept, spread = float((x * y).sum() / (x * x).sum()), 0.0, 0.0
+    analog = intercept - (QUANTIZATION_VARIANCE if quantized else 0.0)
+    dark_mean = 0.0
+    if analog < 0.0 and gain > 0.0:  # a dark offset: the line meets σ_q² at μ_dark > 0
+        dark_mean, analog = -analog / gain, 0.0
+    level = float(y.mean())
+    relative = min(spread / level / math.sqrt(x.size), 0.5) if level > 0 else 0.0
+    return NoiseModel(gain=gain, dark_mean=dark_mean, dark_variance=max(analog, 0.0), quantized=quantized,
+                      relative_error=relative, source="frames")
