@@ -22,8 +22,10 @@ every fit). Three sources give K, σ_d² and μ_dark (docs/noise.md says when ea
 * :func:`from_frames`: neither given; the measurement's own frames. Their structure function
   D(k) = E[(I_t - I_{t+k})²] = 2σ_n² + 2σ_s²(1 - ρ(k)) (as differential dynamic microscopy
   separates noise from dynamics) has a white, lag-independent part 2σ_n²: fitted per group of
-  pixels with equal means, with ρ(k) = exp(-k/τ) (the simulator's and the τc fit's model), and
-  then σ_n² fitted against the groups' means as the line above. Differences need no window-mean
+  pixels with equal means, with ρ(k) = exp(-(k/τ)^p), p from 1/2 to 2 (p = 1 is the simulator's
+  and the τc fit's model; real films also drift, p = 2, or relax over many times, p < 1: DDM
+  fits the same stretched exponentials), and then σ_n² fitted against the groups' means as the
+  line above. Differences need no window-mean
   correction. It cannot separate noise from activity faster than the frame rate (τc below about
   a frame: the signal is white too): such groups are left out, and with none left there is no
   estimate (:class:`~edgedsm.errors.EstimatorError`).
@@ -48,8 +50,11 @@ GROUPS = 16  # pixels are grouped by mean into this many equal-count groups
 MIN_GROUP_PIXELS = 32
 #: the white part is separable from the activity only where the signal stays correlated for
 #: about a frame: groups whose fitted τ is below this many frames are left out
-MIN_RESOLVED_TAU = 1.0
+MIN_RESOLVED_TAU = 2.0
+#: the white part is an extrapolation of D(k) to k = 0, best made from the shortest lags
+DEFAULT_LAGS = 6
 _TAU_GRID = 0.25 * 2.0 ** (np.arange(0, 161) / 8.0)  # 0.25 ... 2^20·0.25 frames, 9 % steps
+_STRETCH = (0.5, 0.75, 1.0, 1.5, 2.0)  # the exponents p of ρ(k) = exp(-(k/τ)^p)
 
 
 @dataclass(frozen=True)
@@ -162,18 +167,20 @@ def photon_transfer(dark: np.ndarray, bright: np.ndarray, saturation: float | No
 def white_variance(structure: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """σ_n² (DN²) and τ (frames) of rows of structure functions D(k) (shape (G, L), at ``lags``).
 
-    Least squares of D(k) = 2σ_n² + B·(1 - exp(-k/τ)) with σ_n², B >= 0: closed form in
-    (σ_n², B) at each τ of a log grid, the best τ kept (no refinement: σ_n² varies slowly with τ
+    Least squares of D(k) = 2σ_n² + B·(1 - exp(-(k/τ)^p)) with σ_n², B >= 0: closed form in
+    (σ_n², B) at each (τ, p) of a grid, the best kept (no refinement: σ_n² varies slowly with τ
     near the minimum).
     """
     d = np.asarray(structure, np.float64)
     k = np.asarray(lags, np.float64)
-    rise = 1.0 - np.exp(-k[None, :] / _TAU_GRID[:, None])  # (T, L)
+    scaled = k[None, None, :] / _TAU_GRID[None, :, None]
+    rise = (1.0 - np.exp(-scaled ** np.array(_STRETCH)[:, None, None])).reshape(-1, k.size)  # (P·T, L)
+    taus = np.tile(_TAU_GRID, len(_STRETCH))
     ones = np.ones_like(k)
     best = np.full(d.shape[0], np.inf)
     noise = np.zeros(d.shape[0])
     tau = np.zeros(d.shape[0])
-    for t in range(_TAU_GRID.size):
+    for t in range(taus.size):
         basis = np.stack([ones, rise[t]], axis=1)  # (L, 2)
         coef, *_ = np.linalg.lstsq(basis, d.T, rcond=None)  # (2, G)
         white, slope = coef
@@ -189,11 +196,11 @@ def white_variance(structure: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray,
         better = resid < best
         best = np.where(better, resid, best)
         noise = np.where(better, white / 2.0, noise)
-        tau = np.where(better, _TAU_GRID[t], tau)
+        tau = np.where(better, taus[t], tau)
     return noise, tau
 
 
-def from_frames(frames: np.ndarray, max_lag: int = 20, saturation: float | None = None,
+def from_frames(frames: np.ndarray, max_lag: int = DEFAULT_LAGS, saturation: float | None = None,
                 mask: np.ndarray | None = None) -> NoiseModel:
     """The model from the measurement's own frames (module docstring), over the pixels of the
     boolean (H, W) ``mask`` (default all); lags 1..``max_lag`` (at most N/4)."""
