@@ -50,7 +50,7 @@ GROUPS = 16  # pixels are grouped by mean into this many equal-count groups
 MIN_GROUP_PIXELS = 32
 #: the white part is separable from the activity only where the signal stays correlated for
 #: about a frame: groups whose fitted τ is below this many frames are left out
-MIN_RESOLVED_TAU = 2.0
+MIN_RESOLVED_TAU = 4.0
 #: the white part is an extrapolation of D(k) to k = 0, best made from the shortest lags
 DEFAULT_LAGS = 6
 _TAU_GRID = 0.25 * 2.0 ** (np.arange(0, 161) / 8.0)  # 0.25 ... 2^20·0.25 frames, 9 % steps

@@ -42,7 +42,8 @@ LOW_SPREADS = 3.0
 #: corr(|a - b|, |b - c|) for independent Gaussian a, b, c: the two differences have
 #: correlation ρ = -1/2 and E|X||Y| = (2/π)σ²(sqrt(1 - ρ²) + ρ·asin ρ) for a bivariate normal
 OVERLAP_CORRELATION = (2 / math.pi) * (math.sqrt(0.75) + 0.5 * math.asin(0.5) - 1) / (1 - 2 / math.pi)
-REPRESENTATIVES = 2048  # pixel means a region's floor is computed from
+REPRESENTATIVES = 512  # pixel means a region's floor is computed from
+SUBSTEPS = 8  # positions within a grey step each is averaged over (integer frames)
 OK, LOW, NO_SIGNAL = "ok", "low", "no_signal"
 
 
@@ -108,6 +109,11 @@ def static_pair_moments(model: NoiseModel, means: np.ndarray, q: float = 0.0,
         ratio = np.where(level > 0, np.minimum(mean_abs / safe * (1.0 + 2.0 * sigma**2 / safe**2), 1.0), 0.0)
         ratio_sq = np.where(level > 0, np.minimum(2.0 * sigma**2 / safe**2, 1.0), 0.0)
         return mean_abs, 2.0 * sigma**2, ratio, ratio_sq
+    # where the true mean sits within its grey step is unknown (a rounded mean says little of it
+    # when σ << 1 DN): averaged over SUBSTEPS positions spread over the step around μ
+    shifts = (np.arange(SUBSTEPS) + 0.5) / SUBSTEPS - 0.5
+    mu = (mu[:, None] + shifts[None, :]).reshape(-1)
+    sigma = np.repeat(sigma, SUBSTEPS)
     out = [np.empty(mu.size) for _ in range(4)]
     reach = math.ceil(6.0 * float(sigma.max(initial=0.0))) + 2
     offsets = np.arange(-reach, reach + 1, dtype=np.float64)
@@ -124,7 +130,7 @@ def static_pair_moments(model: NoiseModel, means: np.ndarray, q: float = 0.0,
         weight = prob[:, :, None] * prob[:, None, :]
         for index, term in enumerate((diff, diff * diff, ratio, ratio * ratio)):
             out[index][part] = (weight * term).sum(axis=(1, 2))
-    return tuple(out)
+    return tuple(part.reshape(-1, SUBSTEPS).mean(axis=1) for part in out)
 
 
 def mean_abs_difference(model: NoiseModel, means: np.ndarray | float) -> np.ndarray:
