@@ -7,9 +7,12 @@ in digital numbers (DN) as::
 
 with K the system gain (DN per electron: the shot noise of μ_e electrons is K²·μ_e = K·μ_e·K),
 σ_d² the dark (read + thermal) noise in DN² and 1/12 DN² the quantization noise of rounding to
-integers (a uniform error of one step; absent for float data). The model assumes shot noise
-that is Poisson in electrons (so linear in μ), noise independent from frame to frame and from
-pixel to pixel, and no saturation or clipping at 0 (pixels that touch either are left out of
+integers (a uniform error of one step; absent for float data). The 1/12 is Sheppard's
+correction and holds for an analog σ above about 0.5 DN; below, the variance of rounded data
+is smaller (0 for σ = 0), so integer frames use the exact mean over the position of the
+signal within its grey step, :func:`rounded_variance`. The model assumes shot noise that is
+Poisson in electrons (so linear in μ), noise independent from frame to frame and from pixel to
+pixel, and no saturation or clipping at 0 (pixels that touch either are left out of
 every fit). Three sources give K, σ_d² and μ_dark (docs/noise.md says when each is used):
 
 * :func:`from_datasheet`: the camera's EMVA 1288 datasheet (K in DN/e⁻, σ_d in e⁻).
@@ -35,8 +38,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+from scipy.special import ndtr
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators.ambient import mean_square_difference
@@ -51,10 +56,45 @@ MIN_GROUP_PIXELS = 32
 #: the white part is separable from the activity only where the signal stays correlated for
 #: about a frame: groups whose fitted τ is below this many frames are left out
 MIN_RESOLVED_TAU = 4.0
+MIN_GROUP_MEAN = 3.0  # DN: dimmer groups are left out of from_frames' fit (see there)
 #: the white part is an extrapolation of D(k) to k = 0, best made from the shortest lags
 DEFAULT_LAGS = 6
 _TAU_GRID = 0.25 * 2.0 ** (np.arange(0, 161) / 8.0)  # 0.25 ... 2^20·0.25 frames, 9 % steps
 _STRETCH = (0.5, 0.75, 1.0, 1.5, 2.0)  # the exponents p of ρ(k) = exp(-(k/τ)^p)
+
+
+_ROUNDING_TOP = 4.0  # DN: analog σ up to which rounding is tabulated; beyond, σ² + 1/12 within 1e-6
+
+
+@lru_cache(maxsize=1)
+def _rounding_table() -> tuple[np.ndarray, np.ndarray]:
+    """Analog σ (DN) and E_x Var(round(x + n)), n ~ N(0, σ²), x uniform over a grey step."""
+    sigma = np.linspace(0.0, _ROUNDING_TOP, 801)
+    offset = (np.arange(256) + 0.5) / 256.0
+    level = np.arange(-30, 31, dtype=np.float64)
+    s = np.maximum(sigma, 1e-9)[:, None, None]
+    edge = level[None, None, :] - offset[None, :, None]
+    prob = ndtr((edge + 0.5) / s) - ndtr((edge - 0.5) / s)  # (S, X, J)
+    mean = (prob * level).sum(axis=2)
+    variance = (prob * level**2).sum(axis=2) - mean**2
+    return sigma, variance.mean(axis=1)
+
+
+def rounded_variance(analog_variance: np.ndarray | float) -> np.ndarray:
+    """Temporal variance (DN²) of integer frames whose analog noise variance is given: σ² + 1/12
+    for σ >= 4 DN, the exact mean over the signal's position within its grey step below."""
+    analog = np.asarray(analog_variance, np.float64)
+    sigma, table = _rounding_table()
+    root = np.sqrt(analog)
+    return np.where(root < _ROUNDING_TOP, np.interp(root, sigma, table), analog + QUANTIZATION_VARIANCE)
+
+
+def analog_variance_of(rounded: np.ndarray | float) -> np.ndarray:
+    """The inverse of :func:`rounded_variance` (DN² to DN²; 0 below the table's first value)."""
+    measured = np.asarray(rounded, np.float64)
+    sigma, table = _rounding_table()
+    inside = np.interp(measured, table, sigma) ** 2
+    return np.where(measured < table[-1], inside, measured - QUANTIZATION_VARIANCE)
 
 
 @dataclass(frozen=True)
@@ -88,9 +128,10 @@ class NoiseModel:
         return self.gain * np.maximum(mu - self.dark_mean, 0.0) + self.dark_variance
 
     def variance(self, mean: np.ndarray | float) -> np.ndarray:
-        """Temporal noise variance σ²(μ) of a pixel whose mean is ``mean`` (DN²)."""
-        quantization = QUANTIZATION_VARIANCE if self.quantized else 0.0
-        return self.analog_variance(mean) + quantization
+        """Temporal noise variance σ²(μ) of a pixel whose mean is ``mean`` (DN²); integer frames:
+        :func:`rounded_variance` of the analog variance (σ² + 1/12 above σ = 4 DN)."""
+        analog = self.analog_variance(mean)
+        return rounded_variance(analog) if self.quantized else analog
 
 
 def from_datasheet(gain: float, dark_noise_e: float, dark_mean: float = 0.0, quantized: bool = True,
@@ -144,22 +185,22 @@ def photon_transfer(dark: np.ndarray, bright: np.ndarray, saturation: float | No
     dark_stack = _stack(dark, "dark frames", 2)
     stack = _stack(bright, "frames of a static target", 2)
     quantized = bool(np.issubdtype(stack.dtype, np.integer))
-    quantization = QUANTIZATION_VARIANCE if quantized else 0.0
+    analog = analog_variance_of if quantized else np.asarray
     dark_mean = float(dark_stack.mean(dtype=np.float64))
-    dark_total = float(mean_square_difference(dark_stack, 1).mean()) / 2.0  # σ_d² + 1/12
+    dark_variance = float(analog(float(mean_square_difference(dark_stack, 1).mean()) / 2.0))
     top = _top(stack, saturation)
     means = stack.mean(axis=0, dtype=np.float64).reshape(-1)
     variances = mean_square_difference(stack, 1).reshape(-1) / 2.0
     keep = _unclipped(stack, top) & (means < PTC_MAX_FRACTION * top) & (means > dark_mean)
     groups = _groups(means, keep)
     x = np.array([means[g].mean() for g in groups]) - dark_mean
-    y = np.array([variances[g].mean() for g in groups]) - dark_total
+    y = analog(np.array([variances[g].mean() for g in groups])) - dark_variance
     if float((x * x).sum()) <= 0.0:
         raise EstimatorError("the static target is no brighter than the dark frames")
     gain = max(float((x * y).sum() / (x * x).sum()), 0.0)  # through the origin, EMVA 1288 §6.3
     spread = math.sqrt(float(((y - gain * x) ** 2).mean()))
-    level = float((y + dark_total).mean())
-    return NoiseModel(gain=gain, dark_mean=dark_mean, dark_variance=max(dark_total - quantization, 0.0),
+    level = float((y + dark_variance).mean())
+    return NoiseModel(gain=gain, dark_mean=dark_mean, dark_variance=dark_variance,
                       quantized=quantized, relative_error=min(spread / level / math.sqrt(len(groups)), 0.5),
                       source="photon_transfer")
 
@@ -224,24 +265,27 @@ def from_frames(frames: np.ndarray, max_lag: int = DEFAULT_LAGS, saturation: flo
     structure = np.stack([mean_square_difference(stack, int(k)).reshape(-1) for k in lags])  # (L, P)
     pooled = np.array([structure[:, g].mean(axis=1) for g in groups])  # (G, L)
     noise, tau = white_variance(pooled, lags)
-    resolved = tau >= MIN_RESOLVED_TAU
+    group_means = np.array([means[g].mean() for g in groups])
+    # dim groups: leaving out the pixels that touch 0 keeps those whose signal sits mid-step,
+    # whose rounded variance is below the step-average the inversion assumes
+    resolved = (tau >= MIN_RESOLVED_TAU) & (group_means >= MIN_GROUP_MEAN)
     if not resolved.any():
         raise EstimatorError("the frames cannot tell noise from activity (the activity decorrelates "
-                             "within a frame): give the camera's noise (datasheet or photon transfer)")
-    x = np.array([means[g].mean() for g in groups])[resolved]
-    y = noise[resolved]
+                             "within a few frames, or the frames are too dark): give the camera's noise "
+                             "(datasheet or photon transfer)")
+    x = group_means[resolved]
+    y = analog_variance_of(noise[resolved]) if quantized else noise[resolved]
+    gain, intercept = 0.0, -1.0
     if x.size >= 3 and float(np.ptp(x)) > 0.0:
-        gain, intercept = np.polyfit(x, y, 1)
-        gain = max(float(gain), 0.0)
-        intercept = float(y.mean() - gain * x.mean())
-        spread = math.sqrt(float(((y - gain * x - intercept) ** 2).sum()) / (x.size - 2))
-    else:  # one level of light: all noise read as shot noise through the origin
-        gain, intercept, spread = float((x * y).sum() / (x * x).sum()), 0.0, 0.0
-    analog = intercept - (QUANTIZATION_VARIANCE if quantized else 0.0)
-    dark_mean = 0.0
-    if analog < 0.0 and gain > 0.0:  # a dark offset: the line meets σ_q² at μ_dark > 0
-        dark_mean, analog = -analog / gain, 0.0
+        gain, intercept = (float(v) for v in np.polyfit(x, y, 1))
+    if gain <= 0.0 or intercept < 0.0:
+        # a dark offset cannot be told from a noisy intercept here: the line goes through the
+        # origin (μ_dark = 0), which errs towards more noise at low means (a higher floor)
+        intercept = 0.0 if float((x * x).sum()) > 0 and float((x * y).sum()) > 0 else float(y.mean())
+        gain = float((x * y).sum() / (x * x).sum()) if intercept == 0.0 else 0.0
+    dof = max(x.size - 2, 1)
+    spread = math.sqrt(float(((y - gain * x - intercept) ** 2).sum()) / dof)
     level = float(y.mean())
     relative = min(spread / level / math.sqrt(x.size), 0.5) if level > 0 else 0.0
-    return NoiseModel(gain=gain, dark_mean=dark_mean, dark_variance=max(analog, 0.0), quantized=quantized,
+    return NoiseModel(gain=gain, dark_mean=0.0, dark_variance=intercept, quantized=quantized,
                       relative_error=relative, source="frames")

@@ -36,14 +36,16 @@ from scipy.special import ndtr
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators.correlation_time import BELOW
 from edgedsm.estimators.correlation_time import NO_SIGNAL as TAU_NO_SIGNAL
-from edgedsm.estimators.noise import NoiseModel
+from edgedsm.estimators.noise import QUANTIZATION_VARIANCE, NoiseModel
 
 LOW_SPREADS = 3.0
 #: corr(|a - b|, |b - c|) for independent Gaussian a, b, c: the two differences have
 #: correlation ρ = -1/2 and E|X||Y| = (2/π)σ²(sqrt(1 - ρ²) + ρ·asin ρ) for a bivariate normal
 OVERLAP_CORRELATION = (2 / math.pi) * (math.sqrt(0.75) + 0.5 * math.asin(0.5) - 1) / (1 - 2 / math.pi)
 REPRESENTATIVES = 512  # pixel means a region's floor is computed from
-SUBSTEPS = 8  # positions within a grey step each is averaged over (integer frames)
+#: DN: analog σ below which rounding is summed exactly; beyond, the Gaussian forms for integers
+#: agree with the exact sum to 0.1 % (checked in the tests)
+EXACT_SIGMA = 4.0
 OK, LOW, NO_SIGNAL = "ok", "low", "no_signal"
 
 
@@ -90,30 +92,30 @@ def _representatives(mu: np.ndarray) -> np.ndarray:
     return ordered[np.linspace(0, mu.size - 1, REPRESENTATIVES).round().astype(np.int64)]
 
 
-def static_pair_moments(model: NoiseModel, means: np.ndarray, q: float = 0.0,
-                        top: float = math.inf) -> tuple[np.ndarray, ...]:
-    """For a static pixel of mean μ (DN): E|Δ|, E[Δ²], E[r], E[r²] of one pair of its frames,
-    Δ = I_i - I_{i+m}, r = |Δ|/(I_i + I_{i+m} + q) (0 where the sum is 0).
+def _gaussian_moments(mu: np.ndarray, variance: np.ndarray, q: float,
+                      quantized: bool = False) -> tuple[np.ndarray, ...]:
+    """E|Δ|, E[Δ²], E[r], E[r²] for Gaussian noise of ``variance`` σ²: 2σ/√π, 2σ², and with
+    x = 2μ + q, E[r] ≈ E|Δ|·(1 + 2σ²/x²)/x (Δ and the sum independent, E[1/x] to second
+    order), E[r²] ≈ 2σ²/x². ``quantized``: σ² is the analog variance and Δ an integer; then
+    E[Δ²] gains Sheppard's 2/12 but E|Δ| does not (summing |k| over the integers takes
+    f(0)/6 off E|X|, Euler-Maclaurin at the kink of |x|, and Sheppard's 1/6 adds it back to
+    first order in 1/σ²)."""
+    mean_abs = 2.0 * np.sqrt(variance) / math.sqrt(math.pi)
+    if quantized:
+        variance = variance + QUANTIZATION_VARIANCE
+    level = 2.0 * mu + q
+    lit = level > 0
+    safe = np.where(lit, level, 1.0)
+    ratio = np.where(lit, np.minimum(mean_abs / safe * (1.0 + 2.0 * variance / safe**2), 1.0), 0.0)
+    ratio_sq = np.where(lit, np.minimum(2.0 * variance / safe**2, 1.0), 0.0)
+    return mean_abs, 2.0 * variance, ratio, ratio_sq
 
-    Integer frames: each frame is round(μ + n), n ~ N(0, analog variance), clipped to [0, top],
-    summed exactly over the levels within 6σ + 2 of μ. Float frames: Gaussian closed forms
-    (E|Δ| = 2σ/√π, E[Δ²] = 2σ², E[r] ≈ E|Δ|·(1 + 2σ²/x²)/x with x = 2μ + q: Δ and the sum are
-    independent for Gaussian noise; E[1/x] to second order).
-    """
-    mu = np.asarray(means, np.float64).reshape(-1)
-    sigma = np.sqrt(model.analog_variance(mu))
-    if not model.quantized:
-        mean_abs = 2.0 * sigma / math.sqrt(math.pi)
-        level = 2.0 * mu + q
-        safe = np.where(level > 0, level, 1.0)
-        ratio = np.where(level > 0, np.minimum(mean_abs / safe * (1.0 + 2.0 * sigma**2 / safe**2), 1.0), 0.0)
-        ratio_sq = np.where(level > 0, np.minimum(2.0 * sigma**2 / safe**2, 1.0), 0.0)
-        return mean_abs, 2.0 * sigma**2, ratio, ratio_sq
-    # where the true mean sits within its grey step is unknown (a rounded mean says little of it
-    # when σ << 1 DN): averaged over SUBSTEPS positions spread over the step around μ
-    shifts = (np.arange(SUBSTEPS) + 0.5) / SUBSTEPS - 0.5
-    mu = (mu[:, None] + shifts[None, :]).reshape(-1)
-    sigma = np.repeat(sigma, SUBSTEPS)
+
+def _rounded_moments(mu: np.ndarray, sigma: np.ndarray, q: float, top: float) -> tuple[np.ndarray, ...]:
+    """The same for round(ν + n), n ~ N(0, σ²), clipped to [0, top], summed exactly over the
+    levels within 6σ + 2 of ν, where ν is the analog mean whose rounded frames average μ
+    (:func:`_analog_means`)."""
+    mu = _analog_means(mu, sigma, top)
     out = [np.empty(mu.size) for _ in range(4)]
     reach = math.ceil(6.0 * float(sigma.max(initial=0.0))) + 2
     offsets = np.arange(-reach, reach + 1, dtype=np.float64)
@@ -130,7 +132,52 @@ def static_pair_moments(model: NoiseModel, means: np.ndarray, q: float = 0.0,
         weight = prob[:, :, None] * prob[:, None, :]
         for index, term in enumerate((diff, diff * diff, ratio, ratio * ratio)):
             out[index][part] = (weight * term).sum(axis=(1, 2))
-    return tuple(part.reshape(-1, SUBSTEPS).mean(axis=1) for part in out)
+    return tuple(out)
+
+
+def _analog_means(mu: np.ndarray, sigma: np.ndarray, top: float) -> np.ndarray:
+    """The analog means ν (DN) whose rounded, clipped frames have the measured means μ.
+
+    E[clip(round(ν + n))] is a smooth staircase in ν (steps of width ~σ at the half-steps):
+    a rounded mean of 3.00 with σ = 0.1 DN says ν is well inside the step, where the frames
+    never change, and 3.40 says ν is near 3.5, where they flip often. Inverted per pixel on a
+    grid of ν over μ ± 1.5 DN (ν = μ where σ >= 1 DN: the staircase is a straight line there
+    within 1e-4 DN)."""
+    out = mu.copy()
+    narrow = sigma < 1.0
+    if not narrow.any():
+        return out
+    m, s = mu[narrow, None], np.maximum(sigma[narrow, None], 1e-9)
+    grid = np.floor(m) + np.linspace(-1.5, 2.5, 257)[None, :]  # candidate ν, (P, V)
+    levels = np.floor(m)[:, :, None] + np.arange(-8.0, 10.0)[None, None, :]  # (P, 1, J)
+    gap = levels - grid[:, :, None]
+    prob = ndtr((gap + 0.5) / s[:, :, None]) - ndtr((gap - 0.5) / s[:, :, None])
+    expected = (prob * np.clip(levels, 0.0, top)).sum(axis=2)  # (P, V), non-decreasing in ν
+    expected += 1e-9 * np.arange(grid.shape[1])[None, :]  # strictly increasing for the inversion
+    out[narrow] = [np.interp(value, row, nu) for value, row, nu in zip(mu[narrow], expected, grid, strict=True)]
+    return out
+
+
+def static_pair_moments(model: NoiseModel, means: np.ndarray, q: float = 0.0,
+                        top: float = math.inf) -> tuple[np.ndarray, ...]:
+    """For a static pixel of mean μ (DN): E|Δ|, E[Δ²], E[r], E[r²] of one pair of its frames,
+    Δ = I_i - I_{i+m}, r = |Δ|/(I_i + I_{i+m} + q) (0 where the sum is 0).
+
+    Integer frames with analog σ < EXACT_SIGMA: rounding and clipping summed exactly
+    (:func:`_rounded_moments`); wider noise: the Gaussian forms for integers (clipping not
+    modelled there). Float frames: Gaussian forms (:func:`_gaussian_moments`).
+    """
+    mu = np.asarray(means, np.float64).reshape(-1)
+    analog = model.analog_variance(mu)
+    if not model.quantized:
+        return _gaussian_moments(mu, analog, q)
+    result = [np.array(part, np.float64) for part in _gaussian_moments(mu, analog, q, quantized=True)]
+    sigma = np.sqrt(analog)
+    exact = sigma < EXACT_SIGMA
+    if exact.any():
+        for part, value in zip(result, _rounded_moments(mu[exact], sigma[exact], q, top), strict=True):
+            part[exact] = value
+    return tuple(result)
 
 
 def mean_abs_difference(model: NoiseModel, means: np.ndarray | float) -> np.ndarray:
@@ -192,17 +239,20 @@ def above_noise(estimate: float, floor: Floor) -> AboveNoise:
     return AboveNoise(value, floor.spread, floor.value, verdict)
 
 
-def signal_share(model: NoiseModel, means: np.ndarray, variance: float, n: int,
+def signal_share(model: NoiseModel, means: np.ndarray, variance: float, n: int, top: float = math.inf,
                  independent_pixels: float | None = None) -> AboveNoise:
     """The signal's share of the region's temporal variance (τc's above-noise measure): 1 -
     (1 - 1/N)·σ̄_n²/σ̄², with ``variance`` σ̄² the region's mean window variance (Eq. 4's σ²,
-    DN²) and σ̄_n² the model's at the pixel means; ``no_signal`` where σ̄² = 0."""
+    DN²) and σ̄_n² a static pixel's, E[Δ²]/2 of :func:`static_pair_moments` (rounding and
+    clipping included), over the pixel means; ``no_signal`` where σ̄² = 0."""
     mu = _means(means)
     if not math.isfinite(variance) or variance < 0:
         raise EstimatorError(f"variance must be finite and >= 0, got {variance!r}")
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
         raise EstimatorError(f"N must be an integer >= 2, got {n!r}")
-    noise = (1.0 - 1.0 / n) * float(model.variance(mu).mean())
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    noise = (1.0 - 1.0 / n) * float(static_pair_moments(model, _representatives(mu), 0.0, top)[1].mean()) / 2.0
     if variance <= 0.0:
         return AboveNoise(0.0, 0.0, 0.0, NO_SIGNAL)
     ratio = noise / variance
