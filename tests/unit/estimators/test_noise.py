@@ -194,3 +194,27 @@ def test_exact_rounding_meets_sheppard_where_the_sums_hand_over():
     sheppard = nf._gaussian_moments(mu, model.analog_variance(mu), 0.0, quantized=True)
     assert exact[0][0] == pytest.approx(sheppard[0][0], rel=1e-3)
     assert exact[2][0] == pytest.approx(sheppard[2][0], rel=1e-3)
+
+
+def test_pure_noise_spread_is_calibrated():
+    """With the camera's exact model (no model error), (estimate - floor)/spread over many pure
+    noise windows has mean ~0 and standard deviation ~1: the floors are unbiased and the spreads
+    are neither too wide nor too narrow."""
+    rng = np.random.default_rng(11)
+    z = {"s1": [], "s2": [], "share": []}
+    for _ in range(60):
+        level, dark_sd = rng.uniform(50, 1500), rng.uniform(0, 2)
+        gain = math.exp(rng.uniform(math.log(0.01), math.log(0.1)))
+        lag = int(rng.integers(1, 9))
+        frames = _camera(rng, np.full((24, 24), level) * rng.uniform(0.5, 1.5, (24, 24)), gain, dark_sd, 40, (24, 24))
+        model = noise.from_datasheet(gain, dark_sd / gain, relative_error=0.0)
+        means = frames.mean(axis=0)
+        maps = batch.all_maps(frames, lag)
+        for name, above in (
+                ("s1", nf.above_noise(float(maps["s1"].mean()), nf.s1_floor(model, means, 40, lag, top=255))),
+                ("s2", nf.above_noise(float(maps["s2"].mean()), nf.s2_floor(model, means, 40, lag, top=255))),
+                ("share", nf.signal_share(model, means, float((batch.temporal_sigma(frames) ** 2).mean()), 40,
+                                          top=255))):
+            z[name].append(above.value / above.spread)
+    for name, values in z.items():
+        assert abs(np.mean(values)) < 0.35 and 0.7 < np.std(values) < 1.3, (name, np.mean(values), np.std(values))
