@@ -56,6 +56,9 @@ MIN_GROUP_PIXELS = 32
 #: the white part is separable from the activity only where the signal stays correlated for
 #: about a frame: groups whose fitted τ is below this many frames are left out
 MIN_RESOLVED_TAU = 4.0
+#: the least relative error from_frames states: its fit scatter alone (0.1-0.5 %) leaves out how
+#: the separation depends on the activity's shape (3-14 % between stages of one glue recording)
+FRAMES_MIN_ERROR = 0.05
 MIN_GROUP_MEAN = 3.0  # DN: dimmer groups are left out of from_frames' fit (see there)
 #: the white part is an extrapolation of D(k) to k = 0, best made from the shortest lags
 DEFAULT_LAGS = 6
@@ -288,4 +291,4 @@ def from_frames(frames: np.ndarray, max_lag: int = DEFAULT_LAGS, saturation: flo
     level = float(y.mean())
     relative = min(spread / level / math.sqrt(x.size), 0.5) if level > 0 else 0.0
     return NoiseModel(gain=gain, dark_mean=0.0, dark_variance=intercept, quantized=quantized,
-                      relative_error=relative, source="frames")
+                      relative_error=max(relative, FRAMES_MIN_ERROR), source="frames")

@@ -138,23 +138,27 @@ def _rounded_moments(mu: np.ndarray, sigma: np.ndarray, q: float, top: float) ->
 def _analog_means(mu: np.ndarray, sigma: np.ndarray, top: float) -> np.ndarray:
     """The analog means ν (DN) whose rounded, clipped frames have the measured means μ.
 
-    E[clip(round(ν + n))] is a smooth staircase in ν (steps of width ~σ at the half-steps):
-    a rounded mean of 3.00 with σ = 0.1 DN says ν is well inside the step, where the frames
-    never change, and 3.40 says ν is near 3.5, where they flip often. Inverted per pixel on a
-    grid of ν over μ ± 1.5 DN (ν = μ where σ >= 1 DN: the staircase is a straight line there
-    within 1e-4 DN)."""
+    E[clip(round(ν + n), 0, top)] is a smooth staircase in ν (steps of width ~σ at the
+    half-steps), bent flat near 0 and full scale: a rounded mean of 3.00 with σ = 0.1 DN says ν
+    is well inside the step, where the frames never change, 3.40 that it is near 3.5, where they
+    flip often, and 1.0 with σ = 1.6 DN that ν is below 1 (the clipped negatives raised the
+    mean). Inverted per pixel on a grid of ν over μ ± (1.5 + 6σ); ν = μ where σ >= 1 DN and the
+    pixel is more than 1.5 + 6σ from both ends (the staircase is a straight line there within
+    1e-4 DN)."""
     out = mu.copy()
-    narrow = sigma < 1.0
-    if not narrow.any():
-        return out
-    m, s = mu[narrow, None], np.maximum(sigma[narrow, None], 1e-9)
-    grid = np.floor(m) + np.linspace(-1.5, 2.5, 257)[None, :]  # candidate ν, (P, V)
-    levels = np.floor(m)[:, :, None] + np.arange(-8.0, 10.0)[None, None, :]  # (P, 1, J)
-    gap = levels - grid[:, :, None]
-    prob = ndtr((gap + 0.5) / s[:, :, None]) - ndtr((gap - 0.5) / s[:, :, None])
-    expected = (prob * np.clip(levels, 0.0, top)).sum(axis=2)  # (P, V), non-decreasing in ν
-    expected += 1e-9 * np.arange(grid.shape[1])[None, :]  # strictly increasing for the inversion
-    out[narrow] = [np.interp(value, row, nu) for value, row, nu in zip(mu[narrow], expected, grid, strict=True)]
+    span = 1.5 + 6.0 * sigma
+    invert = np.flatnonzero((sigma < 1.0) | (mu < span) | (mu > top - span))
+    for start in range(0, invert.size, 16):  # 16 pixels at a time: (16, V, J) temporaries
+        index = invert[start:start + 16]
+        m, s, half = mu[index, None], np.maximum(sigma[index, None], 1e-9), span[index, None]
+        grid = m + half * np.linspace(-1.0, 1.0, 257)[None, :]  # candidate ν, (P, V)
+        reach = math.ceil(float((half + 6.0 * s).max())) + 2
+        levels = np.floor(m)[:, :, None] + np.arange(-reach, reach + 1.0)[None, None, :]  # (P, 1, J)
+        gap = levels - grid[:, :, None]
+        prob = ndtr((gap + 0.5) / s[:, :, None]) - ndtr((gap - 0.5) / s[:, :, None])
+        expected = (prob * np.clip(levels, 0.0, top)).sum(axis=2)  # (P, V), non-decreasing in ν
+        expected += 1e-9 * np.arange(grid.shape[1])[None, :]  # strictly increasing for the inversion
+        out[index] = [np.interp(value, row, nu) for value, row, nu in zip(mu[index], expected, grid, strict=True)]
     return out
 
 
