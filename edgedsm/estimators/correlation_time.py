@@ -155,14 +155,6 @@ def _biased_terms(tau: np.ndarray, n: int, lags: np.ndarray) -> tuple[np.ndarray
     return b, d
 
 
-def variance_factors(tau: np.ndarray | float, n: int) -> tuple[float, np.ndarray]:
-    """E[σ̂²]/σ² of an N-frame window (mean subtracted) for white data, c = 1 - 1/N, and for
-    ρ(u) = exp(-|u|/τ), d(τ) = 1 - S/N² (the module docstring's c and d)."""
-    tau_arr = np.asarray(tau, np.float64)
-    _, d = _biased_terms(tau_arr, n, np.array([1]))
-    return 1.0 - 1.0 / n, d
-
-
 def tau_grid(max_lag: int) -> np.ndarray:
     """The log grid of τ (frames) the fit searches: TAU_FLOOR/2 ... 8·K, step 2^(1/16)."""
     low, high = TAU_FLOOR / 2.0, _GRID_TOP * max_lag
