@@ -292,3 +292,37 @@ def from_frames(frames: np.ndarray, max_lag: int = DEFAULT_LAGS, saturation: flo
     relative = min(spread / level / math.sqrt(x.size), 0.5) if level > 0 else 0.0
     return NoiseModel(gain=gain, dark_mean=0.0, dark_variance=intercept, quantized=quantized,
                       relative_error=max(relative, FRAMES_MIN_ERROR), source="frames")
+
+
+def abs_correlation(rho: np.ndarray | float) -> np.ndarray:
+    """corr(|X|, |Y|) of a centred bivariate normal with corr(X, Y) = ρ:
+    ((2/π)(sqrt(1 - ρ²) + ρ·asin ρ) - 2/π)/(1 - 2/π), from E|X||Y| = (2/π)σ²(sqrt(1 - ρ²) + ρ·asin ρ)."""
+    r = np.clip(np.asarray(rho, np.float64), -1.0, 1.0)
+    return (2.0 / math.pi) * (np.sqrt(1.0 - r * r) + r * np.arcsin(r) - 1.0) / (1.0 - 2.0 / math.pi)
+
+
+def independent_pixels(frames: np.ndarray, mask: np.ndarray | None = None, reach: int = 2) -> float:
+    """How many independent pixels a region's mean of |ΔI| (S1, S2) averages over: P /
+    Σ_offsets corr(|Δ_p|, |Δ_p+offset|), offsets up to ``reach`` px, from the spatial correlation
+    ρ of the frame differences I_{t+1} - I_t (white noise of a monochrome sensor: P; a colour
+    camera's interpolated channel: about P/2). Activity correlates neighbours too, so an active
+    surface reads fewer: a wider spread, the safe side."""
+    stack = _stack(frames, "frames", 2)
+    if isinstance(reach, bool) or not isinstance(reach, int) or not 0 <= reach < min(stack.shape[1:]):
+        raise EstimatorError(f"reach must be an integer in [0, {min(stack.shape[1:])}), got {reach!r}")
+    region = np.ones(stack.shape[1:], bool) if mask is None else np.asarray(mask)
+    if region.dtype != np.bool_ or region.shape != stack.shape[1:] or not region.any():
+        raise EstimatorError(f"mask must be a non-empty boolean {stack.shape[1:]} array")
+    diff = np.diff(stack.astype(np.float64), axis=0)
+    diff -= diff.mean(axis=(1, 2), keepdims=True)  # a frame-wide change (exposure) is not noise
+    variance = float((diff * diff).mean())
+    if variance <= 0.0:
+        return float(region.sum())
+    height, width = stack.shape[1:]
+    total = 0.0
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            a = diff[:, max(dy, 0):height + min(dy, 0), max(dx, 0):width + min(dx, 0)]
+            b = diff[:, max(-dy, 0):height + min(-dy, 0), max(-dx, 0):width + min(-dx, 0)]
+            total += float(abs_correlation((a * b).mean() / variance))
+    return float(region.sum()) / max(total, 1.0)

@@ -36,12 +36,11 @@ from scipy.special import ndtr
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators.correlation_time import BELOW
 from edgedsm.estimators.correlation_time import NO_SIGNAL as TAU_NO_SIGNAL
-from edgedsm.estimators.noise import QUANTIZATION_VARIANCE, NoiseModel
+from edgedsm.estimators.noise import QUANTIZATION_VARIANCE, NoiseModel, abs_correlation
 
 LOW_SPREADS = 3.0
-#: corr(|a - b|, |b - c|) for independent Gaussian a, b, c: the two differences have
-#: correlation ρ = -1/2 and E|X||Y| = (2/π)σ²(sqrt(1 - ρ²) + ρ·asin ρ) for a bivariate normal
-OVERLAP_CORRELATION = (2 / math.pi) * (math.sqrt(0.75) + 0.5 * math.asin(0.5) - 1) / (1 - 2 / math.pi)
+#: corr(|a - b|, |b - c|) for independent Gaussian a, b, c: the two differences have correlation -1/2
+OVERLAP_CORRELATION = float(abs_correlation(-0.5))
 REPRESENTATIVES = 512  # pixel means a region's floor is computed from
 #: DN: analog σ below which rounding is summed exactly; beyond, the Gaussian forms for integers
 #: agree with the exact sum to 0.1 % (checked in the tests)
@@ -224,7 +223,7 @@ def s1_floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, top: float 
              independent_pixels: float | None = None) -> Floor:
     """S1's floor (DN) for a region of pixel means ``means`` (N frames, lag m, saturation at
     ``top`` DN). Noise is taken as independent between pixels unless ``independent_pixels``
-    says fewer (colour cameras interpolate neighbours)."""
+    says fewer (colour cameras interpolate neighbours: :func:`~edgedsm.estimators.noise.independent_pixels`)."""
     return _floor(model, means, n, lag, 0, 0.0, top, independent_pixels)
 
 

@@ -218,3 +218,13 @@ def test_pure_noise_spread_is_calibrated():
             z[name].append(above.value / above.spread)
     for name, values in z.items():
         assert abs(np.mean(values)) < 0.35 and 0.7 < np.std(values) < 1.3, (name, np.mean(values), np.std(values))
+
+
+def test_independent_pixels_sees_interpolated_noise():
+    rng = np.random.default_rng(2)
+    white = rng.normal(100.0, 3.0, (30, 64, 65))
+    assert noise.independent_pixels(white[:, :, :64]) == pytest.approx(64 * 64, rel=0.01)
+    paired = (white[:, :, :-1] + white[:, :, 1:]) / 2.0  # neighbours share half their noise: ρ = 1/2
+    expected = 64 * 64 / (1.0 + 2.0 * float(noise.abs_correlation(0.5)))
+    assert noise.abs_correlation(0.5) == pytest.approx(0.224, abs=1e-3)
+    assert noise.independent_pixels(paired) == pytest.approx(expected, rel=0.02)
