@@ -113,15 +113,43 @@ class Drying(StrictModel):
 
     def factor(self, frame: int) -> float:
         """Multiplier of τc at ``frame`` (1 before start, final_factor after start+duration)."""
-        progress = min(max((frame - self.start) / self.duration, 0.0), 1.0)
-        if self.law == "exponential":
-            return self.final_factor**progress
-        if self.law == "linear":
-            return 1.0 + (self.final_factor - 1.0) * progress
-        # logistic in log(τc), normalised to pass through 1 and final_factor at the ends
-        s = 1.0 / (1.0 + math.exp(-12.0 * (progress - 0.5)))
-        s0, s1 = 1.0 / (1.0 + math.exp(6.0)), 1.0 / (1.0 + math.exp(-6.0))
-        return self.final_factor ** ((s - s0) / (s1 - s0))
+        return law_factor(self.law, (frame - self.start) / self.duration, self.final_factor)
+
+
+def law_factor(law: str, progress: float, final_factor: float) -> float:
+    """A factor going from 1 (progress <= 0) to ``final_factor`` (progress >= 1) by ``law``."""
+    progress = min(max(progress, 0.0), 1.0)
+    if law == "exponential":
+        return final_factor**progress
+    if law == "linear":
+        return 1.0 + (final_factor - 1.0) * progress
+    # logistic in the log of the factor, normalised to pass through 1 and final_factor at the ends
+    s = 1.0 / (1.0 + math.exp(-12.0 * (progress - 0.5)))
+    s0, s1 = 1.0 / (1.0 + math.exp(6.0)), 1.0 / (1.0 + math.exp(-6.0))
+    return final_factor ** ((s - s0) / (s1 - s0))
+
+
+class Darkening(StrictModel):
+    """The film's reflectance (the light reaching the camera) falls to ``final_factor`` of its
+    start over ``duration`` frames from ``start``, as a drying film's does (same laws as drying)."""
+
+    law: Literal["exponential", "linear", "logistic"] = Field(
+        "exponential", description="shape of the fall of the reflectance over time")
+    start: int = Field(0, ge=0, le=100_000_000, description="frame at which the darkening begins")
+    duration: int = Field(gt=0, le=100_000_000, description="frames from start to the final reflectance")
+    final_factor: float = Field(gt=0.0, lt=1.0, description="reflectance at the end divided by that at the start")
+
+    def factor(self, frame: int) -> float:
+        """Multiplier of the light at ``frame`` (1 before start, final_factor after start+duration)."""
+        return law_factor(self.law, (frame - self.start) / self.duration, self.final_factor)
+
+
+class ExposureStep(StrictModel):
+    """From ``frame`` on, the light reaching the sensor is ``factor`` times the scene's start
+    (an exposure-time or laser-power change; steps do not compound, the latest one holds)."""
+
+    frame: int = Field(ge=0, le=100_000_000, description="first frame with this exposure")
+    factor: float = Field(gt=0.0, le=1e3, description="light relative to the scene's start")
 
 
 class Activity(StrictModel):
@@ -156,6 +184,8 @@ class Detector(StrictModel):
     bits: int = Field(8, ge=1, le=16, description="bit depth of the digitised frames")
     shot_noise: bool = Field(True, description="Poisson photon noise on the laser signal")
     quantization: bool = Field(True, description="round to integer grey levels (else float grey levels)")
+    dark_current: float = Field(0.0, ge=0, le=1e6, description="mean thermal electrons per pixel and frame "
+                                "(Poisson, also with the laser off); 0: not simulated")
 
 
 class Scene(StrictModel):
@@ -165,13 +195,31 @@ class Scene(StrictModel):
     phase_noise: PhaseNoise | None = None
     ambient_light: AmbientLight | None = None
     detector: Detector | None = None
+    darkening: Darkening | None = Field(None, description="the film's reflectance falling over time")
+    exposure_steps: list[ExposureStep] = Field(default_factory=list, max_length=10_000,
+                                               description="exposure or laser-power steps, by frame")
     base_dir: Path = Field(Path("."), exclude=True, description="directory relative paths resolve in")
 
     @model_validator(mode="after")
     def _consistent(self) -> Scene:
         if self.ambient_light is not None and self.detector is None:
             raise ValueError("ambient_light needs a [detector] table (N_al = eta * n_max photons)")
+        if (self.darkening is not None or self.exposure_steps) and self.detector is None:
+            raise ValueError("darkening and exposure_steps need a [detector] table (they scale its photons)")
+        frames = [step.frame for step in self.exposure_steps]
+        if frames != sorted(set(frames)):
+            raise ValueError("exposure_steps must be in increasing order of frame, each frame once")
         return self
+
+    def light_level(self, frame: int) -> float:
+        """The light reaching the sensor at ``frame`` relative to frame 0's scale (darkening and
+        exposure steps; 1.0 when the scene has neither)."""
+        exposure = 1.0
+        for step in self.exposure_steps:
+            if step.frame > frame:
+                break
+            exposure = step.factor
+        return exposure * (1.0 if self.darkening is None else self.darkening.factor(frame))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -191,6 +239,12 @@ class Scene(StrictModel):
                 effects.append("shot_noise")
             if self.ambient_light is not None and self.ambient_light.eta > 0:
                 effects.append("ambient_light")
+            if self.detector.dark_current > 0:
+                effects.append("dark_current")
+            if self.darkening is not None:
+                effects.append("darkening")
+            if self.exposure_steps:
+                effects.append("exposure_steps")
         return tuple(effects)
 
 

@@ -19,6 +19,8 @@ Per frame i (0-based here; the paper counts from 1):
    Poisson(η·N_max) drawn separately (the sum of independent Poisson variables is Poisson with
    the summed mean, so this is the paper's Poisson(N_ph + N_al) while keeping the ground-truth
    draws untouched), then the range N_max + sqrt(N_max) mapped onto 0..2^bits-1 and rounded.
+   When the scene asks: the photons scaled by the light level (darkening, exposure steps) and
+   Poisson dark current added (:mod:`edgedsm.sim.detector`).
 
 Memory is constant in the number of frames: only the current phase (and noise) is kept.
 
@@ -62,8 +64,8 @@ import numpy as np
 import scipy.fft
 
 from edgedsm.sim.activity import tau_c_map
+from edgedsm.sim.detector import DetectorRows
 from edgedsm.sim.optics import beam_amplitude, pupil_transfer
-from edgedsm.sim.poisson import ConstantPoisson, poisson
 from edgedsm.sim.scene import Scene
 from edgedsm.sim.streams import effect_stream
 
@@ -144,7 +146,8 @@ class Simulator:
         self._complex = np.complex64 if precision == "single" else np.complex128
         self.effects = scene.active_effects
         self._stream_names = tuple(name for name in
-                                   ("surface", "activity", "phase_noise", "shot_noise", "ambient_light")
+                                   ("surface", "activity", "phase_noise", "shot_noise", "ambient_light",
+                                    "dark_current")
                                    if name in self.effects)
         self._rows = _block_rows(self.grid)
         self._blocks = -(-self.grid // self._rows)
@@ -173,9 +176,7 @@ class Simulator:
             # adds σ_noise per frame
             self._noise_step = self._noise_sigma * math.sqrt(1.0 - self._noise_decay**2) \
                 if self._noise_decay < 1.0 else self._noise_sigma
-        self._ambient: ConstantPoisson | None = None
-        if "ambient_light" in self.effects and scene.detector.shot_noise:  # else: its mean, no noise
-            self._ambient = ConstantPoisson(scene.ambient_light.eta * scene.detector.n_max)
+        self._detector = None if scene.detector is None else DetectorRows(scene)
         self._scratch: list[_Scratch | None] = [None] * workers
         self.reset()
 
@@ -191,6 +192,7 @@ class Simulator:
         self._noise: np.ndarray | None = None
         self._noise_started = False
         self._gain: float | None = None
+        self._level = self.scene.light_level(0)  # darkening and exposure steps at this frame
 
     # -- threading ----------------------------------------------------------------------
     def _parallel(self, task: Callable[[int, int], None], count: int) -> None:
@@ -394,23 +396,11 @@ class Simulator:
 
     # -- detector -----------------------------------------------------------------------
     def _detect_rows(self, intensity: np.ndarray, block: int, laser_on: bool, out: np.ndarray) -> None:
-        """Detector model on camera rows of one block, drawing from that block's sub-streams."""
-        detector = self.scene.detector
-        assert detector is not None and self._gain is not None
-        photons = intensity.astype(np.float64) * (self._gain if laser_on else 0.0)
-        if "shot_noise" in self.effects:
-            photons = poisson(self._streams["shot_noise"][block], photons)
-        if self._ambient is not None:
-            photons += self._ambient.draw(self._streams["ambient_light"][block], photons.shape)
-        elif self.scene.ambient_light is not None:
-            photons += self.scene.ambient_light.eta * detector.n_max  # no shot noise: the mean
-        top = 2**detector.bits - 1
-        grey = photons
-        grey *= top / (detector.n_max + math.sqrt(detector.n_max))
-        if detector.quantization:
-            np.rint(grey, out=grey)
-        np.clip(grey, 0, top, out=grey)
-        np.copyto(out, grey, casting="unsafe")
+        """Detector model (edgedsm.sim.detector) on camera rows of one block, drawing from that
+        block's sub-streams."""
+        assert self._detector is not None and self._gain is not None
+        self._detector.rows(intensity, self._gain * self._level if laser_on else 0.0,
+                            lambda effect: self._streams[effect][block], out)
 
     def _camera_rows(self, height: int) -> int:
         """Camera rows per detector block for an image of ``height`` rows."""
@@ -466,6 +456,7 @@ class Simulator:
 
     def next_frame(self, laser_on: bool = True) -> np.ndarray:
         """Advance one frame and return what the camera delivers."""
+        self._level = self.scene.light_level(self.frame_index)
         if self.scene.detector is None or self._gain is None:
             return self.detect(self.next_intensity(), laser_on)
         # gain known: detect each block while its intensity is still in cache (same draws as

@@ -15,6 +15,7 @@ EFFECT_KEYS = {
     "phase_noise": 2,    # environmental phase noise θ
     "shot_noise": 3,     # Poisson photon noise of the laser signal
     "ambient_light": 4,  # Poisson photon noise of the ambient light
+    "dark_current": 5,   # Poisson thermal electrons of the sensor
 }
 
 

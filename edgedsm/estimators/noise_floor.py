@@ -1,0 +1,298 @@
+"""Noise floors of the activity estimators and the activity above them (docs/noise.md).
+
+A region's floor is what a *static* surface with the same pixel means and the same camera
+noise (:class:`~edgedsm.estimators.noise.NoiseModel`) would give; its spread is the 1-σ
+scatter of the region's estimate around the floor (finite window and region, plus the noise
+model's own uncertainty). Inputs are the region's per-pixel temporal means μ_p (DN) over the
+window of N frames; the lag m is in frames.
+
+* S1 (Eq. 1, DN): floor = mean_p E|n_t - n_{t+m}|, two independent noise samples of one pixel:
+  2σ/√π for Gaussian noise of variance σ²; for integer frames the rounding and the clipping at
+  0 and at saturation are summed exactly (:func:`static_pair_moments`), which matters below
+  σ ≈ 1 DN and for dim pixels. Above-noise S1 = S1 - floor.
+* S2 (Eq. 2, dimensionless): floor = mean_p E[|Δn|/(I_i + I_{i+m} + q)], summed the same way
+  (float frames: E|Δn|·E[1/x], x = I_i + I_{i+m} + q, Δn and x independent for Gaussian noise,
+  E[1/x] to second order); above-noise S2 = S2 - floor.
+* S3 (Eq. 3-4): noise adds in quadrature to the differences (E[Δ²] = E[Δs²] + 2σ_n²; with the
+  Gaussian shape E|Δ| ∝ sqrt(E[Δ²])) and to the variance, so S3 of the signal alone is
+  S3·sqrt(1 - f1²/S1²)/sqrt(1 - (1 - 1/N)·σ̄_n²/σ̄²) (f1 the S1 floor, σ̄² the region's mean window
+  variance). Defined only where S1 and the variance are above noise (else 0, ``low``).
+* τc: white noise lowers the fitted amplitude A (the signal's share of the variance) and not τ;
+  the above-noise measure is that share, 1 - (1 - 1/N)·σ̄_n²/σ̄², and τc stands for the signal
+  only where it is above noise.
+
+Verdict ``low``: the above-noise value is below LOW_SPREADS spreads (one-sided, 0.13 % of pure
+noise windows read ``ok`` for Gaussian spreads).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ndtr
+
+from edgedsm.errors import EstimatorError
+from edgedsm.estimators.correlation_time import BELOW
+from edgedsm.estimators.correlation_time import NO_SIGNAL as TAU_NO_SIGNAL
+from edgedsm.estimators.noise import QUANTIZATION_VARIANCE, NoiseModel, abs_correlation
+
+LOW_SPREADS = 3.0
+#: corr(|a - b|, |b - c|) for independent Gaussian a, b, c: the two differences have correlation -1/2
+OVERLAP_CORRELATION = float(abs_correlation(-0.5))
+REPRESENTATIVES = 512  # pixel means a region's floor is computed from
+#: DN: analog σ below which rounding is summed exactly; beyond, the Gaussian forms for integers
+#: agree with the exact sum to 0.1 % (checked in the tests)
+EXACT_SIGMA = 4.0
+OK, LOW, NO_SIGNAL = "ok", "low", "no_signal"
+
+
+@dataclass(frozen=True)
+class Floor:
+    """An estimator's noise floor and its 1-σ spread, in the estimator's units."""
+
+    value: float
+    spread: float
+
+
+@dataclass(frozen=True)
+class AboveNoise:
+    """The activity above the noise floor (estimator's units), its spread, the floor, and the
+    verdict: ``ok``, ``low`` (within LOW_SPREADS spreads of zero) or ``no_signal``."""
+
+    value: float
+    spread: float
+    floor: float
+    verdict: str
+
+
+def _means(means: np.ndarray) -> np.ndarray:
+    mu = np.asarray(means, np.float64).reshape(-1)
+    if mu.size == 0:
+        raise EstimatorError("a region needs at least one pixel")
+    if not np.isfinite(mu).all() or (mu < 0).any():
+        raise EstimatorError("pixel means must be finite and >= 0")
+    return mu
+
+
+def _window(n: int, lag: int) -> None:
+    if isinstance(n, bool) or isinstance(lag, bool) or not isinstance(n, int | np.integer) \
+            or not isinstance(lag, int | np.integer) or not 1 <= lag <= n - 1:
+        raise EstimatorError(f"need integers 1 <= lag <= N-1, got N={n!r}, lag={lag!r}")
+
+
+def _representatives(mu: np.ndarray) -> np.ndarray:
+    """At most REPRESENTATIVES pixel means standing for the region, each for an equal share
+    (evenly spaced order statistics): the floors are means over pixels, and this bounds their cost."""
+    if mu.size <= REPRESENTATIVES:
+        return mu
+    ordered = np.sort(mu)
+    return ordered[np.linspace(0, mu.size - 1, REPRESENTATIVES).round().astype(np.int64)]
+
+
+def _gaussian_moments(mu: np.ndarray, variance: np.ndarray, q: float,
+                      quantized: bool = False) -> tuple[np.ndarray, ...]:
+    """E|Δ|, E[Δ²], E[r], E[r²] for Gaussian noise of ``variance`` σ²: 2σ/√π, 2σ², and with
+    x = 2μ + q, E[r] ≈ E|Δ|·(1 + 2σ²/x²)/x (Δ and the sum independent, E[1/x] to second
+    order), E[r²] ≈ 2σ²/x². ``quantized``: σ² is the analog variance and Δ an integer; then
+    E[Δ²] gains Sheppard's 2/12 but E|Δ| does not (summing |k| over the integers takes
+    f(0)/6 off E|X|, Euler-Maclaurin at the kink of |x|, and Sheppard's 1/6 adds it back to
+    first order in 1/σ²)."""
+    mean_abs = 2.0 * np.sqrt(variance) / math.sqrt(math.pi)
+    if quantized:
+        variance = variance + QUANTIZATION_VARIANCE
+    level = 2.0 * mu + q
+    lit = level > 0
+    safe = np.where(lit, level, 1.0)
+    ratio = np.where(lit, np.minimum(mean_abs / safe * (1.0 + 2.0 * variance / safe**2), 1.0), 0.0)
+    ratio_sq = np.where(lit, np.minimum(2.0 * variance / safe**2, 1.0), 0.0)
+    return mean_abs, 2.0 * variance, ratio, ratio_sq
+
+
+def _rounded_moments(mu: np.ndarray, sigma: np.ndarray, q: float, top: float) -> tuple[np.ndarray, ...]:
+    """The same for round(ν + n), n ~ N(0, σ²), clipped to [0, top], summed exactly over the
+    levels within 6σ + 2 of ν, where ν is the analog mean whose rounded frames average μ
+    (:func:`_analog_means`)."""
+    mu = _analog_means(mu, sigma, top)
+    out = [np.empty(mu.size) for _ in range(4)]
+    reach = math.ceil(6.0 * float(sigma.max(initial=0.0))) + 2
+    offsets = np.arange(-reach, reach + 1, dtype=np.float64)
+    chunk = max(1, (1 << 22) // offsets.size**2)
+    for start in range(0, mu.size, chunk):
+        part = slice(start, start + chunk)
+        m, s = mu[part, None], np.maximum(sigma[part, None], 1e-9)
+        level = np.floor(m) + offsets[None, :]  # (P, J)
+        prob = ndtr((level + 0.5 - m) / s) - ndtr((level - 0.5 - m) / s)
+        value = np.clip(level, 0.0, top)
+        diff = np.abs(value[:, :, None] - value[:, None, :])
+        total = value[:, :, None] + value[:, None, :] + q
+        ratio = np.divide(diff, total, out=np.zeros_like(diff), where=total > 0)
+        weight = prob[:, :, None] * prob[:, None, :]
+        for index, term in enumerate((diff, diff * diff, ratio, ratio * ratio)):
+            out[index][part] = (weight * term).sum(axis=(1, 2))
+    return tuple(out)
+
+
+def _analog_means(mu: np.ndarray, sigma: np.ndarray, top: float) -> np.ndarray:
+    """The analog means ν (DN) whose rounded, clipped frames have the measured means μ.
+
+    E[clip(round(ν + n), 0, top)] is a smooth staircase in ν (steps of width ~σ at the
+    half-steps), bent flat near 0 and full scale: a rounded mean of 3.00 with σ = 0.1 DN says ν
+    is well inside the step, where the frames never change, 3.40 that it is near 3.5, where they
+    flip often, and 1.0 with σ = 1.6 DN that ν is below 1 (the clipped negatives raised the
+    mean). Inverted per pixel on a grid of ν over μ ± (1.5 + 6σ); ν = μ where σ >= 1 DN and the
+    pixel is more than 1.5 + 6σ from both ends (the staircase is a straight line there within
+    1e-4 DN)."""
+    out = mu.copy()
+    span = 1.5 + 6.0 * sigma
+    invert = np.flatnonzero((sigma < 1.0) | (mu < span) | (mu > top - span))
+    for start in range(0, invert.size, 16):  # 16 pixels at a time: (16, V, J) temporaries
+        index = invert[start:start + 16]
+        m, s, half = mu[index, None], np.maximum(sigma[index, None], 1e-9), span[index, None]
+        grid = m + half * np.linspace(-1.0, 1.0, 257)[None, :]  # candidate ν, (P, V)
+        reach = math.ceil(float((half + 6.0 * s).max())) + 2
+        levels = np.floor(m)[:, :, None] + np.arange(-reach, reach + 1.0)[None, None, :]  # (P, 1, J)
+        gap = levels - grid[:, :, None]
+        prob = ndtr((gap + 0.5) / s[:, :, None]) - ndtr((gap - 0.5) / s[:, :, None])
+        expected = (prob * np.clip(levels, 0.0, top)).sum(axis=2)  # (P, V), non-decreasing in ν
+        expected += 1e-9 * np.arange(grid.shape[1])[None, :]  # strictly increasing for the inversion
+        out[index] = [np.interp(value, row, nu) for value, row, nu in zip(mu[index], expected, grid, strict=True)]
+    return out
+
+
+def static_pair_moments(model: NoiseModel, means: np.ndarray, q: float = 0.0,
+                        top: float = math.inf) -> tuple[np.ndarray, ...]:
+    """For a static pixel of mean μ (DN): E|Δ|, E[Δ²], E[r], E[r²] of one pair of its frames,
+    Δ = I_i - I_{i+m}, r = |Δ|/(I_i + I_{i+m} + q) (0 where the sum is 0).
+
+    Integer frames with analog σ < EXACT_SIGMA: rounding and clipping summed exactly
+    (:func:`_rounded_moments`); wider noise: the Gaussian forms for integers (clipping not
+    modelled there). Float frames: Gaussian forms (:func:`_gaussian_moments`).
+    """
+    mu = np.asarray(means, np.float64).reshape(-1)
+    analog = model.analog_variance(mu)
+    if not model.quantized:
+        return _gaussian_moments(mu, analog, q)
+    result = [np.array(part, np.float64) for part in _gaussian_moments(mu, analog, q, quantized=True)]
+    sigma = np.sqrt(analog)
+    exact = sigma < EXACT_SIGMA
+    if exact.any():
+        for part, value in zip(result, _rounded_moments(mu[exact], sigma[exact], q, top), strict=True):
+            part[exact] = value
+    return tuple(result)
+
+
+def mean_abs_difference(model: NoiseModel, means: np.ndarray | float) -> np.ndarray:
+    """E|n_t - n_{t+m}| (DN) of a static pixel with mean μ: its noise floor for S1, per pixel."""
+    return static_pair_moments(model, np.asarray(means, np.float64))[0].reshape(np.shape(means))
+
+
+def _sampling(per_pixel_var: np.ndarray, n: int, lag: int, pixels: float) -> float:
+    """1-σ of a region mean of |Δ| over N - m pairs per pixel and ``pixels`` independent pixels."""
+    pairs = n - lag
+    overlap = max(n - 2 * lag, 0)  # pairs sharing a frame with the pair m later
+    factor = (pairs + 2.0 * OVERLAP_CORRELATION * overlap) / pairs**2
+    return math.sqrt(max(float(per_pixel_var.mean()), 0.0) * factor / pixels)
+
+
+def _pixels(mu: np.ndarray, independent_pixels: float | None) -> float:
+    if independent_pixels is None:
+        return float(mu.size)
+    if not math.isfinite(independent_pixels) or not 0 < independent_pixels <= mu.size:
+        raise EstimatorError(f"independent_pixels must be in (0, {mu.size}], got {independent_pixels!r}")
+    return float(independent_pixels)
+
+
+def _floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, which: int, q: float, top: float,
+           independent_pixels: float | None) -> Floor:
+    mu = _means(means)
+    _window(n, lag)
+    if not math.isfinite(q) or q < 0:
+        raise EstimatorError(f"q must be a finite number >= 0, got {q!r}")
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    moments = static_pair_moments(model, _representatives(mu), q, top)
+    first, second = moments[which], moments[which + 1]
+    value = float(first.mean())
+    sampling = _sampling(second - first**2, n, lag, _pixels(mu, independent_pixels))
+    return Floor(value, math.hypot(sampling, value * model.relative_error / 2.0))
+
+
+def s1_floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, top: float = math.inf,
+             independent_pixels: float | None = None) -> Floor:
+    """S1's floor (DN) for a region of pixel means ``means`` (N frames, lag m, saturation at
+    ``top`` DN). Noise is taken as independent between pixels unless ``independent_pixels``
+    says fewer (colour cameras interpolate neighbours: :func:`~edgedsm.estimators.noise.independent_pixels`)."""
+    return _floor(model, means, n, lag, 0, 0.0, top, independent_pixels)
+
+
+def s2_floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, q: float = 0.0, top: float = math.inf,
+             independent_pixels: float | None = None) -> Floor:
+    """S2's floor (dimensionless) for a region of pixel means ``means``, S2's offset q >= 0."""
+    return _floor(model, means, n, lag, 2, q, top, independent_pixels)
+
+
+def above_noise(estimate: float, floor: Floor) -> AboveNoise:
+    """A difference estimator's (S1, S2) region value above its floor, with the verdict."""
+    if not math.isfinite(estimate):
+        raise EstimatorError(f"estimate must be finite, got {estimate!r}")
+    value = float(estimate) - floor.value
+    verdict = LOW if value < LOW_SPREADS * floor.spread else OK
+    return AboveNoise(value, floor.spread, floor.value, verdict)
+
+
+def signal_share(model: NoiseModel, means: np.ndarray, variance: float, n: int, top: float = math.inf,
+                 independent_pixels: float | None = None) -> AboveNoise:
+    """The signal's share of the region's temporal variance (τc's above-noise measure): 1 -
+    (1 - 1/N)·σ̄_n²/σ̄², with ``variance`` σ̄² the region's mean window variance (Eq. 4's σ²,
+    DN²) and σ̄_n² a static pixel's, E[Δ²]/2 of :func:`static_pair_moments` (rounding and
+    clipping included), over the pixel means; ``no_signal`` where σ̄² = 0."""
+    mu = _means(means)
+    if not math.isfinite(variance) or variance < 0:
+        raise EstimatorError(f"variance must be finite and >= 0, got {variance!r}")
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
+        raise EstimatorError(f"N must be an integer >= 2, got {n!r}")
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    noise = (1.0 - 1.0 / n) * float(static_pair_moments(model, _representatives(mu), 0.0, top)[1].mean()) / 2.0
+    if variance <= 0.0:
+        return AboveNoise(0.0, 0.0, 0.0, NO_SIGNAL)
+    ratio = noise / variance
+    # σ̂² of white noise over N frames scatters by sqrt(2/N) relative, pixel means by 1/sqrt(P)
+    relative = math.hypot(math.sqrt(2.0 / (n * _pixels(mu, independent_pixels))), model.relative_error)
+    spread = ratio * relative
+    value = 1.0 - ratio
+    return AboveNoise(value, spread, ratio, LOW if value < LOW_SPREADS * spread else OK)
+
+
+def s3_signal(s3: float, s1: float, s1_noise: Floor, share: AboveNoise) -> AboveNoise:
+    """S3 of the signal alone (module docstring) from the region's S3 and S1, S1's floor and the
+    signal share (:func:`signal_share`); 0 and ``low`` where either is within the noise. The
+    floor reported is S3's value for the noise alone, 2/√π (Gaussian noise, lag-independent)."""
+    for name, value in (("s3", s3), ("s1", s1)):
+        if not math.isfinite(value) or value < 0:
+            raise EstimatorError(f"{name} must be finite and >= 0, got {value!r}")
+    decorrelated = 2.0 / math.sqrt(math.pi)
+    if share.verdict == NO_SIGNAL:
+        return AboveNoise(0.0, 0.0, decorrelated, NO_SIGNAL)
+    s1_above = above_noise(s1, s1_noise)
+    signal_sq = s1 * s1 - s1_noise.value**2
+    if s1_above.verdict == LOW or share.verdict == LOW or signal_sq <= 0.0:
+        # S1 one spread above the floor would give this much
+        bound = s3 * math.sqrt(max((s1_noise.value + s1_noise.spread) ** 2 - s1_noise.value**2, 0.0)) / max(s1, 1e-300)
+        return AboveNoise(0.0, bound, decorrelated, LOW)
+    signal = math.sqrt(signal_sq)
+    value = s3 * (signal / s1) / math.sqrt(share.value)
+    spread = value * math.hypot(s1 * s1_noise.spread / signal_sq, share.spread / (2.0 * share.value))
+    return AboveNoise(value, spread, decorrelated, OK)
+
+
+def tau_verdict(status: int, share: AboveNoise) -> str:
+    """τc's verdict: ``no_signal`` (σ = 0), ``low`` (the fit found nothing to time, BELOW, or the
+    signal share is within the noise) or ``ok``. ``status`` is the fit's (correlation_time)."""
+    if status == TAU_NO_SIGNAL or share.verdict == NO_SIGNAL:
+        return NO_SIGNAL
+    if status == BELOW or share.verdict == LOW:
+        return LOW
+    return OK
