@@ -53,7 +53,7 @@ class Timeline:
 def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], window: int, lag: int,
              every: int, dt: float = 1.0, max_lag: int = 20, bins: int = 64, histogram_estimator: str = "s2",
              histogram_range: tuple[float, float] | None = None, bits: int | None = None,
-             times_s: Sequence[float] | None = None, mode: str | None = None) -> Timeline:
+             times_s: Sequence[float] | None = None, mode: str | None = None, with_tau: bool = True) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
     The first sample is at the frame that fills the window (index window-1), time = frame · dt,
@@ -62,7 +62,9 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     ``histogram_range`` defaults to 0 … 1.25 x the first sample's 99.5th percentile (activity
     maps are >= 0; one range for all samples so the picture compares like with like).
     ``mode``: the engine's window mode; None picks tumbling when ``every`` is a multiple of
-    ``window`` (see the module docstring), else sliding.
+    ``window`` (see the module docstring), else sliding. Without ``with_tau`` the engine keeps
+    no τc sums (they are most of its memory: lag products and the window's edge frames for every
+    pixel) and the τc columns read NaN with status "off".
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
@@ -77,8 +79,9 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     count = 0
     for index, frame in enumerate(frames):
         if engine is None:
-            engine = SlidingWindow(frame.shape, window, lag, bits=bits, mode=mode,
-                                   estimators=("s1", "s2", "s3", "tau_c"), max_lag=max_lag)
+            estimators = ("s1", "s2", "s3", "tau_c") if with_tau else ("s1", "s2", "s3")
+            engine = SlidingWindow(frame.shape, window, lag, bits=bits, mode=mode, estimators=estimators,
+                                   max_lag=max_lag if with_tau else None)
             for name, mask in regions.items():
                 if mask.shape != frame.shape:
                     raise EstimatorError(f"region {name!r} is {mask.shape[1]}x{mask.shape[0]}, "
@@ -90,10 +93,13 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         maps = engine.maps(("s1", "s2", "s3"))  # τc per region below: the per-pixel τc map is not needed
         time = index * dt if times_s is None else float(times_s[index])
         for name, mask in regions.items():
-            tau = engine.region_tau_c(mask)
-            result.rows.append((index, time, name, float(maps["s1"][mask].mean()),
-                                float(maps["s2"][mask].mean()), float(maps["s3"][mask].mean()),
-                                float(tau.tau), float(tau.tau) * dt, STATUS_NAMES[int(tau.status)]))
+            means = (float(maps["s1"][mask].mean()), float(maps["s2"][mask].mean()), float(maps["s3"][mask].mean()))
+            if with_tau:
+                tau = engine.region_tau_c(mask)
+                result.rows.append((index, time, name, *means, float(tau.tau), float(tau.tau) * dt,
+                                    STATUS_NAMES[int(tau.status)]))
+            else:
+                result.rows.append((index, time, name, *means, float("nan"), float("nan"), "off"))
         values = maps[histogram_estimator]
         if histogram_range is None:
             top = 1.25 * float(np.percentile(values, 99.5))

@@ -30,6 +30,9 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("-c", "--config", metavar="CONFIG.toml", help="take the regions from this daemon config")
     group.add_argument("--every", type=int, metavar="FRAMES", help="frames between samples (default N/4)")
     group.add_argument("--max-lag", type=int, default=20, metavar="K", help="lags fitted for τc (default 20)")
+    group.add_argument("--no-tau-c", dest="with_tau", action="store_false",
+                       help="leave τc out: its sums are most of the memory (about 250 bytes per pixel at "
+                            "K = 20, against 45 for S1-S3); the τc columns then read 'off'")
     group.add_argument("--dt", type=float, metavar="SECONDS",
                        help="frame interval (default: the scene's, the config's camera.frame_interval_s, else 1)")
     group.add_argument("--frames", dest="frame_count", type=int, metavar="COUNT",
@@ -110,7 +113,8 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
             read[0] += 1
 
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
-                      max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times)
+                      max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times,
+                      with_tau=args.with_tau)
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)

@@ -118,3 +118,17 @@ def test_a_disjoint_timeline_holds_m_frames_not_n() -> None:
         tracemalloc.stop()
     ring = 64 * 64 * 360  # what 360 more frames of a sliding ring would hold (a sliding timeline grows by it)
     assert peaks[1] - peaks[0] < ring / 4, peaks
+
+
+def test_without_tau_c_the_same_activity_and_tau_columns_off(tmp_path: Path) -> None:
+    scene = small_drying_scene(tmp_path)
+    runs = {}
+    for name, extra in (("with", []), ("without", ["--no-tau-c"])):
+        out = tmp_path / name
+        assert main(["analyze", str(scene), "--frames", "160", "--timeline", str(out), "--window", "50",
+                     "--lag", "2", "--every", "50", *extra]) == 0
+        runs[name] = read_rows(out / "timeline.csv")
+    assert len(runs["with"]) == len(runs["without"]) == 3
+    for a, b in zip(runs["with"], runs["without"], strict=True):
+        assert [a[c] for c in ("frame", "s1", "s2", "s3")] == [b[c] for c in ("frame", "s1", "s2", "s3")]
+        assert a["tau_c_status"] != "off" and b["tau_c_status"] == "off" and b["tau_c_frames"] == "nan"
