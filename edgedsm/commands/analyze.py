@@ -41,6 +41,8 @@ from edgedsm.commands.common import add_progress_flag, progress
 from edgedsm.commands.timeline_output import add_timeline_arguments, open_reader, run_timeline
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import s1, s2, s3
+from edgedsm.estimators.noise import from_datasheet
+from edgedsm.estimators.noise_summary import RegionNoise, region_noise
 from edgedsm.frameio import CHANNELS, FrameReader
 from edgedsm.imageio import save_map_png
 
@@ -64,6 +66,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--png", nargs="?", const=True, metavar="PNG",
                         help="also write a colour-mapped picture (default: MAP.png beside the .npy)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    noise = parser.add_argument_group("the camera's noise (docs/noise.md; default: estimated from the frames)")
+    noise.add_argument("--noise-gain", type=float, metavar="K",
+                       help="system gain K in DN per electron (EMVA 1288 datasheet)")
+    noise.add_argument("--dark-noise", type=float, default=0.0, metavar="E",
+                       help="dark noise σ_d in electrons (datasheet; with --noise-gain)")
+    noise.add_argument("--dark-mean", type=float, default=0.0, metavar="DN",
+                       help="dark offset in grey levels (with --noise-gain)")
     add_timeline_arguments(parser)
     add_progress_flag(parser)
 
@@ -75,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         raise EstimatorError("give -o MAP.npy (or --timeline OUT_DIR)")
     with open_reader(args) as reader:
         frames = read_window(reader, args)
+        bits = reader.bits
     window = len(frames)
     if args.estimator == "s1":
         result = s1(frames, args.lag)
@@ -92,14 +102,32 @@ def run(args: argparse.Namespace) -> int:
         png = output.with_suffix(".png") if args.png is True else Path(args.png)
         save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}  m={args.lag}")
         message += f", {png}"
+    summary = region_noise(frames, result, args.estimator, args.lag, q=args.q, bits=bits, model=(
+        None if args.noise_gain is None else from_datasheet(args.noise_gain, args.dark_noise, args.dark_mean)))
     if args.json:
         print(json.dumps({"estimator": args.estimator, "start": args.start, "window": window, "lag": args.lag,
                           "shape": list(result.shape), "mean": float(result.mean()), "min": float(result.min()),
                           "max": float(result.max()), "output": str(output),
-                          "png": str(png) if png is not None else None}))
+                          "png": str(png) if png is not None else None,
+                          "noise_floor": summary.noise_floor, "above_noise": summary.above_noise,
+                          "above_noise_spread": summary.spread, "above_noise_verdict": summary.verdict,
+                          "signal": {"quality": summary.signal, "dark_fraction": summary.dark_fraction,
+                                     "saturated_fraction": summary.saturated_fraction,
+                                     "speckle_contrast": summary.speckle_contrast},
+                          "noise_model": summary.model, "noise_model_error": summary.model_error}))
     else:
         print(message)
+        print(_noise_line(summary))
     return 0
+
+
+def _noise_line(summary: RegionNoise) -> str:
+    """One line: the activity above the camera's noise and the signal's quality."""
+    if summary.above_noise is None:
+        return f"above noise: unknown ({summary.model_error}); signal {summary.signal}"
+    return (f"above noise: {summary.above_noise:.4g} ± {summary.spread:.2g} (floor {summary.noise_floor:.4g}, "
+            f"{summary.verdict}; noise model from the {summary.model['source'] if summary.model else '?'}); "
+            f"signal {summary.signal} (dark {summary.dark_fraction:.0%}, saturated {summary.saturated_fraction:.0%})")
 
 
 def read_window(reader: FrameReader, args: argparse.Namespace) -> np.ndarray:
