@@ -148,7 +148,7 @@ class Recorder:
 
         relay: LaserRelay | None = None
         if self.config is not None and self.config.laser is not None:
-            from edgedsm.daemon.service import couple_simulated_laser
+            from edgedsm.daemon.devices import couple_simulated_laser
 
             relay = open_relay(self.config.laser.spec)
             couple_simulated_laser(self.camera, relay)
