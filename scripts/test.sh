@@ -8,5 +8,5 @@ source "$(dirname "${BASH_SOURCE[0]}")/_env.sh"
 apt_install socat systemd procps mosquitto openssl chromium chromium-driver gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev
 ensure_venv test
 cd "$ROOT"
-"$VENV/bin/ruff" check edgedsm tests
+"$VENV/bin/ruff" check edgedsm edgedsm_lab tests
 "$VENV/bin/python" -m pytest "$@"

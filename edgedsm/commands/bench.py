@@ -19,9 +19,10 @@ import importlib
 
 NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
-SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices",
-          "e2e": "edgedsm.bench.e2e_report", "ambient": "edgedsm.bench.ambient", "soak": "edgedsm.bench.soak",
-          "accuracy": "edgedsm.bench.accuracy_report", "compression": "edgedsm.bench.compression"}
+#: Each suite and the module of the lab (edgedsm_lab, beside the package) that runs it.
+SUITES = {name: f"edgedsm_lab.bench.{module}" for name, module in (
+    ("sim", "sim"), ("engine", "engine"), ("devices", "devices"), ("e2e", "e2e_report"), ("ambient", "ambient"),
+    ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"))}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # imported here: the report pulls in scipy.stats, which every other command can do without
-    from edgedsm.report import ProgressBar, Settings, plan_runs, reproduce
+    from edgedsm_lab.report import ProgressBar, Settings, plan_runs, reproduce
 
     settings = Settings.make(size=args.size, frames=args.frames, seed=args.seed,
                              repeats=args.repeats, quick=args.quick)

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from helpers_mqtt import child_env
 
-from edgedsm.bench.soak import BOUNDS_S, FAULTS
+from edgedsm_lab.bench.soak import BOUNDS_S, FAULTS
 
 pytestmark = [pytest.mark.faults, pytest.mark.integration, pytest.mark.slow]
 

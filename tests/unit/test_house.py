@@ -8,15 +8,20 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[2] / "edgedsm"
+REPO = Path(__file__).resolve().parents[2]
+PACKAGES = (REPO / "edgedsm", REPO / "edgedsm_lab")
 MAX_LINES = 500
 #: Modules still over MAX_LINES, with their length when this list was made: each is to be split
 #: (issue 24 splits the engine), never to grow. Remove a name once its module is short enough.
-OVERSIZED = {"estimators/streaming.py": 710, "bench/e2e.py": 605}
+OVERSIZED = {"edgedsm/estimators/streaming.py": 710, "edgedsm_lab/bench/e2e.py": 605}
+
+
+def _sources() -> list[Path]:
+    return [path for package in PACKAGES for path in package.rglob("*.py")]
 
 
 def _module_name(path: Path) -> str:
-    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    parts = path.relative_to(REPO).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -72,7 +77,7 @@ def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_no_import_circle_between_modules() -> None:
-    paths = {_module_name(path): path for path in PACKAGE.rglob("*.py")}
+    paths = {_module_name(path): path for path in _sources()}
     graph = {name: _imports(path, set(paths)) - {name} for name, path in paths.items()}
     assert _circles(graph) == []
 
@@ -82,8 +87,8 @@ def test_the_circle_finder_finds_a_deferred_circle() -> None:
 
 
 def test_modules_stay_short() -> None:
-    lengths = {str(path.relative_to(PACKAGE)): len(path.read_text(encoding="utf-8").splitlines())
-               for path in PACKAGE.rglob("*.py") if "sparkplug_b_pb2" not in path.name}
+    lengths = {str(path.relative_to(REPO)): len(path.read_text(encoding="utf-8").splitlines())
+               for path in _sources() if "sparkplug_b_pb2" not in path.name}
     over = {name: lines for name, lines in lengths.items() if lines > MAX_LINES}
     assert set(over) <= set(OVERSIZED), f"new modules over {MAX_LINES} lines: {set(over) - set(OVERSIZED)}"
     grown = {name: lines for name, lines in over.items() if lines > OVERSIZED[name]}

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy import special
 
-from edgedsm.bench.accuracy import QUICK, cnr, edge_width, measure, smoothed
-from edgedsm.bench.accuracy_report import write_report
-from edgedsm.bench.report import Report
 from edgedsm.commands import bench
+from edgedsm_lab.bench.accuracy import QUICK, cnr, edge_width, measure, smoothed
+from edgedsm_lab.bench.accuracy_report import write_report
+from edgedsm_lab.bench.report import Report
 
 
 def test_edge_width_of_a_gaussian_edge_is_2_56_sigma() -> None:

@@ -9,8 +9,11 @@ import re
 import numpy as np
 import pytest
 
-from edgedsm.bench.compression import lossless_rows
-from edgedsm.bench.compression_cost import (
+from edgedsm.cli import main
+from edgedsm.commands import bench
+from edgedsm.sim import Simulator
+from edgedsm_lab.bench.compression import lossless_rows
+from edgedsm_lab.bench.compression_cost import (
     DEPTHS,
     ESTIMATORS,
     Plan,
@@ -18,9 +21,6 @@ from edgedsm.bench.compression_cost import (
     lossless_codecs,
     scene_at,
 )
-from edgedsm.cli import main
-from edgedsm.commands import bench
-from edgedsm.sim import Simulator
 
 TINY = ["--size", "32", "--frames", "40", "--speed-frames", "2", "--repeats", "1", "--lag", "2", "--max-lag", "8"]
 
@@ -64,7 +64,7 @@ def test_bad_sizes_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory: pytest.TempPathFactory):
-    from edgedsm.bench import compression
+    from edgedsm_lab.bench import compression
 
     output = tmp_path_factory.mktemp("compression") / "compression.md"
     parser = argparse.ArgumentParser()

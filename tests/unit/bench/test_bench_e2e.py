@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from edgedsm.bench.e2e import Trial, best_zero_drop, latency, make_recording, parse_size, search_rate
+from edgedsm_lab.bench.e2e import Trial, best_zero_drop, latency, make_recording, parse_size, search_rate
 
 
 def _trial(rate: float, drops: int) -> Trial:
@@ -95,8 +95,8 @@ def test_search_rate_on_a_fine_grid() -> None:
 def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None:
     """The machine drifts: a trial run while the bare engine did 50 frames/s is judged on 50, not on the
     run's median (100 here), and the report says so."""
-    from edgedsm.bench.e2e import SizeResult
-    from edgedsm.bench.e2e_report import summary_row, write_report
+    from edgedsm_lab.bench.e2e import SizeResult
+    from edgedsm_lab.bench.e2e_report import summary_row, write_report
 
     capacity = Trial("capacity", None, 16, 1.0, 10.0, 460, 460, 0, 1.0, 100.0, bare_fps=50.0)
     fast, slow = _trial(95.0, 0), _trial(46.0, 0)
@@ -127,7 +127,7 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
 
 
 def test_cadences_are_measured_from_their_intervals() -> None:
-    from edgedsm.bench.e2e import cadence_hz
+    from edgedsm_lab.bench.e2e import cadence_hz
 
     grid = [0.3 + 0.5 * k for k in range(40)]  # states every 0.5 s: 40 in a 20 s trial, or 39 by phase
     assert cadence_hz(grid) == pytest.approx(2.0) and cadence_hz(grid[:-1]) == pytest.approx(2.0)
@@ -136,8 +136,8 @@ def test_cadences_are_measured_from_their_intervals() -> None:
 
 
 def test_interleaved_capacity_pairs_each_daemon_phase_with_a_bare_one() -> None:
-    from edgedsm.bench.e2e import Interleaved, SizeResult
-    from edgedsm.bench.e2e_report import summary_row, write_report
+    from edgedsm_lab.bench.e2e import Interleaved, SizeResult
+    from edgedsm_lab.bench.e2e_report import summary_row, write_report
 
     both = Interleaved(daemon=[45.0, 46.0, 44.0], bare=[50.0, 48.0, 55.0])
     assert both.ratios == pytest.approx([0.9, 46 / 48, 0.8]) and both.ratio == pytest.approx(0.9)
@@ -160,8 +160,8 @@ def test_alternation_holds_the_pipeline_thread_during_bare_phases(monkeypatch: p
     import threading
     import time
 
-    from edgedsm.bench import e2e
     from edgedsm.daemon.probes import PipelineProbes
+    from edgedsm_lab.bench import e2e
 
     monkeypatch.setattr(e2e, "PHASE_S", 0.3)
     monkeypatch.setattr(e2e, "SETTLE_S", 0.05)
@@ -207,7 +207,7 @@ def test_alternation_holds_the_pipeline_thread_during_bare_phases(monkeypatch: p
 def test_alternation_lets_the_pipeline_thread_go_when_the_bare_engine_fails(monkeypatch: pytest.MonkeyPatch) -> None:
     import threading
 
-    from edgedsm.bench import e2e
+    from edgedsm_lab.bench import e2e
 
     monkeypatch.setattr(e2e, "SETTLE_S", 0.0)
     monkeypatch.setattr(e2e, "SETTLE_FIRST_S", 0.0)

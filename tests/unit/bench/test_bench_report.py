@@ -7,7 +7,7 @@ import platform
 
 import pytest
 
-from edgedsm.bench.report import Report, machine_header, markdown_table
+from edgedsm_lab.bench.report import Report, machine_header, markdown_table
 
 
 def test_markdown_table_aligns_and_escapes() -> None:
@@ -44,7 +44,7 @@ def test_report_prints_each_line_and_saves_the_same(tmp_path) -> None:
 
 
 def test_others_share_is_the_machine_busy_time_not_this_process() -> None:
-    from edgedsm.bench.report import CpuSample, others_share
+    from edgedsm_lab.bench.report import CpuSample, others_share
 
     cpus = os.cpu_count() or 1
     before = CpuSample(busy_s=100.0, own_s=10.0, wall_s=50.0)
@@ -60,7 +60,7 @@ def test_a_busy_process_counts_as_other_work_until_it_is_ours() -> None:
     import subprocess
     import sys
 
-    from edgedsm.bench.report import cpu_sample, others_share
+    from edgedsm_lab.bench.report import cpu_sample, others_share
 
     before = cpu_sample()
     busy = ("import time\nend = time.process_time() + 0.6\nwhile time.process_time() < end: pass\n"

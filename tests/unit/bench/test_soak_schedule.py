@@ -7,7 +7,7 @@ import argparse
 
 import pytest
 
-from edgedsm.bench.soak import FAULTS, add_arguments, fault_due
+from edgedsm_lab.bench.soak import FAULTS, add_arguments, fault_due
 
 
 def _kills(kill_every: int, rounds: int) -> list[int]:

@@ -136,7 +136,7 @@ def test_a_command_imports_only_its_own_module() -> None:
     models and the reports: a fresh interpreter parsing its command line has imported none of them."""
     probe = ("import sys; from edgedsm import cli; args = cli.build_parser(cli.command_named(sys.argv[1:]))"
              ".parse_args(sys.argv[1:]); heavy = ('numba', 'scipy', 'edgedsm.config', 'edgedsm.sim', "
-             "'edgedsm.report'); print(args.handler.__module__, "
+             "'edgedsm_lab.report'); print(args.handler.__module__, "
              "[m for m in heavy if m in sys.modules])")
     light = subprocess.run([sys.executable, "-c", probe, "-v", "cmd", "publish_maps", "--broker", "127.0.0.1:1"],
                            capture_output=True, text=True, timeout=60, check=True)

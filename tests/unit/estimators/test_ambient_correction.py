@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edgedsm.bench.ambient import Case, beats_plain, measure
 from edgedsm.cli import main
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import s2
 from edgedsm.estimators.ambient import ambient_corrected_s2, dark_statistics, mean_square_difference
+from edgedsm_lab.bench.ambient import Case, beats_plain, measure
 
 
 def _speckle(rng: np.random.Generator, n: int = 400, size: int = 24) -> np.ndarray:

@@ -114,7 +114,7 @@ def test_s3_is_insensitive_to_ambient_light_where_s2_is_not() -> None:
 def test_reproduce_quick_writes_report_and_figures(tmp_path) -> None:
     """`reproduce(quick=True)` writes report.md with every section, its figures and results.json."""
     pytest.importorskip("matplotlib")
-    from edgedsm.report import reproduce
+    from edgedsm_lab.report import reproduce
 
     calls: list[int] = []
 
@@ -150,7 +150,7 @@ def test_reproduce_quick_writes_report_and_figures(tmp_path) -> None:
 
 
 def test_reproduce_refuses_settings_it_cannot_run(tmp_path) -> None:
-    from edgedsm.report import reproduce
+    from edgedsm_lab.report import reproduce
 
     with pytest.raises(EdgedsmError, match="frames"):
         reproduce(tmp_path, frames=15)

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from edgedsm.report.findings import tally_by_reading
-from edgedsm.report.markdown import headline
-from edgedsm.report.plan import Settings
-from edgedsm.report.reproduce import reproduce
+from edgedsm_lab.report.findings import tally_by_reading
+from edgedsm_lab.report.markdown import headline
+from edgedsm_lab.report.plan import Settings
+from edgedsm_lab.report.reproduce import reproduce
 
 RESULTS = Path(__file__).resolve().parents[3] / "docs" / "reproduction" / "results.json"
 

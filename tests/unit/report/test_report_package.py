@@ -5,7 +5,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from edgedsm.report.plan import Settings, logo_regions, plan_runs
+from edgedsm_lab.report.plan import Settings, logo_regions, plan_runs
 
 REPO = Path(__file__).resolve().parents[3]
 

@@ -3,7 +3,7 @@
 A benchmark builds its report with :class:`Report`; each line is printed as it comes (so a long
 run shows progress) and kept for the markdown file::
 
-    from edgedsm.bench.report import Report, add_output_argument, load_average
+    from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
     def add_arguments(parser):
         add_output_argument(parser, "docs/bench-foo.md")       # -o/--output FILE.md

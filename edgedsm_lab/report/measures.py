@@ -10,9 +10,9 @@ import numpy as np
 from scipy import ndimage, stats
 
 from edgedsm.analysis import contrast, region_mean
-from edgedsm.report.plan import Optical, Settings, fig2_cases, fig4_runs, light_runs, scene_dict, sweep_series
-from edgedsm.report.runs import MapStore
 from edgedsm.sim import region_masks, scene_from_dict, tau_c_map
+from edgedsm_lab.report.plan import Optical, Settings, fig2_cases, fig4_runs, light_runs, scene_dict, sweep_series
+from edgedsm_lab.report.runs import MapStore
 
 
 @dataclass

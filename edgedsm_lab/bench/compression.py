@@ -12,7 +12,7 @@ codec of imagecodecs that fits recordings:
      against what S1, S2, S3 and τc lose (relative RMS error against the uncompressed maps, β and
      AUC of the logos against the background, the regions' τc).
 
-The measurement is edgedsm.bench.compression_cost; this module prints the tables.
+The measurement is edgedsm_lab.bench.compression_cost; this module prints the tables.
 
 Examples:
   edgedsm bench compression --size 64 --frames 60 --repeats 1    # a quick look, under a minute
@@ -26,8 +26,9 @@ import math
 import sys
 from collections.abc import Callable
 
-from edgedsm.bench.accuracy import LABELS
-from edgedsm.bench.compression_cost import (
+from edgedsm.errors import EdgedsmError
+from edgedsm_lab.bench.accuracy import LABELS
+from edgedsm_lab.bench.compression_cost import (
     DEPTHS,
     ESTIMATORS,
     REGIONS,
@@ -39,7 +40,7 @@ from edgedsm.bench.compression_cost import (
     Speed,
     measure,
 )
-from edgedsm.bench.report import (
+from edgedsm_lab.bench.report import (
     Report,
     add_output_argument,
     cpu_sample,
@@ -48,7 +49,6 @@ from edgedsm.bench.report import (
     markdown_table,
     others_share,
 )
-from edgedsm.errors import EdgedsmError
 
 HELP = "what compression costs: lossless ratio and MB/s at 8/12/16 bits, lossy codecs against map accuracy"
 PAPER_RATE_MB_S = 4096 * 2168 / 2.0 / 1e6  # the paper's series: 4096×2168 frames every Δt = 2 s, at 8 bits

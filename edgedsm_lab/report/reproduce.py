@@ -32,10 +32,10 @@ Every simulation is seeded. A noisy run and its ground truth share the surface a
 streams (and the laser shot noise), so they differ only by the noise under study. Each optical
 simulation is run once and detected at every ambient-light level it is needed for.
 
-The steps live in small modules: :mod:`~edgedsm.report.plan` (settings, optical runs, scenes),
-:mod:`~edgedsm.report.runs` (the simulations), :mod:`~edgedsm.report.measures` (the numbers),
-:mod:`~edgedsm.report.figures`, :mod:`~edgedsm.report.findings` (the paper's claims against
-our numbers) and :mod:`~edgedsm.report.markdown` (report.md).
+The steps live in small modules: :mod:`~edgedsm_lab.report.plan` (settings, optical runs, scenes),
+:mod:`~edgedsm_lab.report.runs` (the simulations), :mod:`~edgedsm_lab.report.measures` (the numbers),
+:mod:`~edgedsm_lab.report.figures`, :mod:`~edgedsm_lab.report.findings` (the paper's claims against
+our numbers) and :mod:`~edgedsm_lab.report.markdown` (report.md).
 """
 
 
@@ -47,11 +47,11 @@ from dataclasses import asdict
 from pathlib import Path
 
 from edgedsm.errors import EdgedsmError
-from edgedsm.report.figures import draw_figures, figure_class
-from edgedsm.report.markdown import write_report
-from edgedsm.report.measures import analyse, logo_geometry
-from edgedsm.report.plan import Settings, logo_regions, plan_runs
-from edgedsm.report.runs import ProgressBar, ProgressFactory, run_plan
+from edgedsm_lab.report.figures import draw_figures, figure_class
+from edgedsm_lab.report.markdown import write_report
+from edgedsm_lab.report.measures import analyse, logo_geometry
+from edgedsm_lab.report.plan import Settings, logo_regions, plan_runs
+from edgedsm_lab.report.runs import ProgressBar, ProgressFactory, run_plan
 
 __all__ = ["ProgressBar", "ProgressFactory", "Settings", "plan_runs", "reproduce"]
 

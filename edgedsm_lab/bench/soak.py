@@ -35,11 +35,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.daemon.acquisition import OFF_RETRY, RELAY_CHECK_S
 from edgedsm.errors import EdgedsmError
 from edgedsm.localbroker import free_port
 from edgedsm.resources import data_file
+from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
 HELP = "faults in a loop against the daemon: alerts lost, laser-off delays, memory drift"
 DEVICE = "soak"

@@ -1,4 +1,4 @@
-"""``edgedsm bench e2e``: the command, and the report of what :mod:`edgedsm.bench.e2e` measured."""
+"""``edgedsm bench e2e``: the command, and the report of what :mod:`edgedsm_lab.bench.e2e` measured."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from edgedsm.bench import e2e
-from edgedsm.bench.e2e import (
+from edgedsm_lab.bench import e2e
+from edgedsm_lab.bench.e2e import (
     LAG,
     MAPS_S,
     PHASE_PAIRS,
@@ -25,7 +25,7 @@ from edgedsm.bench.e2e import (
     parse_size,
     quiet_daemon_logs,
 )
-from edgedsm.bench.report import Report, add_output_argument, cpu_sample, load_average, machine_use, others_share
+from edgedsm_lab.bench.report import Report, add_output_argument, cpu_sample, load_average, machine_use, others_share
 
 #: The issue's target: the daemon sustains this fraction of the bare engine with zero drops.
 TARGET_RATIO = 0.9
@@ -85,7 +85,7 @@ def area_row(result: SizeResult, trial: Trial, full: Trial) -> list[str]:
 def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds: float,
                  load: float | None, others: float | None = None) -> Report:
     """``others``: the share of the machine's CPU time other work took during the run
-    (:func:`edgedsm.bench.report.others_share`); without it the load average before the run judges."""
+    (:func:`edgedsm_lab.bench.report.others_share`); without it the load average before the run judges."""
     report = Report("End-to-end daemon benchmark")
     sizes = ",".join(f"{r.shape[1]}x{r.shape[0]}" for r in results)
     command = f"edgedsm bench e2e --size {sizes} --pixel-format {args.pixel_format}{' --quick' if args.quick else ''}"

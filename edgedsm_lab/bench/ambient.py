@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
-from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.estimators import all_maps, tau_c
 from edgedsm.estimators.ambient import ambient_corrected_s2, dark_statistics, mean_square_difference
-from edgedsm.report.measures import Geometry, logo_geometry, logo_measures
-from edgedsm.report.plan import Optical, Settings, logo_regions, scene_dict
 from edgedsm.sim import Simulator, scene_from_dict
+from edgedsm_lab.bench.report import Report, add_output_argument, load_average
+from edgedsm_lab.report.measures import Geometry, logo_geometry, logo_measures
+from edgedsm_lab.report.plan import Optical, Settings, logo_regions, scene_dict
 
 HELP = "ambient-light correction of S2 against GT: mean/GT, imprint, β, AUC per η (docs/ambient.md)"
 ETAS = (0.0, 0.05, 0.1, 0.2, 0.3)

@@ -10,9 +10,9 @@ import numpy as np
 
 from edgedsm.analysis import contrast
 from edgedsm.errors import EdgedsmError
-from edgedsm.report.measures import Geometry, radial_profile
-from edgedsm.report.plan import Optical, Settings, fig2_cases, fig4_runs, sweep_series
-from edgedsm.report.runs import MapStore
+from edgedsm_lab.report.measures import Geometry, radial_profile
+from edgedsm_lab.report.plan import Optical, Settings, fig2_cases, fig4_runs, sweep_series
+from edgedsm_lab.report.runs import MapStore
 
 
 def figure_class() -> Any:

@@ -1,5 +1,5 @@
 """``edgedsm bench accuracy``: the command, and the markdown tables and figures of what
-:mod:`edgedsm.bench.accuracy` measured (docs/accuracy.md)."""
+:mod:`edgedsm_lab.bench.accuracy` measured (docs/accuracy.md)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.bench import accuracy
-from edgedsm.bench.accuracy import (
+from edgedsm_lab.bench import accuracy
+from edgedsm_lab.bench.accuracy import (
     ESTIMATORS,
     FULL,
     LABELS,
@@ -23,7 +23,7 @@ from edgedsm.bench.accuracy import (
     Results,
     measure,
 )
-from edgedsm.bench.report import Report, add_output_argument, load_average
+from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
 
 def _f(value: float, digits: int = 3) -> str:

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from edgedsm.bench.report import markdown_table
+from edgedsm_lab.bench.report import markdown_table
 
 MODES = ("sliding", "tumbling", "exponential")
 

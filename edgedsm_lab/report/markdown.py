@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 
 from edgedsm import __version__
-from edgedsm.report.findings import READING_FIGURES, avg, findings, fmt, table, tally_by_reading
-from edgedsm.report.measures import Geometry
-from edgedsm.report.plan import PAPER_LOGO_FRACTION, Settings, fig4_runs, light_runs, sweep_series
+from edgedsm_lab.report.findings import READING_FIGURES, avg, findings, fmt, table, tally_by_reading
+from edgedsm_lab.report.measures import Geometry
+from edgedsm_lab.report.plan import PAPER_LOGO_FRACTION, Settings, fig4_runs, light_runs, sweep_series
 
 
 def write_report(settings: Settings, results: dict[str, Any], figures: dict[str, str],

@@ -8,8 +8,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from edgedsm.estimators import all_maps
-from edgedsm.report.plan import Optical, Settings, scene_dict
 from edgedsm.sim import Simulator, scene_from_dict
+from edgedsm_lab.report.plan import Optical, Settings, scene_dict
 
 Maps = dict[str, np.ndarray]
 MapStore = dict[tuple["Optical", float], Maps]

@@ -31,8 +31,8 @@ from scipy import ndimage, optimize, special
 
 from edgedsm.analysis import contrast
 from edgedsm.estimators import SlidingWindow, all_maps, tau_c
-from edgedsm.report.measures import auc
 from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
+from edgedsm_lab.report.measures import auc
 
 HELP = "accuracy against time: N, m, mode, estimator, smoothing (β, AUC, delay, levels, ms/frame)"
 

@@ -1,7 +1,7 @@
 """What a codec costs on speckle frames: ratio, MB/s per core, and what a lossy one takes from the maps.
 
-The measurement behind `edgedsm bench compression` (its tables and command: edgedsm.bench.compression).
-Frames come from the simulator's logo scene (the paper's two-level object, edgedsm.bench.accuracy's
+The measurement behind `edgedsm bench compression` (its tables and command: edgedsm_lab.bench.compression).
+Frames come from the simulator's logo scene (the paper's two-level object, edgedsm_lab.bench.accuracy's
 ``logo_scene``), digitised at 8, 12 and 16 bits by changing only ``[detector] bits``.
 
 - Lossless codecs: ratio = raw bytes / compressed bytes (raw: 1 byte per pixel at 8 bits, 2 at 12 and
@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 
 from edgedsm.analysis import contrast
-from edgedsm.bench.accuracy import ESTIMATORS, activity_maps, frames_of, logo_scene
 from edgedsm.estimators import tau_c
-from edgedsm.report.measures import auc
 from edgedsm.sim import Scene, region_masks, scene_from_dict
+from edgedsm_lab.bench.accuracy import ESTIMATORS, activity_maps, frames_of, logo_scene
+from edgedsm_lab.report.measures import auc
 
 DEPTHS = (8, 12, 16)
 REGIONS = ("IOMT", "ETRI", "background")  # the logo scene's regions whose τc is reported

@@ -1,6 +1,6 @@
 """Cameras per PC: K daemons side by side on one machine, each on its own paced replay.
 
-Each daemon is a child process running one paced trial of :mod:`edgedsm.bench.e2e` (the real
+Each daemon is a child process running one paced trial of :mod:`edgedsm_lab.bench.e2e` (the real
 ``Pipeline``, the default configuration, its own ``MqttSink`` to one shared mosquitto) with
 ``NUMBA_NUM_THREADS`` kernel threads; all start together. Per K and thread count the table
 gives each camera's processed rate, drops and CPU (ms per frame and share of one core), so the
@@ -8,7 +8,7 @@ rule of ``docs/scaling.md`` can be read off: how many cameras of a given size an
 machine carries with zero drops.
 
 Example:
-  python -m edgedsm.bench.e2e_fleet --size 1024x1024 --rate 60 --instances 1,2,4 --threads 1,2
+  python -m edgedsm_lab.bench.e2e_fleet --size 1024x1024 --rate 60 --instances 1,2,4 --threads 1,2
 """
 
 from __future__ import annotations
@@ -21,14 +21,14 @@ import sys
 import tempfile
 from pathlib import Path
 
-from edgedsm.bench.e2e import make_recording, parse_size
-from edgedsm.bench.report import Report, cpu_sample, load_average, machine_use, others_share
 from edgedsm.estimators.jit import configure_threading
+from edgedsm_lab.bench.e2e import make_recording, parse_size
+from edgedsm_lab.bench.report import Report, cpu_sample, load_average, machine_use, others_share
 
 
 def child(args: argparse.Namespace) -> int:
     """One daemon's trial, printed as a JSON line."""
-    from edgedsm.bench.e2e import daemon_config, quiet_daemon_logs, run_trial
+    from edgedsm_lab.bench.e2e import daemon_config, quiet_daemon_logs, run_trial
 
     shape = args.size
     config = daemon_config(Path(args.recording), args.port, Path(args.state), args.rate, 8, shape)
@@ -49,7 +49,7 @@ def run_fleet(count: int, threads: int, args: argparse.Namespace, recording: Pat
            "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
     size = f"{args.size[1]}x{args.size[0]}"
     children = [subprocess.Popen(
-        [sys.executable, "-m", "edgedsm.bench.e2e_fleet", "--child", "--size", size, "--rate", str(args.rate),
+        [sys.executable, "-m", "edgedsm_lab.bench.e2e_fleet", "--child", "--size", size, "--rate", str(args.rate),
          "--seconds", str(args.seconds), "--recording", str(recording), "--port", str(port),
          "--state", str(workdir / f"state-{count}-{threads}-{k}")],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k in range(count)]
@@ -64,7 +64,7 @@ def run_fleet(count: int, threads: int, args: argparse.Namespace, recording: Pat
 
 def main(argv: list[str] | None = None) -> int:
     configure_threading()  # each child stands for a daemon: the command line's threading settings
-    parser = argparse.ArgumentParser(prog="python -m edgedsm.bench.e2e_fleet", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m edgedsm_lab.bench.e2e_fleet", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--size", type=parse_size, default=(1024, 1024), metavar="WxH")
     parser.add_argument("--rate", type=float, default=60.0, help="frames/s of each camera (default 60)")
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
                              f"{100 * sum(r['cpu_share'] for r in results):.0f} %",
                              f"{max(r['alert_p99'] for r in results):.2f}"])
     report = Report("Cameras per PC")
-    report.line(report.machine(f"python -m edgedsm.bench.e2e_fleet --size {args.size[1]}x{args.size[0]} "
+    report.line(report.machine(f"python -m edgedsm_lab.bench.e2e_fleet --size {args.size[1]}x{args.size[0]} "
                                f"--rate {args.rate:g}", "numba", load=load, load_after=load_average()) +
                 machine_use(others_share(start, cpu_sample()), load))
     report.line()

@@ -46,10 +46,10 @@ from typing import Any
 
 import numpy as np
 
-from edgedsm.bench.engine_report import MODES, Row, noise_table, plot, speed_table
-from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.estimators import SlidingWindow, all_maps
 from edgedsm.estimators.correlation_time import default_max_lag
+from edgedsm_lab.bench.engine_report import MODES, Row, noise_table, plot, speed_table
+from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
 HELP = "streaming engine vs batch recompute: ms/frame, memory, bandwidth bound, error, map noise"
 

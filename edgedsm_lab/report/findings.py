@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from edgedsm.report.plan import Settings, fig4_runs, sweep_series
+from edgedsm_lab.report.plan import Settings, fig4_runs, sweep_series
 
 
 # -- the report --------------------------------------------------------------------------------

@@ -34,7 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edgedsm.analysis import contrast
-from edgedsm.bench.report import (
+from edgedsm.estimators.batch import all_maps
+from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
+from edgedsm.sim.poisson import _numba as poisson_numba
+from edgedsm_lab.bench.report import (
     SHARED_ABOVE,
     Report,
     add_output_argument,
@@ -43,9 +46,6 @@ from edgedsm.bench.report import (
     load_average,
     others_share,
 )
-from edgedsm.estimators.batch import all_maps
-from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
-from edgedsm.sim.poisson import _numba as poisson_numba
 
 HELP = "simulator frames/s per effect, complex64 vs complex128 (and what it changes), vs pyspeckle"
 

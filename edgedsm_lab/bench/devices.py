@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.bench.report import Report, add_output_argument, load_average
 from edgedsm.devices.camera.base import Camera, Region
 from edgedsm.errors import DeviceError
+from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
 HELP = "camera drivers: frames/s and CPU per frame (Aravis from a fake GigE Vision camera, replay)"
 
