@@ -229,8 +229,9 @@ class Rig:
             "acquisition": {"dark_frames": 2, "dark_every_min": 0},
             "estimator": {"activity": "s2", "window": 100, "lag": 5, "q": 1.0},
             "regions": {"name": "plate", "wet_above": 0.30, "dry_below": 0.16, "hysteresis": 0.05, "min_dwell_s": 1.0},
+            "cadence": {"stats_interval_s": 0.5, "maps_interval_s": 600.0},
             "mqtt": {"host": "127.0.0.1", "port": self.broker.port, "keepalive_s": 5, "reconnect_min_s": 0.1,
-                     "reconnect_max_s": 0.5, "stats_interval_s": 0.5, "maps_interval_s": 600.0},
+                     "reconnect_max_s": 0.5},
             "logging": {"level": "info"},
         }
         write_config(self.config, self.tables)
