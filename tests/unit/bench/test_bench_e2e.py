@@ -221,3 +221,14 @@ def test_alternation_lets_the_pipeline_thread_go_when_the_bare_engine_fails(monk
     with pytest.raises(MemoryError):
         alternation.phases(threading.Event())
     assert alternation.running.is_set() and alternation.result.daemon and not alternation.result.bare
+
+
+def test_the_bench_daemon_config_is_a_valid_config(tmp_path: Path) -> None:
+    # built in code (model_validate): a config key moved elsewhere must be caught here, not when
+    # someone runs the benchmark
+    from edgedsm_lab.bench.e2e import MAPS_S, STATS_S, daemon_config
+
+    for covered in (None, 0.25):
+        config = daemon_config(tmp_path / "frames.npy", 1883, tmp_path / "state", 30.0, 8, (64, 96), covered)
+        assert config.cadence.stats_interval_s == STATS_S and config.cadence.maps_interval_s == MAPS_S
+        assert [region.name for region in config.regions] == (["full", "centre"] if covered is None else ["panel"])
