@@ -14,6 +14,16 @@ from edgedsm.validation import StrictModel
 
 #: Where recordings go when ``dir`` is not given: this folder of the state directory.
 DEFAULT_SUBDIR = "recordings"
+#: Compression ratios measured on simulated speckle (docs/recording.md, "The codec"), by codec
+#: and significant bits (8; 12 in 16-bit words; 16): what ``check-config`` expects on disk.
+SPECKLE_RATIO: dict[str, tuple[float, float, float]] = {
+    "zstd": (1.37, 1.36, 1.07), "deflate": (1.37, 1.37, 1.07), "lzw": (1.07, 1.14, 0.77), "none": (1.0, 1.0, 1.0)}
+
+
+def speckle_ratio(codec: str, bits: int) -> float:
+    """The measured ratio of ``codec`` on speckle of ``bits`` significant bits."""
+    ratios = SPECKLE_RATIO[codec]
+    return ratios[0] if bits <= 8 else ratios[1] if bits <= 12 else ratios[2]
 
 
 class RecordingSection(StrictModel):
