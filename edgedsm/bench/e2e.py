@@ -68,6 +68,7 @@ from edgedsm.daemon.devices import open_camera_for
 from edgedsm.daemon.handover import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.recording import Recorder
 from edgedsm.estimators import SlidingWindow
 from edgedsm.frames import Frame
 from edgedsm.messages import Stats
@@ -324,10 +325,12 @@ def anon_mib() -> float:
 
 
 def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: float, covered: float = 1.0,
-              wrap: Callable[[PipelineProbes], PipelineProbes] | None = None) -> Trial:
+              wrap: Callable[[PipelineProbes], PipelineProbes] | None = None,
+              recorder: Recorder | None = None) -> Trial:
     """Run the pipeline on ``config`` for ``seconds`` after its window filled (evaluations run
     from then on) and measure over those seconds (see the module docstring). ``wrap``: probes
-    around the instruments' (the interleaved capacity holds the pipeline thread in one)."""
+    around the instruments' (the interleaved capacity holds the pipeline thread in one);
+    ``recorder``: the pipeline's ``[recording]`` (``edgedsm bench recording``)."""
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
@@ -339,7 +342,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         camera = open_camera_for(config)
         probes = instruments.probes()
         pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S),
-                            probes=wrap(probes) if wrap else probes)
+                            probes=wrap(probes) if wrap else probes, recorder=recorder)
         # CPU time when the window filled; time and CPU time when the trial's seconds were up
         # (stopping is not measured)
         marks: dict[str, float] = {}

@@ -8,6 +8,7 @@
   edgedsm bench soak     faults in a loop against the daemon: alerts lost, laser-off delays, memory drift
   edgedsm bench accuracy what N, m, mode, estimator and smoothing cost and buy (docs/accuracy.md)
   edgedsm bench compression  lossless and lossy codecs: ratio, MB/s per core, map accuracy (docs/compression.md)
+  edgedsm bench recording    what continuous [recording] costs the daemon's zero-drop rate (docs/bench-recording.md)
 
 Every benchmark prints a markdown table and can write it to a file (--output).
 """
@@ -21,7 +22,8 @@ NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
 SUITES = {"sim": "edgedsm.bench.sim", "engine": "edgedsm.bench.engine", "devices": "edgedsm.bench.devices",
           "e2e": "edgedsm.bench.e2e_report", "ambient": "edgedsm.bench.ambient", "soak": "edgedsm.bench.soak",
-          "accuracy": "edgedsm.bench.accuracy_report", "compression": "edgedsm.bench.compression"}
+          "accuracy": "edgedsm.bench.accuracy_report", "compression": "edgedsm.bench.compression",
+          "recording": "edgedsm.bench.recording"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

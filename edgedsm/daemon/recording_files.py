@@ -118,6 +118,7 @@ class RecordingFiles:
         self.current_bytes = 0
         self._page_bytes = 0  # the largest page written so far (what the next one is taken to need)
         self.written = self.dropped = self.deleted = 0
+        self.bytes_written = 0  # since start (retention deletes some of it)
         self.error: str | None = None  # the disk's refusal, while it lasts
         self._retry_at = float("-inf")
         self._backoff = RETRY_FIRST_S
@@ -224,6 +225,7 @@ class RecordingFiles:
             self._failed(str(exc) if isinstance(exc, EdgedsmError) else f"{self.directory}: {exc.strerror or exc}")
             return
         self._page_bytes = max(self._page_bytes, size - self.current_bytes)
+        self.bytes_written += size - self.current_bytes
         self.current_bytes = size
         self.written += 1
         if self.error is not None:

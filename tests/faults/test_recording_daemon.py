@@ -7,6 +7,7 @@ within ``max_bytes``. The demo plate at 100 frames/s (128², wet → drying → 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 import time
@@ -18,7 +19,6 @@ import pytest
 from helpers_daemon import Daemon
 from helpers_faults import TOPICS, Plant, RelayRig, daemon_config
 from helpers_mqtt import REPO, Broker, Subscriber
-from test_storage import fill
 from test_storage_faults import tmpfs  # noqa: F401  (the fixture: small tmpfs mounts, unmounted after)
 
 from edgedsm.daemon.recording_files import name_pattern
@@ -155,10 +155,8 @@ def test_retention_turns_the_folder_over_within_max_bytes(
         while not stop.is_set():
             total = 0
             for path in _recordings(directory):
-                try:
+                with contextlib.suppress(FileNotFoundError):  # deleted between the listing and the stat
                     total += path.stat().st_size
-                except FileNotFoundError:  # deleted by retention between the listing and the stat
-                    pass
             most, samples = max(most, total), samples + 1
             time.sleep(0.01)
 

@@ -1,0 +1,197 @@
+"""What recording costs the daemon: its highest zero-drop rate with ``[recording]`` continuous
+against the same without recording, in one run (``edgedsm bench e2e``'s trials: the daemon's own
+``Pipeline`` on replayed simulated speckle, the MQTT sink on a private mosquitto).
+
+Measured, in one run, at one frame size (default 2048², Mono8):
+
+1. the bare engine's rate (the upper bound, as ``bench e2e``);
+2. the highest paced rate with zero drops **without recording** (bisection from 90 % of the
+   bare engine's rate);
+3. the same **recording continuously** (``Recorder`` handed to the pipeline as the daemon does,
+   zstd, files of ``segment_s`` on the disk of ``--dir``, retention at ``--max-gb``): a trial is
+   sustained only when the measurement dropped nothing **and** the recorder dropped nothing
+   (every frame on disk); bisection from the rate of 2;
+4. a confirmation trial recording at 90 % of rate 2.
+
+The ratio printed is rate 3 ÷ rate 2, both measured in this run; with the frames written, the
+MB/s on disk, and the frames still queued for the disk when the trial stopped.
+
+Examples:
+  edgedsm bench recording --quick                       # 2048² Mono8, a few minutes
+  edgedsm bench recording -o docs/bench-recording.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from edgedsm.bench.e2e import (
+    PIXEL_FORMATS,
+    Trial,
+    bare_engine,
+    best_zero_drop,
+    daemon_config,
+    make_recording,
+    parse_size,
+    quiet_daemon_logs,
+    run_trial,
+    search_rate,
+)
+from edgedsm.bench.report import Report, add_output_argument, cpu_sample, load_average, machine_use, others_share
+from edgedsm.config import RecordingSection
+from edgedsm.daemon.recording import Recorder
+
+HELP = "what continuous [recording] costs the daemon's zero-drop rate (with ÷ without, one run)"
+DESCRIPTION = __doc__
+SEGMENT_S = 10.0
+FLUSH_S = 60.0  # how long the disk may take to catch up after a trial (reported)
+
+
+@dataclass
+class Recorded:
+    """One trial recording: the pipeline's trial and what the recorder did."""
+
+    trial: Trial
+    written: int  # frames on disk, backlog included
+    dropped: int  # frames the recorder dropped during the trial
+    queued: int  # frames waiting for the disk when the trial stopped
+    mb: float  # MB written
+
+    @property
+    def sustained(self) -> bool:
+        return self.trial.sustained and self.dropped == 0
+
+    @property
+    def mb_s(self) -> float:
+        return self.mb / self.trial.seconds
+
+
+def recorded_trial(label: str, config_for: object, rate: float, seconds: float, directory: Path,
+                   max_bytes: int, index: int) -> Recorded:
+    section = RecordingSection(mode="continuous", segment_s=SEGMENT_S, max_bytes=max_bytes)
+    folder = directory / f"trial-{index}"
+    recorder = Recorder(section, folder, "bench", source="bench")
+    try:
+        trial = run_trial(label, config_for(rate), rate=rate, seconds=seconds, recorder=recorder)  # type: ignore[operator]
+        stats = recorder.stats()
+        recorder.flush(FLUSH_S)
+    finally:
+        recorder.close(5.0)
+    files = recorder.files
+    result = Recorded(trial, files.written, stats.frames_dropped, stats.queued, files.bytes_written / 1e6)
+    for path in folder.glob("*.tif"):
+        path.unlink()
+    return result
+
+
+def measure(shape: tuple[int, int], pixel_format: str, workdir: Path, record_dir: Path, port: int, *,
+            seconds: float, max_trials: int, max_bytes: int) -> tuple[list[float], list[Trial], list[Recorded]]:
+    bits = PIXEL_FORMATS[pixel_format]
+    say(f"{shape[1]}x{shape[0]} {pixel_format}: replay of simulated speckle ...")
+    recording = make_recording(workdir / "frames.npy", shape, bits)
+    counter = iter(range(10**6))
+
+    def config_for(rate: float):  # type: ignore[no-untyped-def]
+        return daemon_config(recording, port, workdir / f"state-{next(counter)}", rate, bits, shape)
+
+    bare = [bare_engine(recording, seconds, bits)]
+    say(f"  bare engine: {bare[0]:.1f} frames/s")
+    step = 5.0 if bare[0] >= 250 else 1.0 if bare[0] >= 50 else 0.5
+
+    def plain(rate: float) -> Trial:
+        trial = run_trial("without recording", config_for(rate), rate=rate, seconds=seconds)
+        say(f"  without recording at {rate:g}/s: {trial.fps:.1f} processed, {trial.drops} dropped"
+            f"{' (sustained)' if trial.sustained else ''}")
+        return trial
+
+    recorded: list[Recorded] = []
+
+    def with_recording(rate: float) -> Trial:
+        result = recorded_trial("recording", config_for, rate, seconds, record_dir, max_bytes, len(recorded))
+        recorded.append(result)
+        say(f"  recording at {rate:g}/s: {result.trial.fps:.1f} processed, {result.trial.drops} dropped, "
+            f"recorder {result.written} written / {result.dropped} dropped, {result.mb_s:.0f} MB/s"
+            f"{' (sustained)' if result.sustained else ''}")
+        # search_rate judges Trial.sustained: the recorder's drops count too
+        trial = result.trial
+        if result.dropped:
+            trial.drops += result.dropped
+        return trial
+
+    start = step * max(1, math.ceil(0.9 * bare[0] / step))
+    plain_trials = search_rate(plain, start=start, ceiling=bare[0] * 1.05, max_trials=max_trials,
+                               resolution=step, step=step)
+    best = best_zero_drop(plain_trials)
+    base = best.rate if best is not None and best.rate else step
+    search_rate(with_recording, start=base, ceiling=base * 1.05 + step, max_trials=max_trials,
+                resolution=step, step=step)
+    with_recording(step * math.floor(0.9 * base / step))  # the confirmation at 90 %
+    bare.append(bare_engine(recording, seconds, bits))
+    recording.unlink()
+    return bare, plain_trials, recorded
+
+
+def say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    from edgedsm.localbroker import LocalBroker
+
+    seconds = args.seconds or (12.0 if args.quick else 20.0)
+    max_trials = 3 if args.quick else 4
+    load = load_average()
+    before = cpu_sample()
+    with tempfile.TemporaryDirectory(prefix="edgedsm-bench-recording-") as tmp, quiet_daemon_logs(), \
+            LocalBroker() as broker:
+        record_dir = Path(args.dir) if args.dir else Path(tmp) / "recordings"
+        bare, plain, recorded = measure(args.size, args.pixel_format, Path(tmp), record_dir, broker.port,
+                                        seconds=seconds, max_trials=max_trials, max_bytes=int(args.max_gb * 1e9))
+    others = others_share(before, cpu_sample())
+    best_plain = best_zero_drop(plain)
+    clean = [r for r in recorded if r.sustained]
+    best_rec = max(clean, key=lambda r: r.trial.rate or 0.0) if clean else None
+    report = Report("Recording in the daemon: its cost to the zero-drop rate")
+    report.line(report.machine("edgedsm bench recording", "numba", "tifffile", "imagecodecs", load=load)
+                + f" {machine_use(others, load)}")
+    report.line()
+    height, width = args.size
+    report.line(f"{width}x{height} {args.pixel_format}, {seconds:g} s per trial after the window filled, "
+                f"`[recording]` continuous, zstd, files of {SEGMENT_S:g} s, retention at {args.max_gb:g} GB, on "
+                f"{'--dir ' + args.dir if args.dir else 'a temporary folder'}. Bare engine {bare[0]:.1f} frames/s "
+                f"before the trials, {bare[-1]:.1f} after.")
+    report.line()
+    rows = [["without recording", f"{t.rate:g}", f"{t.fps:.1f}", str(t.drops), "", "", "", "",
+             "yes" if t.sustained else "no"] for t in plain]
+    rows += [["recording", f"{r.trial.rate:g}", f"{r.trial.fps:.1f}", str(r.trial.drops - r.dropped), str(r.written),
+              str(r.dropped), str(r.queued), f"{r.mb_s:.0f}", "yes" if r.sustained else "no"] for r in recorded]
+    report.table(["trial", "requested frames/s", "processed frames/s", "measurement drops", "frames on disk",
+                  "recorder drops", "queued for disk at stop", "MB/s on disk", "sustained"], rows)
+    report.line()
+    if best_plain is None or best_plain.rate is None:
+        report.line("No zero-drop rate without recording was found: no ratio.")
+    else:
+        rec_rate = best_rec.trial.rate if best_rec is not None and best_rec.trial.rate else 0.0
+        report.line(f"**Highest zero-drop rate: {best_plain.rate:g} frames/s without recording, {rec_rate:g} "
+                    f"frames/s recording every frame: {rec_rate / best_plain.rate:.0%}** (measured in this run).")
+    report.line()
+    if args.output:
+        report.save(args.output)
+    return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--size", type=parse_size, default=(2048, 2048), metavar="WxH", help="frame size (2048x2048)")
+    parser.add_argument("--pixel-format", choices=tuple(PIXEL_FORMATS), default="Mono8",
+                        help="pixel format of the replayed frames (default Mono8)")
+    parser.add_argument("--quick", action="store_true", help="shorter trials (12 s), fewer paced rates")
+    parser.add_argument("--seconds", type=float, metavar="S", help="seconds per trial (default 20; quick 12)")
+    parser.add_argument("--dir", metavar="DIR", help="where the recordings go (default: a temporary folder); "
+                                                     "the disk measured")
+    parser.add_argument("--max-gb", type=float, default=4.0, metavar="GB", help="retention budget (default 4 GB)")
+    add_output_argument(parser, "docs/bench-recording.md")
