@@ -311,7 +311,8 @@ def daemon_config(recording: Path, port: int, state_dir: Path, rate: float, bits
         "estimator": {"activity": "s2", "window": WINDOW, "lag": LAG, "q": 1.0,
                       "area": "frame" if covered is None else "regions"},
         "regions": regions,
-        "mqtt": {"host": "127.0.0.1", "port": port, "stats_interval_s": STATS_S, "maps_interval_s": MAPS_S},
+        "mqtt": {"host": "127.0.0.1", "port": port},
+        "cadence": {"stats_interval_s": STATS_S, "maps_interval_s": MAPS_S},
     })
 
 
