@@ -62,3 +62,16 @@ def test_check_config_prints_the_disk_budget(tmp_path, capsys):
     budget = json.loads(capsys.readouterr().out)["recording"]
     assert budget["ring_frames"] == 64 and budget["ring_s"] == pytest.approx(2.56)  # 4 MiB of 64 KiB frames
     assert budget["clip_mb"] == pytest.approx((64 + 500) * 65536 / 1.37 / 1e6)
+
+
+def test_the_example_configs_recording_table_is_valid_uncommented(repo, tmp_path):
+    text = (repo / "config" / "daemon" / "example.toml").read_text()
+    head, _, rest = text.partition("\n# [recording]\n")
+    assert rest, "example.toml has no commented [recording] table"
+    table = rest.split("\n\n", 1)[0]
+    lines = [line.removeprefix("# ") for line in table.splitlines() if line.startswith("# ")]
+    path = tmp_path / "example.toml"
+    path.write_text(head + "\n[recording]\n" + "\n".join(lines) + "\n", encoding="utf-8")
+    config = load_config(path)
+    assert config.recording is not None and config.recording.mode == "alerts"
+    assert config.recording_dir == tmp_path / "recordings" and config.recording.max_bytes == 10 * 2**30
