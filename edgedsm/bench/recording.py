@@ -5,16 +5,17 @@ against the same without recording, in one run (``edgedsm bench e2e``'s trials: 
 Measured, in one run, at one frame size (default 2048², Mono8):
 
 1. the bare engine's rate (the upper bound, as ``bench e2e``);
-2. the highest paced rate with zero drops **without recording** (bisection from 90 % of the
-   bare engine's rate);
-3. the same **recording continuously** (``Recorder`` handed to the pipeline as the daemon does,
+2. capacity (the replay waits for the daemon) without and with recording, in the order
+   without, with, with, without, so that the machine's drift cancels in their ratio;
+3. the highest paced rate with zero drops **without recording** (bisection from 97 % of the
+   lower capacity without recording);
+4. the same **recording continuously** (``Recorder`` handed to the pipeline as the daemon does,
    zstd, files of ``segment_s`` on the disk of ``--dir``, retention at ``--max-gb``): a trial is
    sustained only when the measurement dropped nothing **and** the recorder dropped nothing
-   (every frame on disk); bisection from the rate of 2;
-4. a confirmation trial recording at 90 % of rate 2.
+   (every frame on disk); bisection down from the rate of 3.
 
-The ratio printed is rate 3 ÷ rate 2, both measured in this run; with the frames written, the
-MB/s on disk, and the frames still queued for the disk when the trial stopped.
+The ratios printed, rate 4 ÷ rate 3 and the capacities', are measured in this run; with the
+frames written, the MB/s on disk and the frames still queued for the disk when a trial stopped.
 
 Examples:
   edgedsm bench recording --quick                       # 2048² Mono8, a few minutes
@@ -68,16 +69,18 @@ class Recorded:
 
     @property
     def mb_s(self) -> float:
-        return self.mb / self.trial.seconds
+        """MB/s on disk at the rate processed (the MB per frame written, window filling included)."""
+        return self.mb / self.written * self.trial.fps if self.written else 0.0
 
 
-def recorded_trial(label: str, config_for: object, rate: float, seconds: float, directory: Path,
+def recorded_trial(label: str, config_for: object, rate: float | None, seconds: float, directory: Path,
                    max_bytes: int, index: int) -> Recorded:
     section = RecordingSection(mode="continuous", segment_s=SEGMENT_S, max_bytes=max_bytes)
     folder = directory / f"trial-{index}"
     recorder = Recorder(section, folder, "bench", source="bench")
     try:
-        trial = run_trial(label, config_for(rate), rate=rate, seconds=seconds, recorder=recorder)  # type: ignore[operator]
+        trial = run_trial(label, config_for(rate or 0.0), rate=rate, seconds=seconds,  # type: ignore[operator]
+                          recorder=recorder)
         stats = recorder.stats()
         recorder.flush(FLUSH_S)
     finally:
@@ -99,6 +102,7 @@ def measure(shape: tuple[int, int], pixel_format: str, workdir: Path, record_dir
     def config_for(rate: float):  # type: ignore[no-untyped-def]
         return daemon_config(recording, port, workdir / f"state-{next(counter)}", rate, bits, shape)
 
+    plain_trials: list[Trial] = []
     bare = [bare_engine(recording, seconds, bits)]
     say(f"  bare engine: {bare[0]:.1f} frames/s")
     step = 5.0 if bare[0] >= 250 else 1.0 if bare[0] >= 50 else 0.5
@@ -123,17 +127,43 @@ def measure(shape: tuple[int, int], pixel_format: str, workdir: Path, record_dir
             trial.drops += result.dropped
         return trial
 
-    start = step * max(1, math.ceil(0.9 * bare[0] / step))
-    plain_trials = search_rate(plain, start=start, ceiling=bare[0] * 1.05, max_trials=max_trials,
-                               resolution=step, step=step)
+    # capacity (the source waits), ABBA so that the machine's drift cancels: without, with, with, without
+    capacity: list[tuple[str, float]] = []
+    for recorded_now in (False, True, True, False):
+        if recorded_now:
+            result = recorded_trial("capacity, recording", config_for, None, seconds, record_dir, max_bytes,
+                                    len(recorded))
+            recorded.append(result)
+            capacity.append(("recording", result.trial.fps))
+            say(f"  capacity recording: {result.trial.fps:.1f} frames/s, recorder {result.written} written / "
+                f"{result.dropped} dropped")
+        else:
+            trial = run_trial("capacity", config_for(0.0), rate=None, seconds=seconds)
+            plain_trials.append(trial)
+            capacity.append(("without", trial.fps))
+            say(f"  capacity without recording: {trial.fps:.1f} frames/s")
+    without = [fps for kind, fps in capacity if kind == "without"]
+    start = step * max(1, math.floor(0.97 * min(without) / step))
+    plain_trials += search_rate(plain, start=start, ceiling=max(without) * 1.05, max_trials=max_trials,
+                                resolution=step, step=step)
     best = best_zero_drop(plain_trials)
     base = best.rate if best is not None and best.rate else step
-    search_rate(with_recording, start=base, ceiling=base * 1.05 + step, max_trials=max_trials,
-                resolution=step, step=step)
-    with_recording(step * math.floor(0.9 * base / step))  # the confirmation at 90 %
+    search_rate(with_recording, start=base, ceiling=base + step, max_trials=max_trials, resolution=step, step=step)
     bare.append(bare_engine(recording, seconds, bits))
     recording.unlink()
     return bare, plain_trials, recorded
+
+
+def _rate(trial: Trial) -> str:
+    return "capacity" if trial.rate is None else f"{trial.rate:g}"
+
+
+def _sustained(rate: float | None, sustained: bool) -> str:
+    return "—" if rate is None else "yes" if sustained else "no"
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values)
 
 
 def say(text: str) -> None:
@@ -154,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
                                         seconds=seconds, max_trials=max_trials, max_bytes=int(args.max_gb * 1e9))
     others = others_share(before, cpu_sample())
     best_plain = best_zero_drop(plain)
-    clean = [r for r in recorded if r.sustained]
+    clean = [r for r in recorded if r.sustained and r.trial.rate is not None]
     best_rec = max(clean, key=lambda r: r.trial.rate or 0.0) if clean else None
     report = Report("Recording in the daemon: its cost to the zero-drop rate")
     report.line(report.machine("edgedsm bench recording", "numba", "tifffile", "imagecodecs", load=load)
@@ -166,13 +196,20 @@ def run(args: argparse.Namespace) -> int:
                 f"{'--dir ' + args.dir if args.dir else 'a temporary folder'}. Bare engine {bare[0]:.1f} frames/s "
                 f"before the trials, {bare[-1]:.1f} after.")
     report.line()
-    rows = [["without recording", f"{t.rate:g}", f"{t.fps:.1f}", str(t.drops), "", "", "", "",
-             "yes" if t.sustained else "no"] for t in plain]
-    rows += [["recording", f"{r.trial.rate:g}", f"{r.trial.fps:.1f}", str(r.trial.drops - r.dropped), str(r.written),
-              str(r.dropped), str(r.queued), f"{r.mb_s:.0f}", "yes" if r.sustained else "no"] for r in recorded]
+    rows = [["without recording", _rate(t), f"{t.fps:.1f}", str(t.drops), "", "", "", "",
+             _sustained(t.rate, t.sustained)] for t in plain]
+    rows += [["recording", _rate(r.trial), f"{r.trial.fps:.1f}", str(r.trial.drops - r.dropped), str(r.written),
+              str(r.dropped), str(r.queued), f"{r.mb_s:.0f}", _sustained(r.trial.rate, r.sustained)] for r in recorded]
     report.table(["trial", "requested frames/s", "processed frames/s", "measurement drops", "frames on disk",
                   "recorder drops", "queued for disk at stop", "MB/s on disk", "sustained"], rows)
     report.line()
+    cap_plain = [t.fps for t in plain if t.rate is None]
+    cap_rec = [r.trial.fps for r in recorded if r.trial.rate is None]
+    if cap_plain and cap_rec:
+        ratio = _mean(cap_rec) / _mean(cap_plain)
+        report.line(f"Capacity (the source waits; without, with, with, without): {_mean(cap_rec):.1f} frames/s "
+                    f"recording every frame, {_mean(cap_plain):.1f} without: **{ratio:.0%}**.")
+        report.line()
     if best_plain is None or best_plain.rate is None:
         report.line("No zero-drop rate without recording was found: no ratio.")
     else:
