@@ -126,7 +126,7 @@ def test_a_full_recording_disk_is_one_fault_alert_measuring_goes_on_no_alert_los
     for path in _recordings(disk):
         path.unlink()  # space returns
     freed = time.monotonic()
-    daemon.wait_log(r"recording: .* takes writes again", 40, after=freed)
+    recovered = daemon.wait_log(r"recording: .* takes writes again", 40, after=freed)
     code, _ = daemon.terminate()
     assert code == 0, daemon.log
     alerts = _no_alert_lost(plant, daemon)
@@ -134,8 +134,9 @@ def test_a_full_recording_disk_is_one_fault_alert_measuring_goes_on_no_alert_los
     assert len(recording_faults) == 1 and "No space left on device" in recording_faults[0]["reason"], alerts
     assert str(disk) in recording_faults[0]["reason"]
     assert all(_read(path) for path in _recordings(disk))  # written after the disk was freed
-    print(f"1 MiB tmpfs full {time.monotonic() - fault:.1f} s into the run: one fault alert, "
-          f"{stats['frames_dropped']} frames dropped, {len(alerts)} alerts, none lost")
+    print(f"1 MiB tmpfs: the fault {fault - daemon.started:.1f} s after start, writing again "
+          f"{recovered - freed:.1f} s after space returned; one fault alert, {stats['frames_dropped']} frames "
+          f"dropped meanwhile, {len(alerts)} alerts, none lost")
     assert "Traceback" not in daemon.log
 
 
