@@ -29,6 +29,7 @@ from edgedsm.config.recording import RecordingSection
 from edgedsm.errors import EdgedsmError
 from edgedsm.frameio.recording import OutputExists, RecordingWriter
 from edgedsm.frames import Frame
+from edgedsm.priority import lower_priority
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +43,10 @@ _STOP = -1  # the segment id of the item that stops the writer
 RETRY_FIRST_S, RETRY_MAX_S = 1.0, 30.0
 EXPIRE_EVERY_S = 60.0
 FILES_PER_BUDGET = 4  # a file is closed at max_bytes / FILES_PER_BUDGET
+#: Niceness of the writer thread (edgedsm.priority), relative to the process: nicer than the
+#: evaluator's 5, so that when cores are short the recording waits (its queue, then its drops),
+#: not the measurement.
+RECORDING_NICE = 10
 
 
 class FrameQueue:
@@ -156,6 +161,7 @@ class RecordingFiles:
 
     # -- the writer thread ---------------------------------------------------------------------
     def _run(self) -> None:
+        lower_priority(RECORDING_NICE)
         self._scan()
         next_expiry = self._monotonic() + EXPIRE_EVERY_S
         while True:

@@ -187,3 +187,28 @@ def test_retention_turns_the_folder_over_within_max_bytes(
     _no_alert_lost(plant, daemon)
     assert stats["frames_dropped"] == 0
     assert "Traceback" not in daemon.log
+
+
+@pytest.mark.timeout(90)
+def test_alerts_mode_writes_a_clip_around_each_transition(
+        tmp_path: Path, relay_board: RelayRig, broker: Broker, plant: Plant,
+        daemons: Callable[[dict[str, Any]], Daemon]) -> None:
+    directory = tmp_path / "rec"
+    config = _config(tmp_path, broker, relay_board, {"dir": directory, "mode": "alerts", "pre_s": 0.5,
+                                                     "post_s": 1.0})
+    daemon = daemons(config)
+    daemon.wait_log(r"region plate: drying -> dry", 40, after=daemon.started)
+    time.sleep(2.0)  # the last clip's second after the alert, and its close
+    code, _ = daemon.terminate()
+    assert code == 0, daemon.log
+    transitions = [a for a in _no_alert_lost(plant, daemon) if a.get("type") == "transition"]
+    clips = [path for path in _recordings(directory) if path.name.endswith("-alerts.tif")]
+    assert len(transitions) == 3 and len(clips) == 3, (transitions, clips)
+    for clip in clips:
+        seq = _read(clip)
+        assert seq == list(range(seq[0], seq[0] + len(seq)))  # consecutive: the ring, then what followed
+        # 0.5 s of ring + 1 s after the alert at 100 frames/s; the alert reaches the recorder a few
+        # frames after the frame that caused it
+        assert 120 <= len(seq) <= 160, (clip.name, len(seq))
+    stats = _recording_stats(plant)
+    assert stats["mode"] == "alerts" and stats["frames_dropped"] == 0
