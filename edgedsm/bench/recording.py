@@ -58,6 +58,7 @@ class Recorded:
     """One trial recording: the pipeline's trial and what the recorder did."""
 
     trial: Trial
+    measurement_drops: int  # frames the measurement's queue dropped
     written: int  # frames on disk, backlog included
     dropped: int  # frames the recorder dropped during the trial
     queued: int  # frames waiting for the disk when the trial stopped
@@ -65,7 +66,7 @@ class Recorded:
 
     @property
     def sustained(self) -> bool:
-        return self.trial.sustained and self.dropped == 0
+        return self.trial.sustained and self.measurement_drops == 0 and self.dropped == 0
 
     @property
     def mb_s(self) -> float:
@@ -86,7 +87,8 @@ def recorded_trial(label: str, config_for: object, rate: float | None, seconds: 
     finally:
         recorder.close(5.0)
     files = recorder.files
-    result = Recorded(trial, files.written, stats.frames_dropped, stats.queued, files.bytes_written / 1e6)
+    result = Recorded(trial, trial.drops, files.written, stats.frames_dropped, stats.queued,
+                      files.bytes_written / 1e6)
     for path in folder.glob("*.tif"):
         path.unlink()
     return result
@@ -198,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     report.line()
     rows = [["without recording", _rate(t), f"{t.fps:.1f}", str(t.drops), "", "", "", "",
              _sustained(t.rate, t.sustained)] for t in plain]
-    rows += [["recording", _rate(r.trial), f"{r.trial.fps:.1f}", str(r.trial.drops - r.dropped), str(r.written),
+    rows += [["recording", _rate(r.trial), f"{r.trial.fps:.1f}", str(r.measurement_drops), str(r.written),
               str(r.dropped), str(r.queued), f"{r.mb_s:.0f}", _sustained(r.trial.rate, r.sustained)] for r in recorded]
     report.table(["trial", "requested frames/s", "processed frames/s", "measurement drops", "frames on disk",
                   "recorder drops", "queued for disk at stop", "MB/s on disk", "sustained"], rows)
