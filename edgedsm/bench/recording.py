@@ -29,6 +29,7 @@ import argparse
 import math
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -75,10 +76,17 @@ class Recorded:
         """... and every frame is on disk."""
         return self.trial.sustained and self.dropped == 0
 
+    disk_s: float = float("nan")  # the trial's whole time (window filling and stopping included)
+    mb_by_stop: float = float("nan")  # MB written by the time the trial stopped
+
     @property
     def mb_s(self) -> float:
-        """MB/s on disk at the rate processed (the MB per frame written, window filling included)."""
-        return self.mb / self.written * self.trial.fps if self.written else 0.0
+        """MB/s written to disk over the trial's whole time."""
+        return self.mb_by_stop / self.disk_s
+
+    @property
+    def mb_per_frame(self) -> float:
+        return self.mb / self.written if self.written else float("nan")
 
 
 def recorded_trial(label: str, config_for: object, rate: float | None, seconds: float, directory: Path,
@@ -87,15 +95,17 @@ def recorded_trial(label: str, config_for: object, rate: float | None, seconds: 
     folder = directory / f"trial-{index}"
     recorder = Recorder(section, folder, "bench", source="bench")
     try:
+        started = time.monotonic()
         trial = run_trial(label, config_for(rate or 0.0), rate=rate, seconds=seconds,  # type: ignore[operator]
                           recorder=recorder)
+        disk_s, mb_by_stop = time.monotonic() - started, recorder.files.bytes_written / 1e6
         stats = recorder.stats()
         recorder.flush(FLUSH_S)
     finally:
         recorder.close(5.0)
     files = recorder.files
     result = Recorded(trial, trial.drops, files.written, stats.frames_dropped, stats.queued,
-                      files.bytes_written / 1e6)
+                      files.bytes_written / 1e6, disk_s, mb_by_stop)
     for path in folder.glob("*.tif"):
         path.unlink()
     return result
@@ -210,14 +220,15 @@ def run(args: argparse.Namespace) -> int:
                 f"{'--dir ' + args.dir if args.dir else 'a temporary folder'}. Bare engine {bare[0]:.1f} frames/s "
                 f"before the trials, {bare[-1]:.1f} after.")
     report.line()
-    rows = [["without recording", _rate(t), f"{t.fps:.1f}", str(t.drops), "", "", "", "",
+    rows = [["without recording", _rate(t), f"{t.fps:.1f}", str(t.drops), "", "", "", "", "",
              _sustained(t.rate, t.sustained)] for t in plain]
     rows = [[*row, ""] for row in rows]
     rows += [["recording", _rate(r.trial), f"{r.trial.fps:.1f}", str(r.measurement_drops), str(r.written),
-              str(r.dropped), str(r.queued), f"{r.mb_s:.0f}", _sustained(r.trial.rate, r.measured),
-              _sustained(r.trial.rate, r.sustained)] for r in recorded]
+              str(r.dropped), str(r.queued), f"{r.mb_s:.0f}", f"{r.mb_per_frame:.2f}",
+              _sustained(r.trial.rate, r.measured), _sustained(r.trial.rate, r.sustained)] for r in recorded]
     report.table(["trial", "requested frames/s", "processed frames/s", "measurement drops", "frames on disk",
-                  "recorder drops", "queued for disk at stop", "MB/s on disk", "measurement sustained",
+                  "recorder drops", "queued for disk at stop", "MB/s to disk (whole trial)", "MB a frame on disk",
+                  "measurement sustained",
                   "every frame on disk"], rows)
     report.line()
     cap_plain = [t.fps for t in plain if t.rate is None]

@@ -23,4 +23,5 @@ def test_a_recording_trial_is_sustained_only_without_any_drop() -> None:
     assert Recorded(_trial(0), 0, written=300, dropped=0, queued=0, mb=30.0).sustained
     assert not Recorded(_trial(0), 0, written=290, dropped=10, queued=0, mb=29.0).sustained
     assert not Recorded(_trial(3), 3, written=300, dropped=0, queued=0, mb=30.0).sustained
-    assert Recorded(_trial(0), 0, written=300, dropped=0, queued=0, mb=30.0).mb_s == 3.0  # 0.1 MB x 30/s
+    timed = Recorded(_trial(0), 0, written=300, dropped=0, queued=0, mb=30.0, disk_s=12.0, mb_by_stop=24.0)
+    assert timed.mb_s == 2.0 and timed.mb_per_frame == 0.1
