@@ -159,6 +159,21 @@ class MapStats(Message):
     p95: float | None
 
 
+class RecordingStats(Message):
+    """What ``[recording]`` kept and lost so far (``recording`` in the stats)."""
+
+    mode: str = Field(description="continuous, alerts or timelapse")
+    dir: str = Field(description="the recordings' folder")
+    files: int = Field(ge=0, description="recordings in the folder (written by this device, kept by retention)")
+    bytes: int = Field(ge=0, description="their total size")
+    frames_written: int = Field(ge=0, description="frames written since start")
+    frames_dropped: int = Field(ge=0, description="frames meant for the disk but dropped (queue full, disk error)")
+    queued: int = Field(0, ge=0, description="frames waiting for the disk")
+    clip_active: bool = Field(False, description="an alert or cmd/record clip is being recorded")
+    files_deleted: int = Field(0, ge=0, description="files deleted by retention since start")
+    error: str | None = Field(None, description="the disk's refusal while recording fails (None: writing)")
+
+
 class Stats(Message):
     """Periodic statistics (``<base>/stats``, every ``stats_interval_s``)."""
 
@@ -180,6 +195,7 @@ class Stats(Message):
                                                                           "(when τc is estimated)")
     frame_interval_s: float | None = Field(None, gt=0, description="Δt that puts τc in seconds (when τc is estimated)")
     mqtt: dict[str, Any] | None = Field(None, description="the MQTT sink's own counters (added on the wire)")
+    recording: RecordingStats | None = Field(None, description="the recorder's counters (with [recording])")
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@
   edgedsm bench soak     faults in a loop against the daemon: alerts lost, laser-off delays, memory drift
   edgedsm bench accuracy what N, m, mode, estimator and smoothing cost and buy (docs/accuracy.md)
   edgedsm bench compression  lossless and lossy codecs: ratio, MB/s per core, map accuracy (docs/compression.md)
+  edgedsm bench recording    what continuous [recording] costs the daemon's zero-drop rate (docs/bench-recording.md)
 
 Every benchmark prints a markdown table and can write it to a file (--output).
 """
@@ -22,7 +23,7 @@ HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers,
 #: Each suite and the module of the lab (edgedsm_lab, beside the package) that runs it.
 SUITES = {name: f"edgedsm_lab.bench.{module}" for name, module in (
     ("sim", "sim"), ("engine", "engine"), ("devices", "devices"), ("e2e", "e2e_report"), ("ambient", "ambient"),
-    ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"))}
+    ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"), ("recording", "recording"))}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

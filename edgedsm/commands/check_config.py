@@ -62,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
             "frame_shape": list(frame_shape) if frame_shape is not None else None,
             "mqtt": f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else None,
             "homeassistant": config.homeassistant.discovery_prefix if config.homeassistant else None,
-            "http": config.http.listen if config.http else None, "notes": config.notes}))
+            "http": config.http.listen if config.http else None,
+            "recording": recording_budget(config, frame_shape), "notes": config.notes}))
         return 0
     mqtt = f"{config.mqtt.host}:{config.mqtt.port}, topics {base}/..." if config.mqtt else "none (log only)"
     regions = (f"{len(config.regions)} region(s) inside the {frame_shape[1]}x{frame_shape[0]} frame"
@@ -74,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
     tau = tau_range(config)
     if tau is not None:
         print(tau_line(tau))
+    budget = recording_budget(config, frame_shape)
+    if budget is not None:
+        print(budget_line(budget))
     return 0
 
 
@@ -106,9 +110,7 @@ def queue_memory(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> s
     bound = f"at most {acq.queue_max_mib} MiB"
     if frame_shape is None:
         return f"queue: {acq.queue_seconds:g} s of frames at the measured rate, {bound} (frame size known at start)"
-    # 8-bit data takes one byte a pixel, deeper data two (unpacked on arrival)
-    deep = cam.pixel_format is not None and cam.pixel_format != "Mono8"
-    frame_bytes = frame_shape[0] * frame_shape[1] * (2 if deep else 1)
+    frame_bytes = frame_shape[0] * frame_shape[1] * (2 if _deep(config) else 1)
     rate = 1.0 / cam.frame_interval_s if cam.frame_interval_s else None
     if acq.queue_frames is not None:
         frames = acq.queue_frames
@@ -121,3 +123,61 @@ def queue_memory(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> s
         frames = queue_capacity(acq, rate, frame_bytes)
         how = f"{acq.queue_seconds:g} s at {rate:g} frames/s, {bound}"
     return f"queue: {frames} frames of {frame_bytes / 2**20:.1f} MiB = {frames * frame_bytes / 2**20:.0f} MiB ({how})"
+
+
+def _deep(config: DaemonConfig) -> bool:
+    """8-bit data takes one byte a pixel, deeper data two (unpacked on arrival)."""
+    return config.camera.pixel_format is not None and config.camera.pixel_format != "Mono8"
+
+
+def _bits(config: DaemonConfig) -> int:
+    from edgedsm.devices.camera.pixels import PIXEL_BITS
+
+    return PIXEL_BITS.get(config.camera.pixel_format or "Mono8", 16)
+
+
+def recording_budget(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> dict[str, Any] | None:
+    """``[recording]``'s disk budget (None without one): its settings, and where the frame size
+    and interval are known the raw and expected MB/s (the codec's ratio measured on speckle),
+    how long until ``max_bytes`` turns over (hours; alerts mode: clips kept) and the ring's memory."""
+    from edgedsm.config.recording import speckle_ratio
+
+    rec = config.recording
+    if rec is None:
+        return None
+    budget: dict[str, Any] = {"mode": rec.mode, "dir": str(config.recording_dir), "codec": rec.codec,
+                              "max_bytes": rec.max_bytes, "keep_days": rec.keep_days}
+    interval = config.camera.frame_interval_s
+    if frame_shape is None or interval is None:
+        return budget
+    frame_bytes = frame_shape[0] * frame_shape[1] * (2 if _deep(config) else 1)
+    ratio = speckle_ratio(rec.codec, _bits(config))
+    fps = 1.0 / interval
+    kept_fps = {"continuous": fps, "timelapse": min(fps, 1.0 / rec.every_s), "alerts": fps}[rec.mode]
+    raw = kept_fps * frame_bytes
+    budget.update(frame_bytes=frame_bytes, frames_per_s=fps, ratio=ratio, raw_mb_s=raw / 1e6,
+                  disk_mb_s=raw / ratio / 1e6)
+    if rec.mode == "alerts":
+        ring_frames = min(int(rec.pre_s * fps) + 1, rec.ring_max_mib * 2**20 // frame_bytes)
+        clip_bytes = (ring_frames + rec.post_s * fps) * frame_bytes / ratio
+        budget.update(ring_frames=ring_frames, ring_mib=ring_frames * frame_bytes / 2**20,
+                      ring_s=ring_frames / fps, clip_mb=clip_bytes / 1e6, clips_kept=int(rec.max_bytes // clip_bytes))
+    else:
+        budget["turnover_h"] = rec.max_bytes / (raw / ratio) / 3600
+    return budget
+
+
+def budget_line(budget: dict[str, Any]) -> str:
+    """One line of :func:`recording_budget`."""
+    head = (f"recording: {budget['mode']} to {budget['dir']} ({budget['codec']}), max_bytes "
+            f"{budget['max_bytes'] / 1e9:.3g} GB, keep_days {budget['keep_days']:g}")
+    if "raw_mb_s" not in budget:
+        return head + " (MB/s known once the frame size and camera.frame_interval_s are)"
+    rate = (f"; {budget['frames_per_s']:g} frames/s of {budget['frame_bytes'] / 1e6:.3g} MB: "
+            f"{budget['raw_mb_s']:.3g} MB/s raw, about {budget['disk_mb_s']:.3g} MB/s on disk "
+            f"({budget['codec']} ≈ {budget['ratio']:g}× on speckle)")
+    if budget["mode"] == "alerts":
+        return (head + rate + f" while a clip records; a clip about {budget['clip_mb']:.3g} MB, "
+                f"{budget['clips_kept']} kept; ring {budget['ring_frames']} frames = {budget['ring_s']:.3g} s, "
+                f"{budget['ring_mib']:.0f} MiB of memory")
+    return head + rate + f"; max_bytes turns over after {budget['turnover_h']:.3g} h"

@@ -7,12 +7,14 @@ that id on ``<prefix>/<device>/cmd/NAME/reply`` decides the exit status:
   1  the daemon refused it (the reason is printed)
   2  no reply within --timeout (daemon not running, wrong --device, broker dropped it)
 
-Commands (docs/mqtt.md): laser {"state": "on"|"off"|"auto"}, rebaseline, dark, publish_maps.
+Commands (docs/mqtt.md): laser {"state": "on"|"off"|"auto"}, rebaseline, dark, publish_maps,
+record {"seconds": S} (a clip, with [recording]).
 
 Examples:
   edgedsm cmd publish_maps -c /etc/edgedsm/line3.toml
   edgedsm cmd laser --device line3 --broker broker.local:1883 --args '{"state": "off"}'
   edgedsm cmd rebaseline --device line3 --json      # the reply as JSON on stdout
+  edgedsm cmd record -c /etc/edgedsm/line3.toml --args '{"seconds": 30}'
 
 Connection settings come from the config's [mqtt] table (-c) and/or the options; options win.
 The password comes from $EDGEDSM_MQTT_PASSWORD (or $CREDENTIALS_DIRECTORY/mqtt-password).
@@ -51,7 +53,7 @@ CONNECT_WAIT_S = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("name", metavar="NAME", help="command: laser, rebaseline, dark, publish_maps")
+    parser.add_argument("name", metavar="NAME", help="command: laser, rebaseline, dark, publish_maps, record")
     parser.add_argument("--args", default="{}", metavar="JSON", help="the command's arguments as a JSON object")
     parser.add_argument("-c", "--config", type=Path, metavar="CONFIG",
                         help="take the broker and device from this daemon config")

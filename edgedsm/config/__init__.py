@@ -5,7 +5,7 @@ The camera and relay URIs are parsed here, once (``config.camera.spec``, ``confi
 See docs/configuration.md.
 
 The models hold data and its validation, one module per group of tables (``devices``,
-``estimator``, ``regions``, ``outputs``; ``daemon``: the whole file and the rules across tables);
+``estimator``, ``regions``, ``outputs``, ``recording``; ``daemon``: the whole file and the rules across tables);
 masks come from :mod:`edgedsm.geometry`, τc's limits from :mod:`edgedsm.estimators`.
 
 Secrets never live in this file: the MQTT password comes from the environment or from
@@ -18,6 +18,7 @@ from edgedsm.config.daemon import DaemonConfig, check_regions, config_schema, lo
 from edgedsm.config.devices import AcquisitionSection, CameraSection, DeviceSection, LaserSection
 from edgedsm.config.estimator import EstimatorSection
 from edgedsm.config.outputs import CadenceSection, HomeAssistantSection, HttpSection, LoggingSection
+from edgedsm.config.recording import RecordingSection
 from edgedsm.config.regions import (
     CircleArea,
     FullArea,
@@ -45,6 +46,7 @@ __all__ = [
     "LoggingSection",
     "MaskArea",
     "PolygonArea",
+    "RecordingSection",
     "RectArea",
     "RegionSection",
     "RegionSettings",

@@ -14,6 +14,7 @@ from edgedsm import geometry
 from edgedsm.config.devices import AcquisitionSection, CameraSection, DeviceSection, LaserSection
 from edgedsm.config.estimator import EstimatorSection
 from edgedsm.config.outputs import CadenceSection, HomeAssistantSection, HttpSection, LoggingSection
+from edgedsm.config.recording import RecordingSection
 from edgedsm.config.regions import RegionSection, _default_regions, _default_shape
 from edgedsm.devices.uri import RelaySpec
 from edgedsm.errors import ConfigError
@@ -39,6 +40,8 @@ class DaemonConfig(StrictModel):
     logging: LoggingSection = Field(default_factory=LoggingSection)
     homeassistant: HomeAssistantSection | None = Field(None, description="Home Assistant discovery; absent = off")
     http: HttpSection | None = Field(None, description="metrics and health over HTTP; absent = off")
+    recording: RecordingSection | None = Field(None, description="frames kept on disk (continuous, alert clips, "
+                                                                 "time-lapse); absent = none (docs/recording.md)")
     _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
     _source: str = PrivateAttr("")
     _notes: list[str] = PrivateAttr(default_factory=list)
@@ -53,6 +56,14 @@ class DaemonConfig(StrictModel):
     def base_dir(self) -> Path:
         """The directory relative paths (scene, recording, mask) resolve in: the config file's."""
         return self._base_dir
+
+    @property
+    def recording_dir(self) -> Path | None:
+        """Where ``[recording]`` writes (None without one): its ``dir`` resolved against the
+        config file's folder, else ``<device.state_dir>/recordings``."""
+        if self.recording is None:
+            return None
+        return self.recording.directory(self.base_dir, self.device.state_dir)
 
     @property
     def source(self) -> str:

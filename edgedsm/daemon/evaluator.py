@@ -185,7 +185,8 @@ class Evaluator:
                       estimator=estimator, drops=status.drops, camera=status.camera,
                       ambient_level=status.ambient_level, regions=regions,
                       states={name: region.state for name, region in report.regions.items()},
-                      warning=status.warning, tau_c=taus, frame_interval_s=interval_s)
+                      warning=status.warning, tau_c=taus, frame_interval_s=interval_s,
+                      recording=status.recording)
         self.sink.publish_stats(stats)
         # on a transition, and at most once per stats interval when time to dry or activity moved
         if transitions or self._last_report is None or report.moved_from(self._last_report):

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from edgedsm.estimators.region_stats import Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
-from edgedsm.messages import LaserState
+from edgedsm.messages import LaserState, RecordingStats
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,7 @@ class Status:
     ambient_level: float | None
     warning: str | None
     fault: str | None
+    recording: RecordingStats | None = None
 
 
 @dataclass(frozen=True)

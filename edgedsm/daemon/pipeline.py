@@ -47,6 +47,7 @@ from edgedsm.daemon.evaluator import Evaluator
 from edgedsm.daemon.handover import Status
 from edgedsm.daemon.measurement import Measurement
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.recording import Recorder
 from edgedsm.daemon.tau import TauRegions
 from edgedsm.devices.camera.base import Camera
 from edgedsm.devices.laser.base import LaserRelay
@@ -60,6 +61,7 @@ from edgedsm.publish.commands import (
     LaserCommand,
     PublishMapsCommand,
     RebaselineCommand,
+    RecordCommand,
 )
 from edgedsm.publish.sink import Sink
 
@@ -103,8 +105,10 @@ class Pipeline:
 
     def __init__(self, config: DaemonConfig, camera: Camera, sink: Sink, relay: LaserRelay | None = None,
                  cadence: Cadence | None = None, clock: Clock | None = None,
-                 on_alive: Callable[[], None] | None = None, probes: PipelineProbes | None = None) -> None:
+                 on_alive: Callable[[], None] | None = None, probes: PipelineProbes | None = None,
+                 recorder: Recorder | None = None) -> None:
         self.config = config
+        self.recorder = recorder  # [recording]: offered every frame taken (never waits on the disk)
         self.camera = camera
         self.sink = sink
         self.cadence = cadence or Cadence()
@@ -127,7 +131,7 @@ class Pipeline:
         #: each command type and its handler (run on the pipeline thread)
         self._handlers: dict[type[Command], Callable[[Any], CommandResult]] = {
             LaserCommand: self._laser, RebaselineCommand: self._rebaseline, DarkCommand: self._dark,
-            PublishMapsCommand: self._publish_maps}
+            PublishMapsCommand: self._publish_maps, RecordCommand: self._record}
         self._last_frame_t: float | None = None  # None until the first frame
         self._stats_due = float("-inf")  # when the next stats are due (monotonic)
         self._states_due = float("-inf")  # and the next drying states
@@ -192,16 +196,23 @@ class Pipeline:
         self.request_maps()
         return CommandResult()
 
+    def _record(self, command: RecordCommand) -> CommandResult:
+        if self.recorder is None:
+            return CommandResult.refused("nothing records: the configuration has no [recording] table")
+        self.recorder.request_clip(command.seconds)
+        return CommandResult()
+
     @property
     def frame_shape(self) -> tuple[int, int] | None:
         """The camera's frame (rows, columns), once a frame came."""
         return self.measurement.frame_shape
 
-    def apply(self, config: DaemonConfig, cadence: Cadence) -> None:
+    def apply(self, config: DaemonConfig, cadence: Cadence, recorder: Recorder | None) -> None:
         """A reload that keeps the measurement (``edgedsm.daemon.reload``): the new thresholds go
         to the running state machines (their states, dwell and trend history kept), the new
-        cadence to the running loop."""
+        cadence to the running loop, the recorder (the same one, or one rebuilt) gets the frames."""
         self.evaluator.apply(config)
+        self.recorder = recorder
         self.cadence.stats_every_s = cadence.stats_every_s
         self.cadence.maps_every_s = cadence.maps_every_s
         self.config = self.measurement.config = config
@@ -234,6 +245,8 @@ class Pipeline:
         self._frames_t.append(self._last_frame_t)
         if len(self._frames_t) > FPS_FRAMES:
             del self._frames_t[:-FPS_FRAMES]
+        if self.recorder is not None:
+            self.recorder.offer(frame, self.acquisition.laser if self.acquisition.relay is not None else "none")
         if self.probes.frame_taken is not None:
             self.probes.frame_taken(frame, self.counters["frames"])
         self.on_alive()  # here, not only in the loop: a long dark phase must not starve the watchdog
@@ -270,7 +283,8 @@ class Pipeline:
         status = Status(now=now, frames=self.counters["frames"], fps=self._fps(), laser=self.acquisition.laser,
                         drops={k: v for k, v in self.counters.items() if k.startswith("dropped")},
                         camera=dict(self.camera.stats), ambient_level=self.acquisition.ambient_level,
-                        warning=self._ambient_warning(), fault=fault)
+                        warning=self._ambient_warning(), fault=fault,
+                        recording=self.recorder.stats() if self.recorder is not None else None)
         maps_due = now - self._last_maps_t >= self.cadence.maps_every_s
         snapshot = self.measurement.snapshot(status, maps_due, stats_due, self.evaluator.generation)
         self.evaluator.submit(snapshot, wait=wait)
@@ -306,6 +320,9 @@ class Pipeline:
             acq.take_dark_frames(self._take, grab_timeout_s)
             while not should_stop():
                 self._handle_commands()
+                if self.recorder is not None:
+                    for reason in self.recorder.pending_faults():  # the disk refused: measuring goes on
+                        self._device_fault(reason)
                 now = self.clock.monotonic()
                 if capture.error is not None:
                     raise capture.error

@@ -97,6 +97,7 @@ SECTION_CHANGE: dict[str, str] = {
     "logging": KEEP,
     "homeassistant": KEEP,
     "http": KEEP,
+    "recording": KEEP,      # the recorder is rebuilt beside the running measurement
 }
 
 #: The region fields that are drying thresholds (applied in place); every other one is geometry.

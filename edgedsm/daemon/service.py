@@ -135,7 +135,7 @@ class Service:
             self._reloaded = True
             return True
         if pipeline is not None:
-            pipeline.apply(new, self._cadence(new))
+            pipeline.apply(new, self._cadence(new), self.sinks.recorder)
         self.config = new
         log.warning("configuration reloaded from %s (changed: %s); measurement kept", self.config_path, what)
         self.notifier.ready(status=f"measuring with {new.camera.uri} (reloaded)")
@@ -219,7 +219,7 @@ class Service:
         relay = open_relay(config.laser.spec) if config.laser is not None else None
         couple_simulated_laser(camera, relay)
         pipeline = Pipeline(config, camera, sink, relay=relay, cadence=self.cadence or self._cadence(config),
-                            on_alive=alive, probes=self.sinks.probes)
+                            on_alive=alive, probes=self.sinks.probes, recorder=self.sinks.recorder)
         holder["pipeline"] = self.pipeline = pipeline
         safety = LaserSafety(relay) if relay is not None else None
         try:

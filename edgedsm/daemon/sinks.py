@@ -14,6 +14,7 @@ from typing import Any
 
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.recording import Recorder
 from edgedsm.daemon.tau import engine_estimators
 from edgedsm.errors import ConfigError
 from edgedsm.publish.command_channel import CommandHandler
@@ -69,6 +70,14 @@ def _build_http(config: DaemonConfig, on_command: CommandHandler, needed: Sink |
     return MetricsSink(config.http.stale_after_s).serve(config.http.address)
 
 
+def _build_recording(config: DaemonConfig, on_command: CommandHandler, needed: Sink | None) -> Sink:
+    from edgedsm.daemon.recording import make_recorder
+
+    assert config.recording is not None and config.recording_dir is not None
+    return make_recorder(config.recording, config.recording_dir, config.device.name, config.camera.uri,
+                         config.source)
+
+
 def _http_moves(new: DaemonConfig, running: DaemonConfig | None) -> bool:
     return running is not None and running.http is not None and new.http is not None \
         and running.http.address != new.http.address
@@ -102,6 +111,9 @@ SINKS: tuple[SinkSpec, ...] = (
              lambda c: _fingerprint(c.homeassistant, str(c.device.state_dir), _regions(c)), _build_homeassistant,
              needs="mqtt"),
     SinkSpec("http", lambda c: c.http is not None, lambda c: _fingerprint(c.http), _build_http, _http_moves),
+    # [recording]: a sink for the alerts that start clips, and the pipeline's frame consumer
+    SinkSpec("recording", lambda c: c.recording is not None,
+             lambda c: _fingerprint(c.recording, str(c.recording_dir), c.device.name, c.camera.uri), _build_recording),
 )
 _SPECS = {spec.name: spec for spec in SINKS}
 
@@ -189,6 +201,13 @@ class SinkSet:
         metrics.link = link if isinstance(link, MqttSink) else None
         self.probes.frame_taken = metrics.frame_taken
         self.probes.frame_pushed = metrics.frame_pushed
+
+    @property
+    def recorder(self) -> Recorder | None:
+        """The ``[recording]`` recorder, to hand the pipeline (None without one)."""
+        recorder = self.get("recording")
+        assert recorder is None or isinstance(recorder, Recorder)
+        return recorder
 
     def get(self, name: str) -> Sink | None:
         built = self._built.get(name)

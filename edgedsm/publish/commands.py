@@ -15,6 +15,9 @@ name               payload                     effect
 ``dark``           ``{}``                      take dark frames (laser off) now (daemon handler)
 ``publish_maps``   ``{}``                      publish the maps at the next chance instead of
                                                waiting for the maps interval (daemon handler)
+``record``         ``{"seconds": S}``          record every frame for S seconds (default
+                   (optional)                  ``[recording] post_s``) in a clip file of its
+                                               own; needs ``[recording]`` (daemon handler)
 =================  ==========================  ===============================================
 
 Bounds: at most 16 KiB and 8 levels of nesting, checked before parsing. Reply (JSON, QoS 1, not
@@ -59,11 +62,19 @@ class PublishMapsCommand(Command):
     """Publish the maps at the next chance instead of waiting for maps_interval_s."""
 
 
+class RecordCommand(Command):
+    """Record a clip now (``[recording]``): every frame for ``seconds``, in any mode."""
+
+    seconds: float | None = Field(None, gt=0, le=3600,
+                                  description="length of the clip (default: [recording] post_s)")
+
+
 COMMANDS: dict[str, type[Command]] = {
     "laser": LaserCommand,
     "rebaseline": RebaselineCommand,
     "dark": DarkCommand,
     "publish_maps": PublishMapsCommand,
+    "record": RecordCommand,
 }
 
 

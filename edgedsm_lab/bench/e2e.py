@@ -16,11 +16,9 @@ over the whole trial.
 
 Measured, in one run, per size:
 
-1. **Bare engine**: ``SlidingWindow.push`` alone on the same frames (the upper bound), for the
-   trial's seconds before the first trial and for a few seconds after each later one: the
-   machine's speed drifts (by 2x on a shared virtual machine), so each trial is compared with
-   the faster of the bare runs just before and just after it (a machine slower during one of
-   them would otherwise flatter the daemon: ratios above 100 % were seen with the mean).
+1. **Bare engine**: ``SlidingWindow.push`` alone on the same frames (the upper bound), before
+   the first trial and after each: the machine's speed drifts, so each trial is compared with
+   the faster of the bare runs around it (the mean would flatter the daemon).
 2. **Capacity**: the replay at rate 0 is a source that can wait; the pipeline holds it back when
    its queue is full, so frames/s is what the daemon processes at most.
 3. **Capacity interleaved with the bare engine**, drift-free: one capacity trial in which the
@@ -68,6 +66,7 @@ from edgedsm.daemon.devices import open_camera_for
 from edgedsm.daemon.handover import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.recording import Recorder
 from edgedsm.estimators import SlidingWindow
 from edgedsm.frames import Frame
 from edgedsm.messages import Stats
@@ -325,10 +324,11 @@ def anon_mib() -> float:
 
 
 def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: float, covered: float = 1.0,
-              wrap: Callable[[PipelineProbes], PipelineProbes] | None = None) -> Trial:
-    """Run the pipeline on ``config`` for ``seconds`` after its window filled (evaluations run
-    from then on) and measure over those seconds (see the module docstring). ``wrap``: probes
-    around the instruments' (the interleaved capacity holds the pipeline thread in one)."""
+              wrap: Callable[[PipelineProbes], PipelineProbes] | None = None,
+              recorder: Recorder | None = None) -> Trial:
+    """Run the pipeline on ``config`` for ``seconds`` after its window filled and measure over
+    those seconds (module docstring). ``wrap``: probes around the instruments' (the interleaved
+    capacity holds the pipeline thread in one); ``recorder``: the pipeline's ``[recording]``."""
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
@@ -340,7 +340,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         camera = open_camera_for(config)
         probes = instruments.probes()
         pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S),
-                            probes=wrap(probes) if wrap else probes)
+                            probes=wrap(probes) if wrap else probes, recorder=recorder)
         # CPU time when the window filled; time and CPU time when the trial's seconds were up
         # (stopping is not measured)
         marks: dict[str, float] = {}
@@ -361,8 +361,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
     finally:
         mqtt.close(1.0)
     ready_t, ready_at = instruments.ready_t or started, instruments.ready_at or 0
-    # measured up to the stop request: the pipeline's and the sink's shutdown (up to a second or
-    # two of waiting for the last evaluation and publishes) would understate every rate
+    # measured up to the stop request: the shutdown's waits would understate every rate
     end_t = marks.get("stop", time.monotonic())
     wall = end_t - ready_t
 

@@ -157,3 +157,27 @@ def test_an_unchanged_file_changes_nothing_once_its_specs_were_read(tmp_path: Pa
     assert restart_reasons(new, running) == []
     moved = config(tmp_path, extra='\n[laser]\nuri = "sim:other"\n')
     assert restart_reasons(moved, running) == ["laser"]
+
+
+def test_a_changed_recording_table_rebuilds_only_the_recorder_and_keeps_the_measurement(tmp_path: Path) -> None:
+    from edgedsm.daemon.sinks import SinkSet
+
+    running = config(tmp_path, extra=f'[recording]\ndir = "{tmp_path / "rec"}"\nmode = "alerts"\n')
+    changed = config(tmp_path, extra=f'[recording]\ndir = "{tmp_path / "rec"}"\nmode = "continuous"\n')
+    assert changed_sections(changed, running) == ["recording"] and restart_reasons(changed, running) == []
+    running.mqtt = changed.mqtt = None  # the log sink: no broker needed
+    sinks = SinkSet(lambda name, command: {})
+    try:
+        assert sinks.apply(running) == ["log", "recording"]
+        first = sinks.recorder
+        assert first is not None and first.mode == "alerts" and first in sinks.fanout.sinks
+        assert sinks.apply(changed) == ["recording"]
+        second = sinks.recorder
+        assert second is not first and second is not None and second.mode == "continuous"
+        assert first._closed and not second._closed  # the old one takes no more frames
+        without = config(tmp_path)
+        without.mqtt = None
+        assert sinks.apply(without) == ["recording"] and sinks.recorder is None
+        assert second._closed
+    finally:
+        sinks.close(1.0)

@@ -87,10 +87,15 @@ def test_topics():
 
 
 def test_command_models_are_strict():
-    assert set(COMMANDS) == {"laser", "rebaseline", "dark", "publish_maps"}
+    assert set(COMMANDS) == {"laser", "rebaseline", "dark", "publish_maps", "record"}
     assert LaserCommand.model_validate({"state": "on"}).state == "on"
     for bad in ({"state": "maybe"}, {}, {"state": "on", "power": 3}):
         with pytest.raises(ValueError, match=r"state|power"):
             LaserCommand.model_validate(bad)
     with pytest.raises(ValueError, match="extra"):
         COMMANDS["dark"].model_validate({"frames": 3})
+    assert COMMANDS["record"].model_validate({}).seconds is None
+    assert COMMANDS["record"].model_validate({"seconds": 2.5}).seconds == 2.5
+    for bad in ({"seconds": 0}, {"seconds": 7200}, {"seconds": "long"}, {"frames": 3}):
+        with pytest.raises(ValueError):
+            COMMANDS["record"].model_validate(bad)
