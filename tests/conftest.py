@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -8,18 +9,45 @@ from tests.kernel_cache import ESTIMATORS, warm_start
 
 REPO = Path(__file__).resolve().parents[1]
 
+#: Fixtures that start Aravis' fake GigE Vision camera: it answers on 127.0.0.1's GVCP port 3956,
+#: one at a time, and cannot take another loopback address (it listens only on an address of a
+#: network interface, and lo has just 127.0.0.1), so their tests run on one pytest-xdist worker.
+FAKE_GIGE_FIXTURES = {"gv_factory", "fake_gige"}
+
 
 @pytest.fixture
 def repo() -> Path:
     return REPO
 
 
-def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+def warm_daemon_kernels(paths: list[str]) -> None:
     """Fill numba's disk cache before the first daemon process starts, when the daemon-process
     suites (integration, faults) run: on a fresh checkout a daemon's first start compiles its
     kernels (tens of seconds on 2 cores), longer than the tests wait for a daemon to answer; each
     later start loads them (tests/unit/test_warm_start.py). Here, outside any test's timeout."""
-    if config.option.collectonly or not any({"integration", "faults"} & set(item.path.parts) for item in items):
+    if any({"integration", "faults"} & set(Path(path).parts) for path in paths):
+        for estimator in ESTIMATORS:
+            warm_start(estimator)
+
+
+@pytest.hookimpl(tryfirst=True)  # the group marks before pytest-xdist reads them
+def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if FAKE_GIGE_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.xdist_group("fake_gige"))
+    # Under pytest-xdist the controller warms the cache once, before it hands out any test
+    # (pytest_xdist_node_collection_finished); the workers do not race to compile the same kernels.
+    if not config.option.collectonly and "PYTEST_XDIST_WORKER" not in os.environ:
+        warm_daemon_kernels([str(item.path) for item in items])
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_node_collection_finished(node, ids: list[str]) -> None:
+    config = node.config
+    if config.option.collectonly or config.stash.get(_WARMED, False):
         return
-    for estimator in ESTIMATORS:
-        warm_start(estimator)
+    config.stash[_WARMED] = True
+    warm_daemon_kernels([nodeid.split("::")[0] for nodeid in ids])
+
+
+_WARMED = pytest.StashKey[bool]()
