@@ -242,7 +242,10 @@ def daemon_config(tmp_path: Path, camera_uri: str, port: int) -> dict[str, Any]:
 
 @pytest.mark.slow
 @pytest.mark.timeout(90)
-@pytest.mark.parametrize("form", ["device id", "address", "in-process Fake"])
+# the forms with a fake GigE camera join the other tests that start one (tests/conftest.py)
+@pytest.mark.parametrize("form", [pytest.param("device id", marks=pytest.mark.xdist_group("fake_gige")),
+                                  pytest.param("address", marks=pytest.mark.xdist_group("fake_gige")),
+                                  "in-process Fake"])
 def test_daemon_measures_with_an_aravis_camera(form: str, tmp_path: Path, request: pytest.FixtureRequest,
                                                broker: Broker, subscribers: Callable[..., Subscriber]) -> None:
     """`edgedsm run` with camera.uri = aravis:DEVICE-ID (the README's form), aravis:ADDRESS, aravis:Fake_1:
