@@ -15,6 +15,11 @@ REPO = Path(__file__).resolve().parents[1]
 #: network interface, and lo has just 127.0.0.1), so their tests run on one pytest-xdist worker.
 FAKE_GIGE_FIXTURES = {"gv_factory", "fake_gige"}
 
+#: The slow unit tests compute for long, many on every core (numba kernels, benchmarks' quick runs,
+#: million-frame streams, kernel compilations): on one worker, one at a time, so that they never
+#: take both cores from the daemons and brokers whose timing other workers' tests check.
+CPU_BOUND_GROUP = "cpu_bound"
+
 
 @pytest.fixture
 def repo() -> Path:
@@ -37,6 +42,8 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     for item in items:  # before pytest-xdist reads the marks (inside the yield)
         if FAKE_GIGE_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.xdist_group("fake_gige"))
+        if item.get_closest_marker("slow") and "unit" in item.path.parts:
+            item.add_marker(pytest.mark.xdist_group(CPU_BOUND_GROUP))
     yield
     if getattr(config.option, "loadgroup", False):
         keep_xdist_groups(items)

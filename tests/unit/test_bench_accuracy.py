@@ -41,9 +41,10 @@ def test_bench_lists_the_accuracy_suite() -> None:
     assert args.quick and args.output is None
 
 
-# Both tests of the quick run on one pytest-xdist worker: the run (a module fixture) takes
-# long enough to be measured once, not once per worker.
-QUICK_RUN = pytest.mark.xdist_group("bench_accuracy_quick")
+# Both tests of the quick run on one pytest-xdist worker: the run (a module fixture) takes long
+# enough to be measured once, not once per worker. (Slow unit tests share that worker anyway:
+# tests/conftest.py.)
+QUICK_RUN = pytest.mark.xdist_group("cpu_bound")
 
 
 @pytest.fixture(scope="module")
