@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -65,6 +67,37 @@ def keep_xdist_groups(items: list[pytest.Item]) -> None:
             from _pytest.nodeid import NodeId  # pytest >= 9.2 (before it, the suffix is there)
 
             item._id = NodeId.parse(item.nodeid + suffix)
+
+
+@contextlib.contextmanager
+def turn(directory: Path, alone: bool) -> Iterator[None]:
+    """One test's turn among pytest-xdist's workers: shared, or ``alone`` (after the tests running
+    now, with the other workers waiting before their next one). A gate lock first, so that tests
+    waiting to run alone are not kept waiting by a stream of shared ones."""
+    with (directory / "gate").open("a") as gate, (directory / "turn").open("a") as lock:
+        fcntl.flock(gate, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        finally:
+            if not alone:
+                fcntl.flock(gate, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+            fcntl.flock(gate, fcntl.LOCK_UN)
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)  # outermost: the wait is no part of a test's timeout
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[object]:
+    """Tests marked ``alone`` bound wall-clock times that the suite's other tests, running beside
+    them on the same cores, push over (a daemon out within 2 s of SIGTERM, a camera's frame
+    interval): under pytest-xdist they run while no other test does."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return (yield)
+    # the locks beside the workers' temporary directories (pytest-xdist's basetemp/popen-gwN)
+    with turn(Path(item.config.option.basetemp).parent, item.get_closest_marker("alone") is not None):
+        return (yield)
 
 
 @pytest.hookimpl(optionalhook=True)

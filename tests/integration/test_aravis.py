@@ -182,6 +182,7 @@ def test_gige_camera_that_answers_but_sends_nothing_is_a_timeout_not_a_loss(gv_f
     assert camera.stats["lost"] == 0 and camera.stats["timeouts"] == 1
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(90)
 def test_gige_camera_killed_and_restarted_reconnects(gv_factory):
     fake = gv_factory()
@@ -212,6 +213,7 @@ def test_gige_camera_killed_and_restarted_reconnects(gv_factory):
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(60)
 def test_probe_command_lists_and_measures(gv_factory, capsys):
     fake = gv_factory()

@@ -416,6 +416,7 @@ def test_cli_reports_a_dead_board(pty_pair: PtyPair, capsys: pytest.CaptureFixtu
         assert "edgedsm: error:" in err and "no answer within 0.2 s" in err
 
 
+@pytest.mark.alone
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_cli_hold_ends_on_signal_with_laser_off(signum: int, pty_pair: PtyPair,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
