@@ -9,4 +9,7 @@ apt_install socat systemd procps mosquitto openssl chromium chromium-driver gir1
 ensure_venv test
 cd "$ROOT"
 "$VENV/bin/ruff" check edgedsm edgedsm_lab tests
-"$VENV/bin/python" -m pytest "$@"
+# In parallel (pytest-xdist): most integration tests wait on brokers, daemons and cameras, so more
+# workers than cores pay. loadgroup hands out test by test, except that each xdist_group runs on
+# one worker (tests/conftest.py). Later arguments win: `./scripts/test.sh -n 0` runs serially.
+"$VENV/bin/python" -m pytest -n "${EDGEDSM_TEST_WORKERS:-4}" --dist loadgroup "$@"

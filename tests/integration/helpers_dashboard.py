@@ -15,6 +15,8 @@ from pathlib import Path
 import pytest
 from helpers_mqtt import child_env
 
+from tests.ports import free_port
+
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--window-size=1400,1300", "--force-device-scale-factor=1"]
@@ -87,7 +89,9 @@ def make_browser(profile: Path):  # -> selenium WebDriver (import kept local: se
     for flag in [*CHROMIUM_FLAGS, f"--user-data-dir={profile}"]:
         options.add_argument(flag)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    browser = webdriver.Chrome(options=options, service=Service(executable_path=driver))
+    # chromedriver's port from this worker's range (Selenium's own pick is bind(0), then released)
+    service = Service(executable_path=driver, port=free_port())
+    browser = webdriver.Chrome(options=options, service=service)
     browser.set_page_load_timeout(20)
     browser.set_script_timeout(20)
     return browser

@@ -24,6 +24,7 @@ import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
 from edgedsm.publish import Topics
+from tests.ports import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 START_TIMEOUT_S = 10.0
@@ -38,12 +39,6 @@ def tool(name: str, package: str) -> str:
         pytest.fail(f"{name} is not installed, so the MQTT integration tests cannot run: install it with "
                     f"'apt-get install -y {package}' (the README's test command does)")
     return path
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None:
@@ -71,7 +66,7 @@ class TlsFiles:
 
 
 class Broker:
-    """A mosquitto on 127.0.0.1:<free port>; the port stays the same across restarts."""
+    """A mosquitto on 127.0.0.1:<free port> (tests/ports.py); the port stays the same across restarts."""
 
     def __init__(self, directory: Path, *, persistence: bool = False, tls: TlsFiles | None = None,
                  password_file: Path | None = None) -> None:

@@ -182,6 +182,7 @@ def test_gige_camera_that_answers_but_sends_nothing_is_a_timeout_not_a_loss(gv_f
     assert camera.stats["lost"] == 0 and camera.stats["timeouts"] == 1
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(90)
 def test_gige_camera_killed_and_restarted_reconnects(gv_factory):
     fake = gv_factory()
@@ -212,6 +213,7 @@ def test_gige_camera_killed_and_restarted_reconnects(gv_factory):
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(60)
 def test_probe_command_lists_and_measures(gv_factory, capsys):
     fake = gv_factory()
@@ -242,7 +244,10 @@ def daemon_config(tmp_path: Path, camera_uri: str, port: int) -> dict[str, Any]:
 
 @pytest.mark.slow
 @pytest.mark.timeout(90)
-@pytest.mark.parametrize("form", ["device id", "address", "in-process Fake"])
+# the forms with a fake GigE camera join the other tests that start one (tests/conftest.py)
+@pytest.mark.parametrize("form", [pytest.param("device id", marks=pytest.mark.xdist_group("fake_gige")),
+                                  pytest.param("address", marks=pytest.mark.xdist_group("fake_gige")),
+                                  "in-process Fake"])
 def test_daemon_measures_with_an_aravis_camera(form: str, tmp_path: Path, request: pytest.FixtureRequest,
                                                broker: Broker, subscribers: Callable[..., Subscriber]) -> None:
     """`edgedsm run` with camera.uri = aravis:DEVICE-ID (the README's form), aravis:ADDRESS, aravis:Fake_1:

@@ -64,6 +64,7 @@ MODBUS = "protocol=modbus&slave=7&channel=5"  # the frames in helpers_relay are 
 
 # -- 1. a drying plate, alerts exactly once across broker and daemon restarts ---------------
 
+@pytest.mark.alone
 @pytest.mark.timeout(150)
 def test_drying_states_and_alerts_exactly_once_across_broker_and_daemon_restarts(
         tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
@@ -181,6 +182,7 @@ def test_final_published_maps_decode_to_the_engine_maps_within_one_quantization_
 
 # -- 3. SIGTERM: exit 0 within 2 s, 'offline', laser left off -------------------------------
 
+@pytest.mark.alone
 @pytest.mark.timeout(60)
 def test_stop_leaves_the_simulated_laser_off_and_publishes_offline(
         tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
@@ -211,6 +213,7 @@ def test_stop_leaves_the_simulated_laser_off_and_publishes_offline(
     assert subscriber.on(topics.availability)[-1].payload == b"offline"
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(60)
 def test_sigterm_leaves_a_modbus_board_off_with_the_exact_bytes(
         tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
@@ -388,6 +391,7 @@ def _stats_after(subscriber: Subscriber, topics: Topics, since: float) -> list[d
     return [s for s in (m.json() for m in subscriber.on(topics.stats)) if s["t"] > since]
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(90)
 def test_sighup_refuses_bad_configs_and_applies_a_good_one(
         tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
@@ -439,6 +443,7 @@ def test_sighup_refuses_bad_configs_and_applies_a_good_one(
     assert subscriber.on(topics.availability)[-1].payload == b"offline"
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(90)
 def test_sighup_reload_is_transactional_a_config_that_cannot_run_is_refused(
         tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
@@ -524,6 +529,7 @@ class NotifySocket:
         self.sock.close()
 
 
+@pytest.mark.alone
 @pytest.mark.timeout(60)
 def test_watchdog_pings_only_while_frames_arrive(tmp_path: Path, daemons: Callable[..., Daemon]) -> None:
     directory = tmp_path if len(str(tmp_path)) < 80 else Path(os.environ.get("TMPDIR", "/tmp"))

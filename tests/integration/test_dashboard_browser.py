@@ -33,7 +33,9 @@ from pydantic import TypeAdapter
 
 from edgedsm.config import RegionSection
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# One pytest-xdist worker for the module: its tests share one plant (the module fixture: broker,
+# two daemons, dashboard, browser), started once and seen by the tests in their order.
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.xdist_group("dashboard_browser")]
 
 STILL_WET_SCENE = """
 [scene]

@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -49,6 +48,7 @@ from edgedsm.devices.laser import (
 )
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
 from edgedsm.testing import RELAY_CHECKS, RelayRig
+from tests.ports import free_port
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
@@ -306,9 +306,7 @@ def _listening(tcp_port: int) -> bool:
 
 def test_modbus_over_socket_url(tmp_path: Path) -> None:
     # A serial-over-TCP converter: socat bridges a PTY (the board) to a TCP listener.
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        tcp_port = probe.getsockname()[1]
+    tcp_port = free_port()
     link = tmp_path / "board"
     # The PTY first: socat opens its addresses in order and the listener blocks in accept().
     process = subprocess.Popen(
@@ -418,6 +416,7 @@ def test_cli_reports_a_dead_board(pty_pair: PtyPair, capsys: pytest.CaptureFixtu
         assert "edgedsm: error:" in err and "no answer within 0.2 s" in err
 
 
+@pytest.mark.alone
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_cli_hold_ends_on_signal_with_laser_off(signum: int, pty_pair: PtyPair,
                                                 capsys: pytest.CaptureFixture[str]) -> None:

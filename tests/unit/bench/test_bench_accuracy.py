@@ -41,6 +41,12 @@ def test_bench_lists_the_accuracy_suite() -> None:
     assert args.quick and args.output is None
 
 
+# Both tests of the quick run on one pytest-xdist worker: the run (a module fixture) takes long
+# enough to be measured once, not once per worker. (Slow unit tests share that worker anyway:
+# tests/conftest.py.)
+QUICK_RUN = pytest.mark.xdist_group("cpu_bound")
+
+
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory):
     results = measure(QUICK)
@@ -52,6 +58,7 @@ def quick(tmp_path_factory: pytest.TempPathFactory):
 
 
 @pytest.mark.slow
+@QUICK_RUN
 def test_quick_run_tables_and_figures(quick) -> None:
     results, path = quick
     text = path.read_text()
@@ -69,6 +76,7 @@ def test_quick_run_tables_and_figures(quick) -> None:
 
 
 @pytest.mark.slow
+@QUICK_RUN
 def test_quick_run_numbers(quick) -> None:
     results, _ = quick
     beta = {(noise, name, n): b for noise, name, n, b, _ in results.contrast_n}

@@ -96,6 +96,8 @@ def test_a_region_judged_on_tau_c_shows_its_tau_c_beside_others_on_s2(plant: Pla
     assert history.samples("cam1", "edge", NOW - 1, NOW + 1) == [(NOW, 0.31, "drying")]
 
 
+# Named ids: NOW in an id would differ between pytest-xdist's workers (they collect at different
+# seconds and must agree on every test's name).
 @pytest.mark.parametrize(("topic", "payload", "reason"), [
     ("stats", b"\xff{ not json", "not a valid Stats"),
     ("stats", json.dumps({"t": "yesterday"}).encode(), "not a valid Stats: t"),
@@ -108,7 +110,8 @@ def test_a_region_judged_on_tau_c_shows_its_tau_c_beside_others_on_s2(plant: Pla
     ("map/s2", b"\x89PNG\r\n\x1a\n" + bytes(10 * 1024 * 1024), "map picture of 10485768 bytes"),
     ("map/s2", b"GIF89a" + bytes(40), "not a PNG"),
     ("map/s2", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x01\x00\x00\x00\x00\x10\x00" + bytes(40), "65536x4096"),
-])
+], ids=["stats-not-json", "stats-bad-time", "state-unknown-state", "alerts-not-objects", "availability-maybe",
+        "stats-too-long", "meta-not-object", "map-too-long", "map-not-png", "map-too-many-pixels"])
 def test_hostile_payloads_are_counted_with_a_reason_and_break_nothing(plant: Plant, topic: str, payload: bytes,
                                                                        reason: str) -> None:
     plant.handle(f"edgedsm/cam1/{topic}", payload)

@@ -14,6 +14,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from edgedsm.frames import Frame
 from edgedsm.messages import MapStats, Stats
 from edgedsm.publish.prometheus import MetricsSink
+from tests.ports import free_port
 
 
 class Link:
@@ -213,9 +214,7 @@ def test_the_daemon_registers_metrics_beside_the_log_and_wires_its_probes() -> N
     from edgedsm.errors import ConfigError
     from edgedsm.publish.sink import FanOut, LogSink
 
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        free = probe.getsockname()[1]
+    free = free_port()
     config = DaemonConfig.model_validate({"camera": {"uri": "sim:default"}, "http": {"listen": f"127.0.0.1:{free}"}})
     sink, probes = make_sink(config, lambda name, command: None)
     try:
