@@ -70,6 +70,20 @@ def parse_reply(command: str, reply: bytes) -> str:
     return lines[0].strip() if lines else ""
 
 
+def is_stale_tail(command: str, reply: bytes) -> bool:
+    """Whether ``reply`` (up to a prompt) is the rest of an earlier exchange rather than the answer
+    to ``command``: a whole echo of another relay command, or a bare ``on``/``off`` answer line,
+    without ``command``'s echo. Anything else is left for :func:`parse_reply` to refuse."""
+    text = reply.decode("ascii", errors="replace")
+    if not text.endswith(">") or command in text:
+        return False
+    body = text[:-1].replace("\r", "\n").strip("\n")
+    lines = [line for line in body.split("\n") if line]
+    if not lines:
+        return True  # a lone prompt
+    return all(line.startswith("relay ") or line in ("on", "off") for line in lines) and len(lines) <= 2
+
+
 def parse_state(answer: str) -> bool:
     """``on`` -> True, ``off`` -> False; anything else raises DeviceError."""
     if answer == "on":
@@ -89,6 +103,13 @@ class NumatoRelay(SerialRelay):
         command = command_text(action, self.channel)
         deadline = self._send((command + "\r").encode("ascii"))
         reply = self._read_until(PROMPT, MAX_ANSWER, deadline, repr(command))
+        # the end of an exchange a signal cut short may arrive after the input was flushed: the
+        # board answers in order, so this request's own reply follows it
+        if is_stale_tail(command, reply):
+            reply = self._read_until(PROMPT, MAX_ANSWER, deadline, repr(command))
+        start = reply.find(command.encode("ascii"))
+        if start > 0 and is_stale_tail(command, reply[:start]):
+            reply = reply[start:]
         return parse_reply(command, reply)
 
     def _do_switch(self, on: bool) -> None:

@@ -492,3 +492,59 @@ def test_safety_signals_only_from_main_thread() -> None:
     thread.start()
     thread.join(5)
     assert errors and "main thread" in str(errors[0])
+
+
+class _LateAnswerPort:
+    """A port whose board was still answering a readback cut short by a signal: its tail arrives
+    after the input is flushed, before the answer to the next request."""
+
+    portstr = "late"
+
+    def __init__(self, tail: bytes, answer: bytes) -> None:
+        self.tail, self.answer, self.pending, self.written = tail, answer, b"", b""
+        self.by_prompt = False
+
+    def reset_input_buffer(self) -> None:
+        self.pending = b""
+
+    def write(self, data: bytes) -> int:
+        self.written += data
+        self.pending += self.tail + self.answer
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.pending)
+
+    def read(self, size: int) -> bytes:
+        if self.by_prompt and b">" in self.pending[:size]:
+            size = self.pending.index(b">") + 1  # the tail comes in a read of its own
+        chunk, self.pending = self.pending[:size], self.pending[size:]
+        return chunk
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("by_prompt", [False, True])
+@pytest.mark.parametrize("tail", [b"relay read B\n\ron\n\r>", b"on\n\r>", b">"])
+def test_numato_switch_off_skips_the_tail_of_a_readback_cut_short(tail: bytes, by_prompt: bool) -> None:
+    from edgedsm.devices.laser.numato import NumatoRelay
+
+    port = _LateAnswerPort(tail, b"relay off B\n\r>")
+    port.by_prompt = by_prompt
+    relay = NumatoRelay(port, channel=11, timeout=0.5, verify=False)  # type: ignore[arg-type]
+    relay._do_switch(False)  # no error: the late tail is not taken for the answer to 'relay off'
+    assert port.written == b"relay off B\r"
+
+
+def test_numato_a_foreign_answer_is_still_refused() -> None:
+    from edgedsm.devices.laser.numato import NumatoRelay
+
+    port = _LateAnswerPort(b"", b"garbage\n\r>")
+    relay = NumatoRelay(port, channel=11, timeout=0.5, verify=False)  # type: ignore[arg-type]
+    with pytest.raises(DeviceError, match="did not echo"):
+        relay._do_switch(False)
