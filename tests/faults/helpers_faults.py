@@ -106,9 +106,9 @@ def daemon_config(tmp_path: Path, *, camera: str, port: int, laser: str, grab_ti
         "estimator": {"activity": "s2", "window": window, "lag": lag, "q": 1.0},
         "regions": [{"name": "plate", "wet_above": wet_above, "dry_below": dry_below, "hysteresis": 0.05,
                      "min_dwell_s": min_dwell_s}],
+        "cadence": {"stats_interval_s": 0.5, "maps_interval_s": 600.0},
         "mqtt": {"host": "127.0.0.1", "port": port, "keepalive_s": 5, "connect_timeout_s": 2.0,
-                 "reconnect_min_s": 0.1, "reconnect_max_s": 0.5, "stats_interval_s": 0.5,
-                 "maps_interval_s": 600.0},
+                 "reconnect_min_s": 0.1, "reconnect_max_s": 0.5},
         "logging": {"level": "info"},
     }
     if frame_interval_s is not None:

@@ -172,8 +172,8 @@ def base_config(tmp_path: Path, *, device: str = "e2e", camera: str = SIM_CAMERA
         config["laser"] = {"uri": laser}
     if port is not None:
         config["mqtt"] = {"host": "127.0.0.1", "port": port, "keepalive_s": 5, "connect_timeout_s": 2.0,
-                          "reconnect_min_s": 0.1, "reconnect_max_s": 0.5, "stats_interval_s": 0.5,
-                          "maps_interval_s": 60.0}
+                          "reconnect_min_s": 0.1, "reconnect_max_s": 0.5}
+        config["cadence"] = {"stats_interval_s": 0.5, "maps_interval_s": 60.0}
     return config
 
 

@@ -236,8 +236,9 @@ def daemon_config(tmp_path: Path, camera_uri: str, port: int) -> dict[str, Any]:
         "acquisition": {"dark_frames": 3, "dark_every_min": 0},
         "estimator": {"activity": "s2", "window": 20, "lag": 2, "q": 1.0},
         "regions": [{"name": "plate", "wet_above": 1e6, "dry_below": 1e5, "min_dwell_s": 0.0}],
+        "cadence": {"stats_interval_s": 0.5, "maps_interval_s": 600.0},
         "mqtt": {"host": "127.0.0.1", "port": port, "keepalive_s": 5, "connect_timeout_s": 2.0,
-                 "reconnect_min_s": 0.1, "reconnect_max_s": 0.5, "stats_interval_s": 0.5, "maps_interval_s": 600.0},
+                 "reconnect_min_s": 0.1, "reconnect_max_s": 0.5},
         "logging": {"level": "info"},
     }
 

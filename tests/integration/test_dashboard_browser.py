@@ -82,8 +82,8 @@ class Plant:
 
 def _config(tmp: Path, device: str, camera: str, port: int, regions: list[dict[str, Any]]) -> Path:
     config = base_config(tmp / device, device=device, camera=camera, port=port)
-    config["mqtt"]["maps_interval_s"] = 2.0
-    config["mqtt"]["stats_interval_s"] = 0.5
+    config["cadence"]["maps_interval_s"] = 2.0
+    config["cadence"]["stats_interval_s"] = 0.5
     config["regions"] = regions
     return write_config(tmp / f"{device}.toml", config)
 

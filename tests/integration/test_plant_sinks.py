@@ -30,7 +30,7 @@ PREFIX = "homeassistant"
 
 def _config(tmp_path: Path, port: int, http_port: int, region: str = "plate") -> dict[str, Any]:
     config = base_config(tmp_path, port=port, region=region)
-    config["mqtt"]["maps_interval_s"] = 1.0
+    config["cadence"]["maps_interval_s"] = 1.0
     config["homeassistant"] = {"discovery_prefix": PREFIX}
     config["http"] = {"listen": f"127.0.0.1:{http_port}", "stale_after_s": 3.0}
     return config

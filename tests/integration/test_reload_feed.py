@@ -76,8 +76,8 @@ def test_a_publishing_and_thresholds_reload_keeps_session_window_and_states(
     alerts_before = len(distinct_alerts(scada, topics))
     states_before = len(scada.on(topics.state))
 
-    config["mqtt"]["stats_interval_s"] = 0.4          # publishing
-    config["mqtt"]["maps_interval_s"] = 30.0
+    config["cadence"]["stats_interval_s"] = 0.4          # publishing
+    config["cadence"]["maps_interval_s"] = 30.0
     config["logging"]["level"] = "debug"               # logging
     config["regions"][0]["min_dwell_s"] = 1.5          # thresholds
     write_config(path, config)
@@ -246,7 +246,7 @@ def test_only_the_sink_whose_settings_changed_starts_a_new_session(
 
         # thresholds and cadence: nothing reconnects
         config["regions"][0]["min_dwell_s"] = 1.5
-        config["mqtt"]["stats_interval_s"] = 0.4
+        config["cadence"]["stats_interval_s"] = 0.4
         write_config(path, config)
         daemon.signal(signal.SIGHUP)
         daemon.wait_log(r"configuration reloaded", WAIT_S)
