@@ -32,6 +32,9 @@ def _stats_between(plant: Plant, start_wall: float, end_wall: float) -> list[dic
     return [s for s in plant.stats() if start_wall < s["t"] < end_wall]
 
 
+# alone: one outage per kill is judged on the camera's 2 s grab timeout; another test taking the
+# cores can hold the capture thread past it after the restart, which is a second outage
+@pytest.mark.alone
 @pytest.mark.timeout(60)
 def test_fake_gige_camera_killed_and_restarted_twice(
         tmp_path: Path, fake_gige: Callable[..., FakeGvCamera], relay_board: RelayRig, broker: Broker,

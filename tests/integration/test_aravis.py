@@ -135,6 +135,7 @@ def test_gige_packet_loss_drops_and_counts_without_crashing(gv_factory):
     assert "n_resent_packets" in stats and "n_resend_requests" in stats  # reported (the fake never resends)
 
 
+@pytest.mark.alone  # it bounds the wall-clock time the driver gives up in
 @pytest.mark.timeout(30)
 def test_gige_nothing_but_broken_frames_times_out(gv_factory):
     gv_factory(lost_per_thousand=500)  # half the packets lost: no frame of 512x512 survives
