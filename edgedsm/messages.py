@@ -33,6 +33,10 @@ LaserState = Literal["on", "off", "unknown"]
 #: no decorrelation within K lags, τc is at least the value (K·Δt); ``below``: decorrelated within one
 #: frame, τc is at most the value (Δt/3); ``no_signal``: σ = 0 (laser off, saturated), value 0.
 TauStatus = Literal["measured", "above", "below", "no_signal"]
+#: A region's signal quality (``edgedsm.estimators.signal_quality``; docs/noise.md): ``ok``; ``low``:
+#: the activity is within the camera's noise; ``dark``, ``saturated``, ``not_speckle``: the light
+#: cannot be judged (the region keeps its state).
+SignalName = Literal["ok", "low", "dark", "saturated", "not_speckle"]
 
 
 @dataclass(frozen=True)
@@ -67,13 +71,38 @@ class RegionState(Message):
     region: str = Field(description="region name from the config")
     state: RegionStateName = Field(description="drying state")
     since: float = Field(description="when the region entered this state, UTC epoch s")
-    activity: float | None = Field(None, description="latest region mean of the judged estimator; a region "
-                                                     "judged on τc: its τc in seconds (see ``estimator``)")
+    activity: float | None = Field(None, description="latest region mean of the judged estimator, above the "
+                                                     "camera's noise floor with estimator.noise_floor (docs/noise.md); "
+                                                     "a region judged on τc: its τc in seconds (see ``estimator``)")
     time_to_dry_s: float | None = Field(None, ge=0, description="extrapolated seconds until dry; 0 when dry")
     estimator: str | None = Field(None, description="what ``activity`` is when not the report's estimator: "
                                                     "'tau_c' (τc in s: small = wet, large = dry)")
     tau_c_status: TauStatus | None = Field(None, description="judged on τc: measured, or what the bound means "
                                                              "(above: τc >= activity; below: τc <= activity)")
+    signal: SignalName | None = Field(None, description="the region's signal quality (with estimator.noise_floor); "
+                                                        "dark, saturated or not_speckle: the state is held")
+
+
+class RegionSignal(Message):
+    """A region's light and its activity against the camera's noise (docs/noise.md), from the last
+    N frames of a patch at its centre (``estimator.noise_patch``)."""
+
+    signal: SignalName = Field(description="ok, low (activity within the noise), dark, saturated, not_speckle")
+    mean: float = Field(ge=0, description="mean intensity over the window, grey levels")
+    dark_fraction: float = Field(ge=0, le=1, description="share of pixels within 3 noise σ of the dark level")
+    saturated_fraction: float = Field(ge=0, le=1, description="share of the window's samples (pixels × frames) "
+                                                                        "at full scale")
+    speckle_contrast: float = Field(ge=0, description="spatial speckle contrast of the last frame, noise removed")
+    noise_floor: float | None = Field(None, description="the judged estimator's value for a static surface with "
+                                                        "this light (its units; S3: 2/√π); None: no noise model yet")
+    above_noise: float | None = Field(None, description="the region's activity above the floor (S3: S3 of the "
+                                                        "signal alone)")
+    above_noise_spread: float | None = Field(None, ge=0, description="1-σ spread of above_noise around 0 for "
+                                                                     "noise alone")
+    noise_model: str | None = Field(None, description="where the noise model comes from: datasheet or frames")
+    intensity_change: float | None = Field(None, gt=0, description="mean intensity now / when the window first "
+                                                                   "filled")
+    reason: str | None = Field(None, description="why the signal is not ok, or why there is no floor yet")
 
 
 class RegionTau(Message):
@@ -99,6 +128,7 @@ def _moved(new: float | None, old: float | None, relative: float, absolute: floa
 def _region_moved(new: RegionState, old: RegionState) -> bool:
     return (new.state != old.state or new.since != old.since
             or _moved(new.activity, old.activity, ACTIVITY_MOVE) or new.tau_c_status != old.tau_c_status
+            or new.signal != old.signal
             or _moved(new.time_to_dry_s, old.time_to_dry_s, TIME_TO_DRY_MOVE, TIME_TO_DRY_MOVE_S))
 
 
@@ -194,6 +224,9 @@ class Stats(Message):
     tau_c: dict[str, RegionTau] = Field(default_factory=dict, description="region -> τc in seconds and its status "
                                                                           "(when τc is estimated)")
     frame_interval_s: float | None = Field(None, gt=0, description="Δt that puts τc in seconds (when τc is estimated)")
+    signal: dict[str, RegionSignal] = Field(default_factory=dict,
+                                            description="region -> its light and its activity against the noise "
+                                                        "(estimator.noise_floor)")
     mqtt: dict[str, Any] | None = Field(None, description="the MQTT sink's own counters (added on the wire)")
     recording: RecordingStats | None = Field(None, description="the recorder's counters (with [recording])")
 

@@ -12,6 +12,7 @@ from pydantic import Field, PrivateAttr, field_validator
 from edgedsm.devices.camera.uri import CameraSpec, parse_camera_uri, resolve_camera_spec
 from edgedsm.devices.uri import RelaySpec, parse_relay_uri
 from edgedsm.errors import ConfigError
+from edgedsm.estimators.noise import NoiseModel, from_datasheet
 from edgedsm.publish.settings import DEFAULT_DEVICE
 from edgedsm.validation import StrictModel
 
@@ -21,6 +22,18 @@ class DeviceSection(StrictModel):
                       description="instance name; the MQTT topics are <prefix>/<name>/...")
     state_dir: Path = Field(default_factory=lambda: Path(os.environ.get("STATE_DIRECTORY", "/var/lib/edgedsm")),
                             description="durable state (alert queue); default: systemd's $STATE_DIRECTORY")
+
+
+class CameraNoiseSection(StrictModel):
+    """The camera's temporal noise from its EMVA 1288 datasheet (docs/noise.md); without it the
+    daemon estimates the model from the frames."""
+
+    gain: float = Field(gt=0, le=1000, description="system gain K in DN per electron (at the pixel format used)")
+    dark_noise_e: float = Field(0.0, ge=0, le=10_000, description="dark noise σ_d in electrons")
+    dark_mean: float = Field(0.0, ge=0, le=65_535, description="dark offset μ_dark in grey levels")
+
+    def model(self) -> NoiseModel:
+        return from_datasheet(self.gain, self.dark_noise_e, self.dark_mean)
 
 
 class CameraSection(StrictModel):
@@ -34,6 +47,8 @@ class CameraSection(StrictModel):
     grab_timeout_s: float = Field(5.0, gt=0, le=600, description="a frame not arriving within this is a fault")
     reconnect_initial_s: float = Field(0.5, gt=0, le=600, description="first reconnection delay after a loss")
     reconnect_max_s: float = Field(30.0, gt=0, le=3600, description="longest reconnection delay (backoff cap)")
+    noise: CameraNoiseSection | None = Field(None, description="the camera's noise from its datasheet (default: "
+                                                               "estimated from the frames)")
 
     _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
     _spec: CameraSpec | None = PrivateAttr(None)

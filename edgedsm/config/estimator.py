@@ -37,6 +37,18 @@ class EstimatorSection(StrictModel):
         False, description="subtract the measured dark level from every frame before all estimators (off: the "
                            "validation in docs/ambient.md shows it distorts S2; use S3 under ambient light)")
     threads: int | None = Field(None, ge=1, le=256, description="kernel threads (default: all cores)")
+    noise_floor: bool = Field(
+        True, description="judge the drying states on the activity above the camera's noise floor (docs/noise.md): "
+                          "a darkening or dimmer film does not read wet again; a region whose light is dark, "
+                          "saturated or not speckle keeps its state and raises a warning")
+    noise_patch: int = Field(64, ge=16, le=256,
+                             description="side in pixels of the patch at each region's centre whose last N frames "
+                                         "give its noise floor and signal quality (cost: ~0.1 s per region per "
+                                         "stats interval at 64, on the evaluator thread)")
+    intensity_change: float = Field(
+        3.0, gt=1.0, le=1000.0, description="a region's mean intensity changing by more than this factor from its "
+                                            "value when the window first filled raises a warning (exposure, laser "
+                                            "power, reflectance or ambient light changed)")
     area: Literal["frame", "regions"] = Field(
         "frame", description="frame: maps of the whole sensor; regions: only the bounding box of all regions "
                              "(the cost follows the regions; the published maps cover that box)")

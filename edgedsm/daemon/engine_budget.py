@@ -8,6 +8,7 @@ import numpy as np
 
 from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
+from edgedsm.daemon.signal_judge import warm_up as warm_up_noise
 from edgedsm.daemon.tau import TauRegions, engine_estimators
 from edgedsm.errors import ConfigError
 from edgedsm.estimators import ESTIMATORS, SlidingWindow
@@ -106,3 +107,5 @@ def warm_up(config: DaemonConfig) -> None:
         tau.map_seconds(sums, 1.0, block=2)
         pooled_covariances(sums.window, sums.total, sums.total_sq, sums.products, sums.edges, sums.ends,
                            np.flatnonzero(mask), sums.lags)
+    if est.noise_floor:
+        warm_up_noise()

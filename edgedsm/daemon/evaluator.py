@@ -21,6 +21,7 @@ from concurrent.futures import TimeoutError as FuturesTimeout
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.handover import Snapshot, Status
 from edgedsm.daemon.probes import PipelineProbes
+from edgedsm.daemon.signal_judge import SignalJudge
 from edgedsm.daemon.tau import TauRegions, map_block
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
@@ -57,6 +58,7 @@ class Evaluator:
         self.probes = probes or PipelineProbes()
         self.map_buffers = MapBuffers()  # float maps, reused once the sinks let go of them
         self._monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
+        self.signal = SignalJudge(config)  # evaluator thread only
         self._lock = threading.Lock()  # guards the monitor and the generation
         self._generation = 0  # counts measurement restarts
         self._last_report: StateReport | None = None  # the last one published
@@ -102,6 +104,7 @@ class Evaluator:
         with self._lock:
             self._monitor.reset(now, why)
             self._generation += 1
+        self._last = self._executor.submit(self.signal.restart)  # on the thread that uses it, in order
         self.publish_alert(Alert(kind=AlertKind.RESET, t=self.clock.to_wall(now),
                                  reason=f"measurement restarted: {why}; every region warms up again"))
         log.warning("measurement restarted (%s); every region warms up again", why)
@@ -114,6 +117,7 @@ class Evaluator:
             for name, machine in self._monitor.regions.items():
                 machine.thresholds = thresholds[name]
             self.config = config
+        self._last = self._executor.submit(self.signal.apply, config)
 
     def publish_alert(self, alert: Alert) -> None:
         """Hand an alert to the sink on the evaluator thread (sinks are called from one thread,
@@ -152,18 +156,25 @@ class Evaluator:
         config = self.config
         estimator = config.estimator.activity
         regions: dict[str, dict[str, MapStats]] = {}
-        activities: dict[str, float] = {}
+        activities: dict[str, float | None] = {}
+        estimates: dict[str, dict[str, float]] = {}
         for name, per_map_moments in snapshot.regions.items():
             if not snapshot.publish_stats:  # states only: the activity means
+                estimates[name] = {key: moments.mean for key, moments in per_map_moments.items()}
                 if estimator in per_map_moments:
                     activities[name] = per_map_moments[estimator].mean
                 continue
             per_map = {key: MapStats(**moments.stats().as_dict()) for key, moments in per_map_moments.items()}
             regions[name] = per_map
+            estimates[name] = {key: stats.mean for key, stats in per_map.items() if stats.mean is not None}
             if estimator in per_map:
                 activities[name] = per_map[estimator].mean
         taus, interval_s = self._region_taus(snapshot)
         activities.update({name: tau.tau_c_s for name, tau in taus.items() if name in self.tau.judged})
+        if self.signal.on:
+            self._judge_signal(snapshot, estimates)
+            activities = {name: self.signal.judged(name, value, estimates.get(name, {}))
+                          for name, value in activities.items()}
         with self._lock:
             if snapshot.generation != self._generation:
                 log.debug("an evaluation of the window before the restart is dropped")
@@ -186,7 +197,7 @@ class Evaluator:
                       ambient_level=status.ambient_level, regions=regions,
                       states={name: region.state for name, region in report.regions.items()},
                       warning=status.warning, tau_c=taus, frame_interval_s=interval_s,
-                      recording=status.recording)
+                      recording=status.recording, signal=dict(self.signal.signals) if self.signal.on else {})
         self.sink.publish_stats(stats)
         # on a transition, and at most once per stats interval when time to dry or activity moved
         if transitions or self._last_report is None or report.moved_from(self._last_report):
@@ -215,6 +226,17 @@ class Evaluator:
                                                   "max_lag": est.lags, "frame_interval_s": interval_s,
                                                   "block": block, **origin}))
 
+    def _judge_signal(self, snapshot: Snapshot, estimates: dict[str, dict[str, float]]) -> None:
+        """The regions' signal quality and noise floors from the patches (stats cadence), and the
+        warnings that began or cleared."""
+        if not snapshot.patches:
+            return
+        t = self.clock.to_wall(snapshot.status.now)
+        for warning in self.signal.assess(snapshot.patches, estimates):
+            log.warning("region %s: %s", warning.region, warning.reason, extra={"region": warning.region})
+            self.sink.publish_alert(Alert(kind=AlertKind.WARNING, t=t, region=warning.region,
+                                          reason=warning.reason + ("; the state is held" if warning.holds else "")))
+
     def _region_taus(self, snapshot: Snapshot) -> tuple[dict[str, RegionTau], float | None]:
         """Each region's τc in seconds (all with the stats, the judged ones for the states alone) and
         the frame interval used; nothing when the snapshot has no τc sums or Δt is not known."""
@@ -233,6 +255,7 @@ class Evaluator:
         judged_on_tau = self.tau.judged
         regions = {name: RegionState(region=name, state=machine.state.value, since=self.clock.to_wall(machine.since),
                                      activity=machine.activity, time_to_dry_s=machine.time_to_dry(),
+                                     signal=signal.signal if (signal := self.signal.signals.get(name)) else None,
                                      **({"estimator": "tau_c", "tau_c_status": self.tau.status.get(name)}
                                         if name in judged_on_tau else {}))
                    for name, machine in self._monitor.regions.items()}
@@ -249,3 +272,4 @@ def alert_of(transition: Transition, clock: Clock) -> Alert:
     return Alert(kind=AlertKind.TRANSITION, t=clock.to_wall(transition.t), reason=transition.reason,
                  region=transition.region, from_state=transition.from_state.value,
                  to_state=transition.to_state.value, activity=transition.activity)
+

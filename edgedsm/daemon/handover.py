@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from edgedsm.daemon.noise_patches import PatchWindow
 from edgedsm.estimators.region_stats import Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
 from edgedsm.messages import LaserState, RecordingStats
@@ -46,3 +47,5 @@ class Snapshot:
     #: top-left corner (column, row) of the area the engine sees in camera pixels, when it sees
     #: only the regions' bounding box (``estimator.area = "regions"``); None: the whole frame
     origin: tuple[int, int] | None = None
+    #: region -> its noise patch over the last frames (estimator.noise_floor, on the stats cadence)
+    patches: dict[str, PatchWindow] = field(default_factory=dict)

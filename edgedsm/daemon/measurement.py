@@ -27,6 +27,7 @@ from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig, check_regions
 from edgedsm.daemon.engine_budget import PROBE_PIXELS, check_engine_memory, engine_bytes_per_pixel, kernel_threads
 from edgedsm.daemon.handover import Snapshot, Status
+from edgedsm.daemon.noise_patches import NoisePatches
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.tau import TauRegions, engine_estimators
 from edgedsm.errors import FrameError
@@ -56,6 +57,7 @@ class Measurement:
         self._buffers: EngineSnapshot | None = None  # the latest copy of the sums, overwritten by the next
         self._map_buffers = map_buffers  # the evaluator's float maps: reserved here with the engine
         self._tau_buffers: TauSnapshot | None = None
+        self.noise: NoisePatches | None = None  # estimator.noise_floor: each region's last frames
 
     def prepare(self, frame: Frame) -> None:
         """At the first frame (before the laser goes on): the engine and the region masks for its
@@ -78,6 +80,8 @@ class Measurement:
         try:
             self.engine.push(pixels)
             self.tau.interval.saw(frame)
+            if self.noise is not None:
+                self.noise.push(pixels)
         except FrameError as exc:
             self.counters["dropped_invalid"] += 1
             log.warning("frame %d dropped: %s", frame.seq, exc)
@@ -94,6 +98,8 @@ class Measurement:
         """Empty the estimator window (the engine and its arrays are kept)."""
         if self.engine is not None:
             self.engine.reset()
+        if self.noise is not None:
+            self.noise.reset()
 
     def _make_engine(self, frame: Frame) -> None:
         est = self.config.estimator
@@ -123,6 +129,8 @@ class Measurement:
         self.regions = regions
         self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in regions.items()})
         self.tau.prepare(regions, shape)
+        if est.noise_floor and regions:
+            self.noise = NoisePatches(regions, est.window, est.noise_patch, frame.pixels.dtype, frame.bits)
         self.frame_shape = frame.shape
 
     def snapshot(self, status: Status, maps_due: bool, stats_due: bool, generation: int) -> Snapshot:
@@ -149,8 +157,9 @@ class Measurement:
             tau = self.tau.take(self.engine, stats_due, self._tau_buffers)
             self._tau_buffers = tau or self._tau_buffers
         origin = None if self.crop is None else (self.crop[1].start, self.crop[0].start)
+        patches = self.noise.take() if ready and stats_due and self.noise is not None else {}
         snapshot = Snapshot(status, ready, engine, publish_maps=publish_maps, publish_stats=stats_due, tau=tau,
-                            regions=moments, generation=generation, origin=origin)
+                            regions=moments, generation=generation, origin=origin, patches=patches)
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
         return snapshot
@@ -160,13 +169,16 @@ class Measurement:
         if a region is judged on it (none when every region is judged on τc)."""
         if stats_due:
             return list(ESTIMATORS)
-        activity = self.config.estimator.activity
+        est = self.config.estimator
         judged_on_activity = any(not region.on_tau for region in self.config.regions)
-        return [activity] if activity in ESTIMATORS and judged_on_activity else []
+        if est.activity not in ESTIMATORS or not judged_on_activity:
+            return []
+        # S3 above the noise needs the region's S1 too (noise_summary.above_of)
+        return ["s1", "s3"] if est.activity == "s3" and est.noise_floor else [est.activity]
 
     def release(self) -> None:
         """Drop the engine and the copies of its sums: the window's ring is the bulk of the
         daemon's memory (N frames), released now rather than when the garbage collector gets to
         the pipeline (a reload builds a new one at once)."""
-        self.engine = self._buffers = self._tau_buffers = None
+        self.engine = self._buffers = self._tau_buffers = self.noise = None
         self._map_buffers = MapBuffers()  # the evaluator lets go of its pooled maps too

@@ -212,11 +212,28 @@ def _floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, which: int, q
         raise EstimatorError(f"q must be a finite number >= 0, got {q!r}")
     if not top > 0:
         raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
-    moments = static_pair_moments(model, _representatives(mu), q, top)
+    return _floor_of(static_pair_moments(model, _representatives(mu), q, top), which, model, mu, n, lag,
+                     independent_pixels)
+
+
+def _floor_of(moments: tuple[np.ndarray, ...], which: int, model: NoiseModel, mu: np.ndarray, n: int, lag: int,
+              independent_pixels: float | None) -> Floor:
     first, second = moments[which], moments[which + 1]
     value = float(first.mean())
     sampling = _sampling(second - first**2, n, lag, _pixels(mu, independent_pixels))
     return Floor(value, math.hypot(sampling, value * model.relative_error / 2.0))
+
+
+def s1_floor_and_static_variance(model: NoiseModel, means: np.ndarray, n: int, lag: int, top: float = math.inf,
+                                 independent_pixels: float | None = None) -> tuple[Floor, float]:
+    """:func:`s1_floor` and :func:`static_variance` at once (S3's above-noise needs both; they
+    share the static pair moments, the costly part)."""
+    mu = _means(means)
+    _window(n, lag)
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    moments = static_pair_moments(model, _representatives(mu), 0.0, top)
+    return _floor_of(moments, 0, model, mu, n, lag, independent_pixels), float(moments[1].mean()) / 2.0
 
 
 def s1_floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, top: float = math.inf,
@@ -242,20 +259,30 @@ def above_noise(estimate: float, floor: Floor) -> AboveNoise:
     return AboveNoise(value, floor.spread, floor.value, verdict)
 
 
+def static_variance(model: NoiseModel, means: np.ndarray, top: float = math.inf) -> float:
+    """σ̄_n² (DN²): a static pixel's temporal variance, E[Δ²]/2 of :func:`static_pair_moments`
+    (rounding and clipping included), averaged over the pixel means ``means``."""
+    mu = _means(means)
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    return float(static_pair_moments(model, _representatives(mu), 0.0, top)[1].mean()) / 2.0
+
+
 def signal_share(model: NoiseModel, means: np.ndarray, variance: float, n: int, top: float = math.inf,
-                 independent_pixels: float | None = None) -> AboveNoise:
+                 independent_pixels: float | None = None, noise_variance: float | None = None) -> AboveNoise:
     """The signal's share of the region's temporal variance (τc's above-noise measure): 1 -
     (1 - 1/N)·σ̄_n²/σ̄², with ``variance`` σ̄² the region's mean window variance (Eq. 4's σ²,
-    DN²) and σ̄_n² a static pixel's, E[Δ²]/2 of :func:`static_pair_moments` (rounding and
-    clipping included), over the pixel means; ``no_signal`` where σ̄² = 0."""
+    DN²) and σ̄_n² a static pixel's (:func:`static_variance` over the pixel means, or
+    ``noise_variance`` when already known); ``no_signal`` where σ̄² = 0."""
     mu = _means(means)
     if not math.isfinite(variance) or variance < 0:
         raise EstimatorError(f"variance must be finite and >= 0, got {variance!r}")
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
         raise EstimatorError(f"N must be an integer >= 2, got {n!r}")
-    if not top > 0:
-        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
-    noise = (1.0 - 1.0 / n) * float(static_pair_moments(model, _representatives(mu), 0.0, top)[1].mean()) / 2.0
+    static = static_variance(model, mu, top) if noise_variance is None else float(noise_variance)
+    if not math.isfinite(static) or static < 0:
+        raise EstimatorError(f"noise_variance must be finite and >= 0, got {noise_variance!r}")
+    noise = (1.0 - 1.0 / n) * static
     if variance <= 0.0:
         return AboveNoise(0.0, 0.0, 0.0, NO_SIGNAL)
     ratio = noise / variance

@@ -2,8 +2,10 @@
 
 Verdicts, first match wins (docs/noise.md justifies the bounds; none is tuned to a recording):
 
-* ``saturated``: more than SATURATED_MAX of the pixels reach full scale in the window: their
-  differences are clipped, so every estimator reads low there.
+* ``saturated``: more than SATURATED_MAX of the window's samples (pixels × frames) are at full
+  scale: their differences are clipped, so every estimator reads low by about that share. (Not
+  the share of pixels that reach full scale once: over a window of a fast film most bright
+  speckles do, with a negligible effect on the maps.)
 * ``dark``: more than DARK_MAX of the pixels are dark, i.e. their mean is less than DARK_SNR
   noise σ above the dark level (a signal within 3σ of no light carries no speckle to time).
 * ``not_speckle``: the frame's spatial speckle contrast (local mean removed, the noise's
@@ -26,7 +28,7 @@ from edgedsm.errors import EstimatorError
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_floor import AboveNoise
 
-SATURATED_MAX = 0.05  # fraction of pixels: clipped differences bias S1 by about this fraction
+SATURATED_MAX = 0.05  # fraction of samples: clipped differences bias S1 by about this fraction
 DARK_SNR = 3.0  # noise σ above the dark level a pixel's mean must reach to count as lit
 DARK_MAX = 0.5  # fraction of pixels: most of the region unlit
 MIN_CONTRAST = 0.1  # spatial speckle contrast (signal only)
@@ -36,8 +38,8 @@ OK, LOW, DARK, SATURATED, NOT_SPECKLE = "ok", "low", "dark", "saturated", "not_s
 
 @dataclass(frozen=True)
 class LightStats:
-    """A region's light over a window: mean (DN), dark and saturated pixel fractions, and the
-    spatial speckle contrast of one frame (dimensionless, noise removed)."""
+    """A region's light over a window: mean (DN), the dark pixels' and the saturated samples'
+    fractions, and the spatial speckle contrast of one frame (dimensionless, noise removed)."""
 
     mean: float
     dark_fraction: float
@@ -54,7 +56,8 @@ class SignalQuality:
 
 def light_stats(frames: np.ndarray, model: NoiseModel, top: float, mask: np.ndarray | None = None) -> LightStats:
     """LightStats of the (N, H, W) window over the boolean (H, W) ``mask`` (default all);
-    ``top``: the camera's full scale (DN). The contrast is that of the last frame."""
+    ``top``: the camera's full scale (DN). The saturated fraction is of the samples (pixels ×
+    frames), the dark one of the pixels; the contrast is that of the last frame."""
     stack = np.asarray(frames)
     if stack.ndim != 3 or stack.shape[0] < 1:
         raise EstimatorError(f"frames must be a (N, H, W) stack, got shape {stack.shape}")
@@ -64,7 +67,7 @@ def light_stats(frames: np.ndarray, model: NoiseModel, top: float, mask: np.ndar
     if region.dtype != np.bool_ or region.shape != stack.shape[1:] or not region.any():
         raise EstimatorError(f"mask must be a non-empty boolean {stack.shape[1:]} array")
     means = stack.mean(axis=0, dtype=np.float64)
-    saturated = (stack.max(axis=0) >= top)[region]
+    saturated = (stack[:, region] >= top)
     sigma = np.sqrt(model.variance(means))
     dark = (means - model.dark_mean < DARK_SNR * sigma)[region]
     frame = stack[-1].astype(np.float64)

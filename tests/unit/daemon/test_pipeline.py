@@ -34,16 +34,23 @@ def setup(repo):
     return config, camera, relay, publisher, scene
 
 
-def hold_back(camera, pipeline, depth=8):
-    """Make the simulated camera wait while the pipeline's queue holds ``depth`` frames.
+def hold_back(camera, pipeline, depth=8, evaluations=True):
+    """Make the simulated camera wait while the pipeline's queue holds ``depth`` frames and, with
+    ``evaluations``, while an evaluation runs.
 
     A real camera runs at its own pace and the pipeline drops the oldest frames when it falls
-    behind; these tests want every frame processed whatever the machine's load.
+    behind; these tests want every frame processed whatever the machine's load. The simulated
+    camera (time_scale=0) delivers frames thousands of times faster than its Δt: an evaluation of
+    tens of milliseconds (a noise floor, a τc fit) would span hundreds of simulated frames instead
+    of the one or two it spans at the camera's rate, and the simulated cadence the tests judge
+    would only measure the machine's load.
     """
     grab = camera._do_grab
 
     def waiting_grab(timeout_s):
-        while pipeline.capture.frames.qsize() >= depth and not pipeline.capture.stopping:
+        deadline = time.monotonic() + 10.0  # never wait forever on a stuck evaluation: the test fails on its own
+        while not pipeline.capture.stopping and time.monotonic() < deadline and (
+                pipeline.capture.frames.qsize() >= depth or (evaluations and pipeline.evaluator.busy)):
             time.sleep(0.001)
         return grab(timeout_s)
 
