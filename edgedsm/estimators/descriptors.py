@@ -26,8 +26,9 @@ from edgedsm.errors import EstimatorError
 from edgedsm.estimators import bands
 from edgedsm.estimators.batch import check_frames, check_stack, s1, s2, s3, temporal_sigma
 
-#: Octave's eps (2^-52), which BSLTL's fujii.m adds to I_k + I_{k+m}; with it, ``fujii`` is
-#: BSLTL's map to the last bit (q = 0 differs only where I_k + I_{k+m} = 1, by 1 ulp).
+#: Octave's eps (2^-52), which BSLTL's fujii.m adds to I_k + I_{k+m}: with it each term is
+#: BSLTL's; q = 0 would differ where I_k + I_{k+m} = 1, by 1 ulp. (The map still differs from
+#: BSLTL's by about 1 ulp: it scales by 200 before dividing by N-1, S2 the other way round.)
 BSLTL_EPS = 2.0**-52
 
 #: Integer stacks whose exact sums fit int64 with this margin are summed in integers.
