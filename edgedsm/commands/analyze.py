@@ -17,8 +17,9 @@ The field's other descriptors (docs/descriptors.md; as the reference toolbox BSL
 them) are batch maps here: fujii (200 S2 at q = eps), gd (generalized differences, every pair
 of frames), im (mean squared difference at LAG), contrast (σ/⟨I⟩), skewness, kurtosis, mhi
 (motion history; needs --threshold), band_low, band_high and band_ratio (periodogram power
-below/above --split, in Hz with --dt). Their noise floor is not known yet: the noise summary
-(docs/noise.md) is printed for s1, s2 and s3 only. `edgedsm thsp` draws one line's THSP.
+below/above --split, in Hz when --dt or the recording gives the frame interval). Their noise
+floor is not known yet: the noise summary (docs/noise.md) is printed for s1, s2 and s3 only.
+`edgedsm thsp` draws one line's THSP.
 
 With --timeline OUT_DIR it follows the activity against time instead (the paper's §3 reads
 drying this way): a sliding window of N frames is sampled every --every frames, and
@@ -78,8 +79,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threshold", type=float, metavar="U",
                         help="mhi only: a change above U grey levels counts as motion")
     parser.add_argument("--split", type=float, metavar="F",
-                        help="band_*: the frequency between the low and the high band, Hz with --dt, else "
-                             "cycles per frame (default half the Nyquist frequency)")
+                        help="band_*: the frequency between the low and the high band, in Hz when the frame "
+                             "interval is known (--dt, else the recording's), else in cycles per frame "
+                             "(default half the Nyquist frequency)")
     parser.add_argument("--start", type=int, default=0, help="index of the first frame used (default 0)")
     parser.add_argument("-o", "--output", metavar="MAP.npy", help="float64 map as .npy (required without --timeline)")
     parser.add_argument("--png", nargs="?", const=True, metavar="PNG",
@@ -107,11 +109,14 @@ def run(args: argparse.Namespace) -> int:
     with open_reader(args) as reader:
         frames = read_window(reader, args)
         bits = reader.bits
+        dt = args.dt if args.dt is not None else reader.dt  # the band_* frequencies' scale
     window = len(frames)
     descriptor = DESCRIPTORS[args.estimator]
-    result = compute(args.estimator, frames, lag=args.lag, q=args.q, dt=args.dt, split=args.split,
+    result = compute(args.estimator, frames, lag=args.lag, q=args.q, dt=dt, split=args.split,
                      threshold=args.threshold)
     lag_text = f", lag {args.lag}" if descriptor.uses_lag else ""
+    if args.estimator.startswith("band_"):
+        lag_text = f", frequencies in Hz (dt {dt:.4g} s)" if dt else ", frequencies in cycles per frame"
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     np.save(output, result)
@@ -137,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         noise_line = f"above noise: unknown ({reason})"
     if args.json:
         print(json.dumps({"estimator": args.estimator, "unit": descriptor.unit, "start": args.start,
-                          "window": window, "lag": args.lag if descriptor.uses_lag else None,
+                          "window": window, "lag": args.lag if descriptor.uses_lag else None, "dt": dt,
                           "shape": list(result.shape), "mean": float(result.mean()), "min": float(result.min()),
                           "max": float(result.max()), "output": str(output),
                           "png": str(png) if png is not None else None, **noise_fields}))

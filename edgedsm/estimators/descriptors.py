@@ -71,9 +71,12 @@ def gd(frames: np.ndarray) -> np.ndarray:
         for k in range(n):
             total += (2 * k - n + 1) * ordered[k].astype(np.int64)
         return total.astype(np.float64) / pairs
+    # the weights sum to 0, so the smallest value can be taken off first: every term is then a
+    # spread, not an intensity (no cancellation of large offsets in float data)
+    lowest = ordered[0].astype(np.float64)
     total_f = np.zeros(stack.shape[1:], np.float64)
-    for k in range(n):
-        total_f += (2 * k - n + 1) * ordered[k].astype(np.float64)
+    for k in range(1, n):
+        total_f += (2 * k - n + 1) * (ordered[k].astype(np.float64) - lowest)
     return total_f / pairs
 
 
@@ -116,11 +119,10 @@ def _central_sums(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     n = stack.shape[0]
     if _small_integers(stack):
         total = stack.sum(axis=0, dtype=np.int64)
-        dev = [(n * frame.astype(np.int64) - total).astype(np.float64) for frame in stack]
+        dev = ((n * frame.astype(np.int64) - total).astype(np.float64) for frame in stack)
     else:
-        data = stack.astype(np.float64)
-        mean = data.mean(axis=0)
-        dev = [frame - mean for frame in data]
+        mean = stack.astype(np.float64).mean(axis=0)
+        dev = (frame.astype(np.float64) - mean for frame in stack)
     zero = np.zeros(stack.shape[1:], np.float64)
     m2, m3, m4 = zero.copy(), zero.copy(), zero.copy()
     for d in dev:

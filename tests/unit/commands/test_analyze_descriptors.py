@@ -33,6 +33,7 @@ def test_every_registry_name_is_an_estimator_choice(tmp_path: Path, capsys: pyte
         result = _json(capsys)
         assert result["estimator"] == name and result["unit"] == DESCRIPTORS[name].unit
         assert np.isfinite(np.load(out)).all()
+        assert result["lag"] == (2 if DESCRIPTORS[name].uses_lag else None) and result["dt"] is None
         if name in ("s1", "s2", "s3"):
             assert "noise_floor_reason" not in result and result["signal"] is not None
         else:
@@ -54,6 +55,7 @@ def test_the_map_is_the_batch_descriptor(tmp_path: Path, capsys: pytest.CaptureF
         text = capsys.readouterr().out
         assert f"mean {expected.mean():.4g}" in text and f"no noise floor is known for {name} yet" in text
         assert (", lag 3:" in text) == (name == "fujii")
+        assert (", frequencies in Hz (dt 0.02 s):" in text) == (name == "band_high")
 
 
 def test_missing_or_bad_options_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -8,6 +8,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import s1, s2, temporal_sigma
@@ -53,6 +56,20 @@ def test_gd_of_float_data_and_of_ties() -> None:
     np.testing.assert_allclose(gd(stack), _gd_pairs(stack), rtol=1e-13)
     ties = np.array([3, 3, 7, 3, 7], np.uint8).reshape(5, 1, 1)  # 6 pairs of |3-7| = 4 out of 10
     assert gd(ties)[0, 0] == pytest.approx(6 * 4 / 10, abs=0)
+
+
+def test_gd_of_float_data_on_a_large_offset() -> None:
+    # 1e6 ± 1e-3: summing x_(k) with weights ±N would lose ~1e6/1e-3 · 2^-53 ≈ 1e-7 relative;
+    # taken off the minimum first, it keeps the pairwise loop's accuracy
+    stack = 1e6 + np.random.default_rng(9).uniform(0, 1e-3, (40, 3, 3))
+    np.testing.assert_allclose(gd(stack), _gd_pairs(stack - 1e6), rtol=1e-9)
+
+
+@settings(max_examples=50, deadline=None)
+@given(arrays(np.uint16, st.tuples(st.integers(2, 9), st.integers(1, 3), st.integers(1, 3)),
+              elements=st.sampled_from([0, 1, 2, 65534, 65535])))
+def test_gd_equals_the_pairs_on_extreme_and_tied_values(stack: np.ndarray) -> None:
+    np.testing.assert_array_equal(gd(stack), _gd_pairs(stack))
 
 
 def test_gd_of_two_frames_is_s1() -> None:
