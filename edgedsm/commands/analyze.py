@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}" + (
             f"  m={args.lag}" if descriptor.uses_lag else ""))
         message += f", {png}"
-    if args.estimator in ESTIMATORS:
+    if descriptor.noise_floor:  # s1, s2, s3 (docs/noise.md)
         summary = region_noise(frames, result, args.estimator, args.lag, q=args.q, bits=bits, model=(
             None if args.noise_gain is None else from_datasheet(args.noise_gain, args.dark_noise, args.dark_mean)))
         noise_fields = _noise_fields(summary)
