@@ -5,7 +5,9 @@ source "$(dirname "${BASH_SOURCE[0]}")/_env.sh"
 # socat: PTY pairs for the emulated relay boards; systemd: systemd-analyze checks the unit
 # (procps: the unit's ExecReload=/bin/kill, which `verify` checks).
 # chromium + chromium-driver: the dashboard's browser tests (Selenium drives the system browser).
-apt_install socat systemd procps mosquitto openssl chromium chromium-driver gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev
+# octave + octave-bsltl: the field's reference toolbox BSLTL, which the descriptors are checked against
+# (tests/integration/test_bsltl_conformance.py).
+apt_install socat systemd procps mosquitto openssl chromium chromium-driver gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc python3-dev octave octave-bsltl
 ensure_venv test
 cd "$ROOT"
 "$VENV/bin/ruff" check edgedsm edgedsm_lab tests

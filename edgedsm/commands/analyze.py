@@ -1,4 +1,5 @@
-"""Compute an activity map S1, S2 or S3 (paper Eq. 1-4) from recorded frames.
+"""Compute an activity map S1, S2 or S3 (paper Eq. 1-4), or another descriptor of the field,
+from recorded frames.
 
 FRAMES is anything edgedsm reads: a .npy stack, a multi-page TIFF or BigTIFF (compressed or
 not), an edgedsm recording (`edgedsm record`), a video (AVI, MP4, MKV, MOV; a lossy codec is
@@ -12,6 +13,14 @@ apart: S1 = mean |I_i - I_{i+m}| (grey levels), S2 = mean |I_i - I_{i+m}|/(I_i +
 (for uneven illumination), S3 = S1/σ with σ each pixel's temporal standard deviation
 (robust to ambient light). Higher values mean faster processes (more activity).
 
+The field's other descriptors (docs/descriptors.md; as the reference toolbox BSLTL defines
+them) are batch maps here: fujii (200 S2 at q = eps), gd (generalized differences, every pair
+of frames), im (mean squared difference at LAG), contrast (σ/⟨I⟩), skewness, kurtosis, mhi
+(motion history; needs --threshold), band_low, band_high and band_ratio (periodogram power
+below/above --split, in Hz when --dt or the recording gives the frame interval). Their noise
+floor is not known yet: the noise summary (docs/noise.md) is printed for s1, s2 and s3 only.
+`edgedsm thsp` draws one line's THSP.
+
 With --timeline OUT_DIR it follows the activity against time instead (the paper's §3 reads
 drying this way): a sliding window of N frames is sampled every --every frames, and
 OUT_DIR/timeline.csv gets, per region and sample, the mean S1, S2, S3 and the region's τc
@@ -23,6 +32,8 @@ histogram of the S2 map (--histogram) against time. FRAMES may then also be a sc
 Examples:
   edgedsm analyze frames.npy --estimator s1 --window 200 --lag 10 -o s1.npy --png
   edgedsm analyze frames/ --estimator s3 --window 50 --lag 4 -o s3.npy --png s3.png
+  edgedsm analyze frames.npy --estimator gd --window 100 -o gd.npy --png
+  edgedsm analyze frames.npy --estimator band_ratio --dt 0.02 --split 5 -o ratio.npy
   edgedsm analyze config/scenes/drying_demo.toml --frames 1200 --timeline out/ --window 100 --lag 2
   edgedsm analyze recording.npy --timeline out/ -c edgedsm.toml --dt 0.05
   edgedsm analyze drying/ --channel red --start 200 --window 200 --lag 5 --estimator s2 -o s2.npy
@@ -40,7 +51,8 @@ import numpy as np
 from edgedsm.commands.common import add_progress_flag, progress
 from edgedsm.commands.timeline_output import add_timeline_arguments, open_reader, run_timeline
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import s1, s2, s3
+from edgedsm.estimators import ESTIMATORS
+from edgedsm.estimators.descriptors import DESCRIPTORS, compute
 from edgedsm.estimators.noise import from_datasheet
 from edgedsm.estimators.noise_summary import RegionNoise, region_noise
 from edgedsm.frameio import CHANNELS, FrameReader
@@ -56,11 +68,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "a pattern such as frames/%%05d.png")
     parser.add_argument("--channel", metavar="|".join(CHANNELS),
                         help="the channel of a colour input: red, green, blue, or luma (ITU-R BT.601 weights)")
-    parser.add_argument("--estimator", choices=("s1", "s2", "s3"), default="s1",
-                        help="s1: plain; s2: normalised by intensity; s3: normalised by σ (default s1)")
+    parser.add_argument("--estimator", choices=tuple(DESCRIPTORS), default="s1", metavar="NAME",
+                        help="s1: plain; s2: normalised by intensity; s3: normalised by σ (default s1); "
+                             "or one of " + ", ".join(name for name in DESCRIPTORS if name not in ESTIMATORS)
+                             + " (docs/descriptors.md)")
     parser.add_argument("--window", type=int, metavar="N", help="frames per map (default: all from --start)")
     parser.add_argument("--lag", type=int, default=1, metavar="m", help="time lag in frames (default 1)")
-    parser.add_argument("--q", type=float, default=0.0, help="S2 only: added to the denominator (default 0)")
+    parser.add_argument("--q", type=float, default=0.0,
+                        help="s2 and band_ratio: added to the denominator (default 0)")
+    parser.add_argument("--threshold", type=float, metavar="U",
+                        help="mhi only: a change above U grey levels counts as motion")
+    parser.add_argument("--split", type=float, metavar="F",
+                        help="band_*: the frequency between the low and the high band, in Hz when the frame "
+                             "interval is known (--dt, else the recording's), else in cycles per frame "
+                             "(default half the Nyquist frequency)")
     parser.add_argument("--start", type=int, default=0, help="index of the first frame used (default 0)")
     parser.add_argument("-o", "--output", metavar="MAP.npy", help="float64 map as .npy (required without --timeline)")
     parser.add_argument("--png", nargs="?", const=True, metavar="PNG",
@@ -79,46 +100,66 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.timeline is not None:
+        if args.estimator not in ESTIMATORS:
+            raise EstimatorError(f"--timeline follows s1, s2, s3 and τc; {args.estimator} is a batch map only "
+                                 "(its streaming version is issue 24's engine work)")
         return run_timeline(args)
     if args.output is None:
         raise EstimatorError("give -o MAP.npy (or --timeline OUT_DIR)")
     with open_reader(args) as reader:
         frames = read_window(reader, args)
         bits = reader.bits
+        dt = args.dt if args.dt is not None else reader.dt  # the band_* frequencies' scale
     window = len(frames)
-    if args.estimator == "s1":
-        result = s1(frames, args.lag)
-    elif args.estimator == "s2":
-        result = s2(frames, args.lag, q=args.q)
-    else:
-        result = s3(frames, args.lag)
+    descriptor = DESCRIPTORS[args.estimator]
+    result = compute(args.estimator, frames, lag=args.lag, q=args.q, dt=dt, split=args.split,
+                     threshold=args.threshold)
+    lag_text = f", lag {args.lag}" if descriptor.uses_lag else ""
+    if args.estimator.startswith("band_"):
+        lag_text = f", frequencies in Hz (dt {dt:.4g} s)" if dt else ", frequencies in cycles per frame"
     output = Path(args.output)
     output.parent.mkdir(parents=True, exist_ok=True)
     np.save(output, result)
-    message = (f"{args.estimator.upper()} from frames {args.start}..{args.start + window - 1}, lag {args.lag}: "
-               f"mean {result.mean():.4g}, min {result.min():.4g}, max {result.max():.4g} -> {output}")
+    message = (f"{args.estimator.upper()} from frames {args.start}..{args.start + window - 1}{lag_text}: "
+               f"mean {result.mean():.4g}, min {result.min():.4g}, max {result.max():.4g} ({descriptor.unit})"
+               f" -> {output}")
     png = None
     if args.png:
         png = output.with_suffix(".png") if args.png is True else Path(args.png)
-        save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}  m={args.lag}")
+        save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}" + (
+            f"  m={args.lag}" if descriptor.uses_lag else ""))
         message += f", {png}"
-    summary = region_noise(frames, result, args.estimator, args.lag, q=args.q, bits=bits, model=(
-        None if args.noise_gain is None else from_datasheet(args.noise_gain, args.dark_noise, args.dark_mean)))
+    if descriptor.noise_floor:  # s1, s2, s3 (docs/noise.md)
+        summary = region_noise(frames, result, args.estimator, args.lag, q=args.q, bits=bits, model=(
+            None if args.noise_gain is None else from_datasheet(args.noise_gain, args.dark_noise, args.dark_mean)))
+        noise_fields = _noise_fields(summary)
+        noise_line = _noise_line(summary)
+    else:
+        reason = f"no noise floor is known for {args.estimator} yet (docs/noise.md covers s1, s2 and s3)"
+        noise_fields = {"noise_floor": None, "noise_floor_reason": reason, "above_noise": None,
+                        "above_noise_spread": None, "above_noise_verdict": None, "signal": None,
+                        "noise_model": None, "noise_model_error": None}
+        noise_line = f"above noise: unknown ({reason})"
     if args.json:
-        print(json.dumps({"estimator": args.estimator, "start": args.start, "window": window, "lag": args.lag,
+        print(json.dumps({"estimator": args.estimator, "unit": descriptor.unit, "start": args.start,
+                          "window": window, "lag": args.lag if descriptor.uses_lag else None, "dt": dt,
                           "shape": list(result.shape), "mean": float(result.mean()), "min": float(result.min()),
                           "max": float(result.max()), "output": str(output),
-                          "png": str(png) if png is not None else None,
-                          "noise_floor": summary.noise_floor, "above_noise": summary.above_noise,
-                          "above_noise_spread": summary.spread, "above_noise_verdict": summary.verdict,
-                          "signal": {"quality": summary.signal, "dark_fraction": summary.dark_fraction,
-                                     "saturated_fraction": summary.saturated_fraction,
-                                     "speckle_contrast": summary.speckle_contrast},
-                          "noise_model": summary.model, "noise_model_error": summary.model_error}))
+                          "png": str(png) if png is not None else None, **noise_fields}))
     else:
         print(message)
-        print(_noise_line(summary))
+        print(noise_line)
     return 0
+
+
+def _noise_fields(summary: RegionNoise) -> dict[str, object]:
+    """The JSON keys of the noise summary (s1, s2, s3)."""
+    return {"noise_floor": summary.noise_floor, "above_noise": summary.above_noise,
+            "above_noise_spread": summary.spread, "above_noise_verdict": summary.verdict,
+            "signal": {"quality": summary.signal, "dark_fraction": summary.dark_fraction,
+                       "saturated_fraction": summary.saturated_fraction,
+                       "speckle_contrast": summary.speckle_contrast},
+            "noise_model": summary.model, "noise_model_error": summary.model_error}
 
 
 def _noise_line(summary: RegionNoise) -> str:

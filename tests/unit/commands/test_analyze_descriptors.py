@@ -1,0 +1,69 @@
+"""`edgedsm analyze --estimator NAME` for the field's descriptors (docs/descriptors.md): the map is
+the batch function's, the noise floor is null with a reason, and the options each one needs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edgedsm.cli import main
+from edgedsm.estimators.bands import split_powers
+from edgedsm.estimators.descriptors import DESCRIPTORS, fujii, gd, mhi
+
+
+def _frames(tmp_path: Path) -> Path:
+    path = tmp_path / "frames.npy"
+    np.save(path, np.random.default_rng(4).integers(0, 256, (20, 12, 10)).astype(np.uint8))
+    return path
+
+
+def _json(capsys: pytest.CaptureFixture[str]) -> dict:
+    return json.loads(capsys.readouterr().out)
+
+
+def test_every_registry_name_is_an_estimator_choice(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _frames(tmp_path)
+    for name in DESCRIPTORS:
+        out = tmp_path / f"{name}.npy"
+        assert main(["analyze", str(path), "--estimator", name, "--window", "16", "--lag", "2", "--threshold", "30",
+                     "-o", str(out), "--json", "--no-progress"]) == 0, name
+        result = _json(capsys)
+        assert result["estimator"] == name and result["unit"] == DESCRIPTORS[name].unit
+        assert np.isfinite(np.load(out)).all()
+        assert result["lag"] == (2 if DESCRIPTORS[name].uses_lag else None) and result["dt"] is None
+        if name in ("s1", "s2", "s3"):
+            assert "noise_floor_reason" not in result and result["signal"] is not None
+        else:
+            assert result["noise_floor"] is None and name in result["noise_floor_reason"]
+
+
+def test_the_map_is_the_batch_descriptor(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _frames(tmp_path)
+    frames = np.load(path)[3:18]
+    for name, args, expected in (("gd", [], gd(frames)), ("fujii", ["--lag", "3"], fujii(frames, 3)),
+                                 ("mhi", ["--threshold", "40"], mhi(frames, 40)),
+                                 ("band_high", ["--dt", "0.02", "--split", "10"],
+                                  split_powers(frames, 0.02, 10.0)[1])):
+        out = tmp_path / f"{name}.npy"
+        assert main(["analyze", str(path), "--estimator", name, "--start", "3", "--window", "15", *args,
+                     "-o", str(out), "--png", "--no-progress"]) == 0
+        np.testing.assert_array_equal(np.load(out), expected)
+        assert out.with_suffix(".png").stat().st_size > 0
+        text = capsys.readouterr().out
+        assert f"mean {expected.mean():.4g}" in text and f"no noise floor is known for {name} yet" in text
+        assert (", lag 3:" in text) == (name == "fujii")
+        assert (", frequencies in Hz (dt 0.02 s):" in text) == (name == "band_high")
+
+
+def test_missing_or_bad_options_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _frames(tmp_path)
+    out = str(tmp_path / "m.npy")
+    assert main(["analyze", str(path), "--estimator", "mhi", "-o", out]) == 1
+    assert capsys.readouterr().err.strip() == "edgedsm: error: mhi needs --threshold"
+    assert main(["analyze", str(path), "--estimator", "band_ratio", "--dt", "0.1", "--split", "7", "-o", out]) == 1
+    assert "Nyquist frequency 5" in capsys.readouterr().err
+    assert main(["analyze", str(path), "--estimator", "gd", "--timeline", str(tmp_path / "t")]) == 1
+    assert "gd is a batch map only" in capsys.readouterr().err
