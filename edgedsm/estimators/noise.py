@@ -30,8 +30,9 @@ every fit). Three sources give K, σ_d² and μ_dark (docs/noise.md says when ea
   fits the same stretched exponentials), and then σ_n² fitted against the groups' means as the
   line above. Differences need no window-mean
   correction. It cannot separate noise from activity faster than the frame rate (τc below about
-  a frame: the signal is white too): such groups are left out, and with none left there is no
-  estimate (:class:`~edgedsm.errors.EstimatorError`).
+  a frame: the signal is white too): such groups are left out, as are groups whose white part
+  is as large as speckle's own fluctuation (MAX_WHITE_CONTRAST: a flat D(k) fits any τ), and
+  with none left there is no estimate (:class:`~edgedsm.errors.EstimatorError`).
 """
 
 from __future__ import annotations
@@ -60,6 +61,11 @@ MIN_RESOLVED_TAU = 4.0
 #: the separation depends on the activity's shape (3-14 % between stages of one glue recording)
 FRAMES_MIN_ERROR = 0.05
 MIN_GROUP_MEAN = 3.0  # DN: dimmer groups are left out of from_frames' fit (see there)
+#: a white part whose σ is above this share of the group's mean is speckle that decorrelates
+#: within a frame, not noise: temporally varying speckle has σ = μ (fully developed; Goodman,
+#: Speckle Phenomena in Optics, §3.2) or μ/√M over M speckles per pixel, while shot noise of μ_e
+#: electrons has σ/μ = 1/√μ_e, above 0.25 only below 16 electrons, a pixel too dark to time.
+MAX_WHITE_CONTRAST = 0.25
 #: the white part is an extrapolation of D(k) to k = 0, best made from the shortest lags
 DEFAULT_LAGS = 6
 _TAU_GRID = 0.25 * 2.0 ** (np.arange(0, 161) / 8.0)  # 0.25 ... 2^20·0.25 frames, 9 % steps
@@ -272,6 +278,7 @@ def from_frames(frames: np.ndarray, max_lag: int = DEFAULT_LAGS, saturation: flo
     # dim groups: leaving out the pixels that touch 0 keeps those whose signal sits mid-step,
     # whose rounded variance is below the step-average the inversion assumes
     resolved = (tau >= MIN_RESOLVED_TAU) & (group_means >= MIN_GROUP_MEAN)
+    resolved &= noise <= (MAX_WHITE_CONTRAST * group_means) ** 2  # (τ is arbitrary where D(k) is flat)
     if not resolved.any():
         raise EstimatorError("the frames cannot tell noise from activity (the activity decorrelates "
                              "within a few frames, or the frames are too dark): give the camera's noise "

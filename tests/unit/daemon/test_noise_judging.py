@@ -53,7 +53,8 @@ def test_above_the_noise_the_darkening_film_goes_wet_drying_dry(judged):
 def test_the_light_falling_is_one_warning_with_its_factor(judged):
     warnings = [a for a in judged.alerts if a.kind == AlertKind.WARNING]
     assert len(warnings) == 1 and warnings[0].region == "film"
-    assert warnings[0].reason.startswith("mean intensity fell ") and "since the window first filled" in warnings[0].reason
+    reason = warnings[0].reason
+    assert reason.startswith("mean intensity fell ") and "since the window first filled" in reason
     factor = float(warnings[0].reason.split("fell ")[1].split("×")[0])
     assert 3.0 < factor < 3.5  # the default intensity_change is 3
     assert judged.stats[-1].signal["film"].intensity_change == pytest.approx(0.1, abs=0.05)

@@ -243,3 +243,21 @@ def test_low_counts_stay_within_the_stated_approximation(electrons, gain):
     s2_floor = nf.s2_floor(model, means, 40, 2, top=1023).value
     assert float(maps["s1"].mean()) == pytest.approx(s1_floor, rel=0.03)
     assert float(maps["s2"].mean()) == pytest.approx(s2_floor, rel=0.08)
+
+
+def test_speckle_decorrelating_within_a_frame_gives_no_model_rather_than_a_noise_as_large_as_itself():
+    rng = np.random.default_rng(8)
+    fast = np.clip(rng.exponential(80.0, (64, 48, 48)), 0, 255).astype(np.uint8)  # a new pattern every frame
+    with pytest.raises(EstimatorError, match="cannot tell noise from activity"):
+        noise.from_frames(fast, saturation=255)
+    static = np.clip(np.rint(rng.poisson(np.broadcast_to(fast[0] / 0.5, fast.shape)) * 0.5), 0, 255).astype(np.uint8)
+    assert noise.from_frames(static, saturation=255).gain == pytest.approx(0.5, rel=0.2)
+
+
+def test_the_saturated_share_counts_clipped_samples_not_pixels_that_touch_full_scale_once():
+    rng = np.random.default_rng(9)
+    fast = np.clip(rng.exponential(40.0, (200, 32, 32)), 0, 255).astype(np.uint8)  # exp(-255/40): 0.17 % clipped
+    light = sq.light_stats(fast, noise.NoiseModel(gain=0.5), 255)
+    assert (fast.max(axis=0) == 255).mean() > 0.25  # a quarter of the pixels touch full scale in 200 frames
+    assert light.saturated_fraction == pytest.approx((fast == 255).mean()) and light.saturated_fraction < 0.01
+    assert sq.signal_quality(light).verdict != sq.SATURATED
