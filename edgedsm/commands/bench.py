@@ -23,7 +23,8 @@ HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers,
 #: Each suite and the module of the lab (edgedsm_lab, beside the package) that runs it.
 SUITES = {name: f"edgedsm_lab.bench.{module}" for name, module in (
     ("sim", "sim"), ("engine", "engine"), ("devices", "devices"), ("e2e", "e2e_report"), ("ambient", "ambient"),
-    ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"), ("recording", "recording"))}
+    ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"), ("recording", "recording"),
+    ("light", "light"))}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from edgedsm.daemon.noise_patches import PatchWindow
 from edgedsm.estimators.region_stats import Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
 from edgedsm.messages import LaserState, RecordingStats
+from edgedsm.noise_patches import PatchWindow
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,6 @@ from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig, check_regions
 from edgedsm.daemon.engine_budget import PROBE_PIXELS, check_engine_memory, engine_bytes_per_pixel, kernel_threads
 from edgedsm.daemon.handover import Snapshot, Status
-from edgedsm.daemon.noise_patches import NoisePatches
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.tau import TauRegions, engine_estimators
 from edgedsm.errors import FrameError
@@ -36,6 +35,7 @@ from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, r
 from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.frames import Frame
+from edgedsm.noise_patches import NoisePatches
 
 log = logging.getLogger(__name__)
 

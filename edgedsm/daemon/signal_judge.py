@@ -1,7 +1,7 @@
 """Each region's light and its activity against the camera's noise, on the evaluator thread
 (docs/noise.md; ``estimator.noise_floor``).
 
-On the stats cadence the judge takes the regions' patch windows (:mod:`edgedsm.daemon.noise_patches`)
+On the stats cadence the judge takes the regions' patch windows (:mod:`edgedsm.noise_patches`)
 and the regions' estimates from the engine, and finds per region the signal quality and the
 judged estimator's noise floor. Between two stats evaluations the floor found last turns each
 new estimate into its above-noise value (no frames needed). The drying states are judged on that
@@ -24,12 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from edgedsm.config import DaemonConfig
-from edgedsm.daemon.noise_patches import PatchWindow
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import noise, signal_quality
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_summary import ESTIMATORS, RegionFloor, above_of, region_floor, region_noise
 from edgedsm.messages import RegionSignal
+from edgedsm.noise_patches import PatchWindow
 
 #: Floors (and a model from the frames) are computed afresh at least every this many assessments
 #: (a minute at the default 5 s stats interval): they change as slowly as the light, and one costs

@@ -1,5 +1,6 @@
-"""The noise patches, on the pipeline thread: the last frames of a small square at each region's
-centre, from which the evaluator judges the region's light and its noise floor (docs/noise.md).
+"""Noise patches: the last frames of a small square at each region's centre, from which the
+daemon's evaluator (and ``analyze --timeline``) judge the region's light and its noise floor
+(docs/noise.md). The daemon's pipeline thread pushes every frame.
 
 The streaming engine keeps sums, not frames (and in exponential or tumbling mode no window of
 frames at all), while the noise floor needs each pixel's window mean and the noise model needs
