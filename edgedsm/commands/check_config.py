@@ -63,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
             "mqtt": f"{config.mqtt.host}:{config.mqtt.port}" if config.mqtt else None,
             "homeassistant": config.homeassistant.discovery_prefix if config.homeassistant else None,
             "http": config.http.listen if config.http else None,
-            "recording": recording_budget(config, frame_shape), "notes": config.notes}))
+            "recording": recording_budget(config, frame_shape), "noise_floor": noise_floor_setup(config),
+            "notes": config.notes}))
         return 0
     mqtt = f"{config.mqtt.host}:{config.mqtt.port}, topics {base}/..." if config.mqtt else "none (log only)"
     regions = (f"{len(config.regions)} region(s) inside the {frame_shape[1]}x{frame_shape[0]} frame"
@@ -78,7 +79,24 @@ def run(args: argparse.Namespace) -> int:
     budget = recording_budget(config, frame_shape)
     if budget is not None:
         print(budget_line(budget))
+    print(noise_line(noise_floor_setup(config)))
     return 0
+
+
+def noise_floor_setup(config: DaemonConfig) -> dict[str, Any]:
+    """How the drying states meet the camera's noise (docs/noise.md, §5c)."""
+    est, noise = config.estimator, config.camera.noise
+    return {"on": est.noise_floor, "model": ("datasheet" if noise is not None else "frames") if est.noise_floor
+            else None, "patch_px": est.noise_patch, "intensity_change": est.intensity_change}
+
+
+def noise_line(setup: dict[str, Any]) -> str:
+    if not setup["on"]:
+        return "noise floor: off (the states are judged on the plain activity; no signal quality published)"
+    model = ("the [camera.noise] datasheet" if setup["model"] == "datasheet"
+             else "the frames (until found: the plain activity)")
+    return (f"noise floor: on, states judged above it; noise model from {model}; {setup['patch_px']} px patch per "
+            f"region; light change warning beyond {setup['intensity_change']:g}×")
 
 
 def tau_range(config: DaemonConfig) -> dict[str, Any] | None:
