@@ -17,8 +17,8 @@ The field's other descriptors (docs/descriptors.md; as the reference toolbox BSL
 them) are batch maps here: fujii (200 S2 at q = eps), gd (generalized differences, every pair
 of frames), im (mean squared difference at LAG), contrast (σ/⟨I⟩), skewness, kurtosis, mhi
 (motion history; needs --threshold), band_low, band_high and band_ratio (periodogram power
-below/above --split, in Hz when --dt or the recording gives the frame interval). Their noise
-floor is not known yet: the noise summary (docs/noise.md) is printed for s1, s2 and s3 only.
+below/above --split, in Hz when --dt or the recording gives the frame interval). The noise
+summary (docs/noise.md) is printed for those with a known floor: s1, s2, s3, fujii, im, gd.
 `edgedsm thsp` draws one line's THSP.
 
 With --timeline OUT_DIR it follows the activity against time instead (the paper's §3 reads
@@ -129,13 +129,13 @@ def run(args: argparse.Namespace) -> int:
         save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}" + (
             f"  m={args.lag}" if descriptor.uses_lag else ""))
         message += f", {png}"
-    if descriptor.noise_floor:  # s1, s2, s3 (docs/noise.md)
+    if descriptor.noise_floor:  # s1, s2, s3, fujii, im, gd (docs/noise.md)
         summary = region_noise(frames, result, args.estimator, args.lag, q=args.q, bits=bits, model=(
             None if args.noise_gain is None else from_datasheet(args.noise_gain, args.dark_noise, args.dark_mean)))
         noise_fields = _noise_fields(summary)
         noise_line = _noise_line(summary)
     else:
-        reason = f"no noise floor is known for {args.estimator} yet (docs/noise.md covers s1, s2 and s3)"
+        reason = f"no noise floor is known for {args.estimator} yet (docs/noise.md covers s1-s3, fujii, im, gd)"
         noise_fields = {"noise_floor": None, "noise_floor_reason": reason, "above_noise": None,
                         "above_noise_spread": None, "above_noise_verdict": None, "signal": None,
                         "noise_model": None, "noise_model_error": None}
@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _noise_fields(summary: RegionNoise) -> dict[str, object]:
-    """The JSON keys of the noise summary (s1, s2, s3)."""
+    """The JSON keys of the noise summary."""
     return {"noise_floor": summary.noise_floor, "above_noise": summary.above_noise,
             "above_noise_spread": summary.spread, "above_noise_verdict": summary.verdict,
             "signal": {"quality": summary.signal, "dark_fraction": summary.dark_fraction,

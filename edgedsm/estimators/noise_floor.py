@@ -17,6 +17,9 @@ window of N frames; the lag m is in frames.
   Gaussian shape E|Δ| ∝ sqrt(E[Δ²])) and to the variance, so S3 of the signal alone is
   S3·sqrt(1 - f1²/S1²)/sqrt(1 - (1 - 1/N)·σ̄_n²/σ̄²) (f1 the S1 floor, σ̄² the region's mean window
   variance). Defined only where S1 and the variance are above noise (else 0, ``low``).
+* Fujii (BSLTL, 0..200): 200 × S2's floor at q = eps. IM (DN²): E[Δ²] of a static pair. GD (DN):
+  E|Δ| as S1's (every pair of frames is two independent noise samples), with a U-statistic's
+  spread. Above-noise values are the estimate less the floor, as for S1 and S2.
 * τc: white noise lowers the fitted amplitude A (the signal's share of the variance) and not τ;
   the above-noise measure is that share, 1 - (1 - 1/N)·σ̄_n²/σ̄², and τc stands for the signal
   only where it is above noise.
@@ -36,6 +39,7 @@ from scipy.special import ndtr
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators.correlation_time import BELOW
 from edgedsm.estimators.correlation_time import NO_SIGNAL as TAU_NO_SIGNAL
+from edgedsm.estimators.descriptors import BSLTL_EPS
 from edgedsm.estimators.noise import QUANTIZATION_VARIANCE, NoiseModel, abs_correlation
 
 LOW_SPREADS = 3.0
@@ -46,6 +50,11 @@ REPRESENTATIVES = 512  # pixel means a region's floor is computed from
 #: agree with the exact sum to 0.1 % (checked in the tests)
 EXACT_SIGMA = 4.0
 OK, LOW, NO_SIGNAL = "ok", "low", "no_signal"
+#: corr(Δ1², Δ2²) of two Gaussian differences with corr(Δ1, Δ2) = -1/2: ρ² (Isserlis)
+SQUARED_OVERLAP_CORRELATION = 0.25
+#: Var(E|Z - Z'| given Z) for independent standard normal Z, Z' (E|z - Z'| = 2φ(z) + z(2Φ(z) - 1)),
+#: by quadrature; checked in the tests
+GD_ZETA1 = 0.16275157944175422
 
 
 @dataclass(frozen=True)
@@ -248,6 +257,50 @@ def s2_floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, q: float = 
              independent_pixels: float | None = None) -> Floor:
     """S2's floor (dimensionless) for a region of pixel means ``means``, S2's offset q >= 0."""
     return _floor(model, means, n, lag, 2, q, top, independent_pixels)
+
+
+def fujii_floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, top: float = math.inf,
+                independent_pixels: float | None = None) -> Floor:
+    """Fujii's floor (0..200): 200 × S2's at BSLTL's q = eps, which Fujii is
+    (:func:`edgedsm.estimators.descriptors.fujii`)."""
+    floor = s2_floor(model, means, n, lag, q=BSLTL_EPS, top=top, independent_pixels=independent_pixels)
+    return Floor(200.0 * floor.value, 200.0 * floor.spread)
+
+
+def im_floor(model: NoiseModel, means: np.ndarray, n: int, lag: int, top: float = math.inf,
+             independent_pixels: float | None = None) -> Floor:
+    """The inertia moment's floor (DN²), mean (I_k - I_{k+m})² of a static pixel: E[Δ²] of
+    :func:`static_pair_moments` (2σ² + Sheppard's 2/12 for integers). Spread: Δ² of Gaussian
+    noise has variance 2·E[Δ²]², and squares of two pairs sharing a frame (correlation -1/2)
+    correlate by 1/4; the model's relative error enters whole (IM goes as σ², not σ)."""
+    mu = _means(means)
+    _window(n, lag)
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    second = static_pair_moments(model, _representatives(mu), 0.0, top)[1]
+    value = float(second.mean())
+    pairs, overlap = n - lag, max(n - 2 * lag, 0)
+    factor = (pairs + 2.0 * SQUARED_OVERLAP_CORRELATION * overlap) / pairs**2
+    sampling = math.sqrt(2.0 * float((second**2).mean()) * factor / _pixels(mu, independent_pixels))
+    return Floor(value, math.hypot(sampling, value * model.relative_error))
+
+
+def gd_floor(model: NoiseModel, means: np.ndarray, n: int, top: float = math.inf,
+             independent_pixels: float | None = None) -> Floor:
+    """The generalized differences' floor (DN), Σ_{i<j} |I_i - I_j| / C(N, 2) of a static pixel:
+    every pair is two independent noise samples, so E|Δ| as S1's. Spread: GD is a U-statistic
+    (Hoeffding, Ann. Math. Stat. 19, 1948), Var = (4(N-2)ζ1 + 2ζ2)/(N(N-1)) with ζ2 = Var|Δ| and
+    ζ1 = Var_x E|x - Y| = GD_ZETA1·σ² for Gaussian noise."""
+    mu = _means(means)
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
+        raise EstimatorError(f"N must be an integer >= 2, got {n!r}")
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    first, second = static_pair_moments(model, _representatives(mu), 0.0, top)[:2]
+    value = float(first.mean())
+    per_pixel = (4.0 * (n - 2) * GD_ZETA1 * second / 2.0 + 2.0 * (second - first**2)) / (n * (n - 1))
+    sampling = math.sqrt(max(float(per_pixel.mean()), 0.0) / _pixels(mu, independent_pixels))
+    return Floor(value, math.hypot(sampling, value * model.relative_error / 2.0))
 
 
 def above_noise(estimate: float, floor: Floor) -> AboveNoise:

@@ -20,7 +20,7 @@ from edgedsm.estimators.batch import s1
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_floor import AboveNoise, Floor
 
-ESTIMATORS = ("s1", "s2", "s3")  # those with a noise floor
+ESTIMATORS = ("s1", "s2", "s3", "fujii", "im", "gd")  # those with a noise floor
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,7 @@ def region_noise(frames: np.ndarray, estimate_map: np.ndarray | None, estimator:
     if stack.ndim != 3:
         raise EstimatorError(f"frames must be a (N, H, W) stack, got shape {stack.shape}")
     if estimator not in ESTIMATORS:
-        raise EstimatorError(f"estimator must be s1, s2 or s3, got {estimator!r}")
+        raise EstimatorError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
     region = np.ones(stack.shape[1:], bool) if mask is None else np.asarray(mask, bool)
     top = full_scale(stack, bits)
     values = dict(estimates) if estimates is not None else {}
@@ -130,7 +130,7 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
     region = np.ones(stack.shape[1:], bool) if mask is None else np.asarray(mask, bool)
     n = stack.shape[0]
     if estimator not in ESTIMATORS:
-        raise EstimatorError(f"estimator must be s1, s2 or s3, got {estimator!r}")
+        raise EstimatorError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
     if previous is not None and previous.estimator != estimator:
         raise EstimatorError(f"previous floor is {previous.estimator}'s, not {estimator}'s")
     if previous is not None and estimator != "s3":
@@ -140,6 +140,12 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
         return RegionFloor(estimator, noise_floor.s2_floor(model, means, n, lag, q=q, top=top))
     if estimator == "s1":
         return RegionFloor(estimator, noise_floor.s1_floor(model, means, n, lag, top=top))
+    if estimator == "fujii":
+        return RegionFloor(estimator, noise_floor.fujii_floor(model, means, n, lag, top=top))
+    if estimator == "im":
+        return RegionFloor(estimator, noise_floor.im_floor(model, means, n, lag, top=top))
+    if estimator == "gd":
+        return RegionFloor(estimator, noise_floor.gd_floor(model, means, n, top=top))
     if previous is not None and previous.noise_variance is not None:
         floor, static = previous.floor, previous.noise_variance
     else:

@@ -34,7 +34,7 @@ def test_every_registry_name_is_an_estimator_choice(tmp_path: Path, capsys: pyte
         assert result["estimator"] == name and result["unit"] == DESCRIPTORS[name].unit
         assert np.isfinite(np.load(out)).all()
         assert result["lag"] == (2 if DESCRIPTORS[name].uses_lag else None) and result["dt"] is None
-        if name in ("s1", "s2", "s3"):
+        if name in ("s1", "s2", "s3", "fujii", "im", "gd"):
             assert "noise_floor_reason" not in result and result["signal"] is not None
         else:
             assert result["noise_floor"] is None and name in result["noise_floor_reason"]
@@ -53,7 +53,9 @@ def test_the_map_is_the_batch_descriptor(tmp_path: Path, capsys: pytest.CaptureF
         np.testing.assert_array_equal(np.load(out), expected)
         assert out.with_suffix(".png").stat().st_size > 0
         text = capsys.readouterr().out
-        assert f"mean {expected.mean():.4g}" in text and f"no noise floor is known for {name} yet" in text
+        assert f"mean {expected.mean():.4g}" in text
+        assert (f"no noise floor is known for {name} yet" in text) == (name not in ("gd", "fujii"))
+        assert ("above noise: " in text) and ("(floor " in text or "unknown (" in text)
         assert (", lag 3:" in text) == (name == "fujii")
         assert (", frequencies in Hz (dt 0.02 s):" in text) == (name == "band_high")
 

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from scipy.special import ndtr
 
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import batch, noise
+from edgedsm.estimators import batch, descriptors, noise
 from edgedsm.estimators import noise_floor as nf
 from edgedsm.estimators import signal_quality as sq
 from edgedsm.estimators.correlation_time import tau_c_bounds
@@ -79,8 +80,12 @@ def test_pure_noise_reads_within_its_spread_of_zero(level, gain, dark_sd, bits, 
     s1, s2, s3 = (float(maps[k].mean()) for k in ("s1", "s2", "s3"))
     share = nf.signal_share(model, means, float((batch.temporal_sigma(frames) ** 2).mean()), n, top=top)
     s1_floor = nf.s1_floor(model, means, n, lag, top=top)
+    field_floors = ((descriptors.fujii(frames, lag), nf.fujii_floor(model, means, n, lag, top=top)),
+                    (descriptors.im(frames, lag), nf.im_floor(model, means, n, lag, top=top)),
+                    (descriptors.gd(frames), nf.gd_floor(model, means, n, top=top)))
     for above in (nf.above_noise(s1, s1_floor), nf.above_noise(s2, nf.s2_floor(model, means, n, lag, top=top)),
-                  share, nf.s3_signal(s3, s1, s1_floor, share)):
+                  share, nf.s3_signal(s3, s1, s1_floor, share),
+                  *(nf.above_noise(float(values.mean()), floor) for values, floor in field_floors)):
         assert abs(above.value) <= nf.LOW_SPREADS * above.spread, above
         assert above.verdict == nf.LOW, above
 
@@ -201,7 +206,7 @@ def test_pure_noise_spread_is_calibrated():
     noise windows has mean ~0 and standard deviation ~1: the floors are unbiased and the spreads
     are neither too wide nor too narrow."""
     rng = np.random.default_rng(11)
-    z = {"s1": [], "s2": [], "share": []}
+    z = {"s1": [], "s2": [], "share": [], "fujii": [], "im": [], "gd": []}
     for _ in range(60):
         level, dark_sd = rng.uniform(50, 1500), rng.uniform(0, 2)
         gain = math.exp(rng.uniform(math.log(0.01), math.log(0.1)))
@@ -214,7 +219,12 @@ def test_pure_noise_spread_is_calibrated():
                 ("s1", nf.above_noise(float(maps["s1"].mean()), nf.s1_floor(model, means, 40, lag, top=255))),
                 ("s2", nf.above_noise(float(maps["s2"].mean()), nf.s2_floor(model, means, 40, lag, top=255))),
                 ("share", nf.signal_share(model, means, float((batch.temporal_sigma(frames) ** 2).mean()), 40,
-                                          top=255))):
+                                          top=255)),
+                ("fujii", nf.above_noise(float(descriptors.fujii(frames, lag).mean()),
+                                         nf.fujii_floor(model, means, 40, lag, top=255))),
+                ("im", nf.above_noise(float(descriptors.im(frames, lag).mean()),
+                                      nf.im_floor(model, means, 40, lag, top=255))),
+                ("gd", nf.above_noise(float(descriptors.gd(frames).mean()), nf.gd_floor(model, means, 40, top=255)))):
             z[name].append(above.value / above.spread)
     for name, values in z.items():
         assert abs(np.mean(values)) < 0.35 and 0.7 < np.std(values) < 1.3, (name, np.mean(values), np.std(values))
@@ -261,3 +271,12 @@ def test_the_saturated_share_counts_clipped_samples_not_pixels_that_touch_full_s
     assert (fast.max(axis=0) == 255).mean() > 0.25  # a quarter of the pixels touch full scale in 200 frames
     assert light.saturated_fraction == pytest.approx((fast == 255).mean()) and light.saturated_fraction < 0.01
     assert sq.signal_quality(light).verdict != sq.SATURATED
+
+
+def test_the_gd_spread_constant_is_the_conditional_variance_of_a_gaussian_mean_difference():
+    z = np.linspace(-10.0, 10.0, 200_001)
+    density = np.exp(-z * z / 2) / math.sqrt(2 * math.pi)
+    conditional = 2 * density + z * (2 * ndtr(z) - 1)  # E|z - Z'|
+    first = np.trapezoid(conditional * density, z)
+    assert first == pytest.approx(2 / math.sqrt(math.pi), rel=1e-9)
+    assert pytest.approx(np.trapezoid(conditional**2 * density, z) - first**2, rel=1e-7) == nf.GD_ZETA1
