@@ -201,7 +201,9 @@ class Watcher:
             if region.state == previous:
                 continue
             self._states[name] = region.state
-            detail = f" (activity {_number(region.activity)})" if region.activity is not None else ""
+            notes = ([f"activity {_number(region.activity)}"] if region.activity is not None else []) + (
+                [f"signal {region.signal}"] if region.signal not in (None, "ok") else [])
+            detail = f" ({', '.join(notes)})" if notes else ""
             change = f"{previous} -> {region.state}" if previous is not None else region.state
             self._event("state", f"{name}: {change}{detail}", **{"from": previous}, **region.to_json())
 

@@ -143,3 +143,17 @@ def test_maps_are_paired_by_crc_and_saved(tmp_path):
     assert (tmp_path / "s1-0000000002.png").is_file()
     assert "map s1        #2 6x8 [0, 47] saved to" in lines[0]
     assert old_png != png
+
+
+def test_a_state_shows_its_signal_when_it_is_not_ok():
+    watcher, lines = _watcher()
+    report = StateReport(t=1.7e9, estimator="s2", regions={
+        "A": RegionState(region="A", state="dry", since=1.7e9, activity=0.01, signal="low"),
+        "B": RegionState(region="B", state="wet", since=1.7e9, activity=0.4, signal="ok")})
+    _feed(watcher, "state", report)
+    held = report.model_copy(update={"regions": {**report.regions, "B": report.regions["B"].model_copy(
+        update={"state": "drying", "signal": "saturated", "activity": None})}})
+    _feed(watcher, "state", held)
+    assert [line[25:] for line in lines] == ["state         A: dry (activity 0.01, signal low)",
+                                             "state         B: wet (activity 0.4)",
+                                             "state         B: wet -> drying (signal saturated)"]
