@@ -180,7 +180,7 @@ class Plant:
         return "device", device.summary()
 
     def _stats(self, device: Device, stats: Stats) -> None:
-        if len(stats.regions) > MAX_REGIONS or len(stats.states) > MAX_REGIONS:
+        if max(len(stats.regions), len(stats.states), len(stats.signal)) > MAX_REGIONS:
             raise Rejected(f"more than {MAX_REGIONS} regions")
         activity = {name: per_map[stats.estimator].mean if stats.estimator in per_map else None
                     for name, per_map in stats.regions.items()}
@@ -193,7 +193,9 @@ class Plant:
         device.stats = {"t": stats.t, "fps": stats.fps, "frames": stats.frames, "ready": stats.ready,
                         "laser": stats.laser, "estimator": stats.estimator, "drops": stats.drops,
                         "ambient_level": stats.ambient_level, "warning": stats.warning,
-                        "activity": activity, "states": dict(stats.states)}
+                        "activity": activity, "states": dict(stats.states),
+                        # each region's signal quality and activity above the noise (estimator.noise_floor)
+                        "signal": {name: signal.to_json() for name, signal in stats.signal.items()}}
         if self.history is not None:
             for region in set(activity) | set(stats.states):
                 self.history.add(Sample(device.name, region, stats.t, activity.get(region), stats.states.get(region)))

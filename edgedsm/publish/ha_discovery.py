@@ -7,6 +7,9 @@ is available while ``<base>/availability`` says ``online``. State topics are the
 - per region: ``<region> state`` (enum sensor, the five states) and ``<region> time to dry``
   (duration, s) from the retained ``<base>/state``; ``<region> <estimator>`` activity from
   ``<base>/stats``, one sensor per estimator the stats carry (new estimators appear by themselves);
+- per region, once the stats carry its signal (``estimator.noise_floor``): ``<region> signal``
+  (enum sensor, the five verdicts, with the whole signal as attributes: reason, fractions,
+  floor ...) and ``<region> above noise`` (the activity above the camera's noise floor);
 - the laser (read-only binary sensor) from ``<base>/stats``; the link (connectivity binary sensor)
   from ``<base>/availability``;
 - per map: an ``image`` entity on ``<base>/map/<name>/color`` (8-bit colour PNG with colour bar).
@@ -19,12 +22,15 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, get_args
 
 from edgedsm import __version__
+from edgedsm.messages import SignalName
 from edgedsm.publish.topics import Topics
 
 STATES = ["warming_up", "wet", "drying", "dry", "fault"]
+#: The five signal verdicts (docs/noise.md).
+SIGNALS = list(get_args(SignalName))
 
 
 def slug(text: str) -> str:
@@ -102,6 +108,21 @@ class Discovery:
             "name": f"{region} τc", "state_topic": self.topics.stats, "state_class": "measurement",
             "device_class": "duration", "unit_of_measurement": "s", "value_template": template,
             "icon": "mdi:timer-sand"}, region)
+
+    def signal_entities(self, region: str) -> list[Entity]:
+        """The region's signal quality (with every number of its signal as attributes) and its
+        activity above the camera's noise floor, from the stats (docs/noise.md)."""
+        signal = f"value_json.get('signal', {{}}).get('{region}', {{}})"
+        return [
+            self._entity("sensor", f"{region}_signal", {
+                "name": f"{region} signal", "state_topic": self.topics.stats, "device_class": "enum",
+                "options": SIGNALS, "value_template": f"{{{{ {signal}.get('signal') }}}}",
+                "json_attributes_topic": self.topics.stats, "json_attributes_template": f"{{{{ {signal} | tojson }}}}",
+                "icon": "mdi:signal-variant"}, region),
+            self._entity("sensor", f"{region}_above_noise", {
+                "name": f"{region} above noise", "state_topic": self.topics.stats, "state_class": "measurement",
+                "value_template": f"{{{{ {signal}.get('above_noise') }}}}", "icon": "mdi:chart-bell-curve"}, region),
+        ]
 
     def device_entities(self) -> list[Entity]:
         """The laser (read-only) and the device's link to the broker."""

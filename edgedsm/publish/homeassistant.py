@@ -5,8 +5,8 @@ its own: the broker sees one client for the JSON topics and Home Assistant).
 - Configs are retained (QoS 1) and published again at every (re)connection of that session and
   whenever Home Assistant announces itself (``<discovery_prefix>/status`` = ``online``, a
   subscription on the shared session).
-- Entities that depend on data (one activity sensor per estimator the stats carry, one image
-  per map) are announced when they first appear.
+- Entities that depend on data (one activity sensor per estimator the stats carry, a region's τc
+  and signal sensors, one image per map) are announced when they first appear.
 - The discovery topics published are remembered in ``<state_dir>/homeassistant-<device>.json``;
   at the next start an entity of a region no longer configured gets an empty retained config,
   which removes it from Home Assistant.
@@ -163,6 +163,8 @@ class HomeAssistantSink:
         self._add(self.discovery.activity_entity(region, estimator)
                   for region, maps in stats.regions.items() if region in self.regions for estimator in maps)
         self._add(self.discovery.tau_entity(region) for region in stats.tau_c if region in self.regions)
+        self._add(entity for region in stats.signal if region in self.regions
+                  for entity in self.discovery.signal_entities(region))
 
     def publish_map(self, frame: MapFrame) -> None:
         if self.colormap is None:

@@ -20,13 +20,15 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 from edgedsm.frames import Frame
-from edgedsm.messages import Alert, MapFrame, StateReport, Stats, TauStatus
+from edgedsm.messages import Alert, MapFrame, RegionSignal, SignalName, StateReport, Stats, TauStatus
 from edgedsm.publish.http_server import MetricsServer
 
 #: The five drying states, each a label value of ``edgedsm_region_state``.
 STATES = ("warming_up", "wet", "drying", "dry", "fault")
 LASER_STATES = ("on", "off", "unknown")
 TAU_STATUSES = get_args(TauStatus)
+#: The five signal verdicts, each a label value of ``edgedsm_region_signal``.
+SIGNALS = get_args(SignalName)
 #: Engine pushes the ms/frame gauge is averaged over.
 ENGINE_FRAMES = 64
 
@@ -195,6 +197,7 @@ def _stats_families(stats: Stats | None) -> Iterator[GaugeMetricFamily | Counter
                 activity.add_metric([region, estimator], map_stats.mean)
     yield activity
     yield from _tau_families(stats)
+    yield from _signal_families(stats)
     states = GaugeMetricFamily("edgedsm_region_state", "1 for the region's current drying state",
                                labels=["region", "state"])
     for region, current in sorted(stats.states.items()):
@@ -230,3 +233,44 @@ def _tau_families(stats: Stats) -> Iterator[GaugeMetricFamily]:
         interval = GaugeMetricFamily("edgedsm_frame_interval_seconds", "frame interval Δt that puts τc in seconds")
         interval.add_metric([], stats.frame_interval_s)
         yield interval
+
+
+#: The numbers of a region's signal (``RegionSignal``) as gauges: name, help text, field; a field
+#: that is None (no noise model yet) leaves the region out of that gauge.
+SIGNAL_GAUGES = (
+    ("edgedsm_region_above_noise", "region activity above the camera's noise floor, in the judged estimator's "
+     "units (a region judged on τc: the signal's share of the variance)", "above_noise"),
+    ("edgedsm_region_above_noise_spread", "1-σ spread of the above-noise activity around 0 for noise alone",
+     "above_noise_spread"),
+    ("edgedsm_region_noise_floor", "the judged estimator's value for a static surface under this light",
+     "noise_floor"),
+    ("edgedsm_region_mean_intensity", "mean intensity of the region's noise patch, grey levels", "mean"),
+    ("edgedsm_region_dark_fraction", "share of the patch's pixels within 3 noise σ of the dark level",
+     "dark_fraction"),
+    ("edgedsm_region_saturated_fraction", "share of the patch's samples (pixels × frames) at full scale",
+     "saturated_fraction"),
+    ("edgedsm_region_speckle_contrast", "spatial speckle contrast of the patch's last frame, noise removed",
+     "speckle_contrast"),
+    ("edgedsm_region_intensity_change", "mean intensity now / when the window first filled", "intensity_change"),
+)
+
+
+def _signal_families(stats: Stats) -> Iterator[GaugeMetricFamily]:
+    """Each region's signal quality (1 for the current verdict, 0 for the other four) and its light
+    and activity against the noise (docs/noise.md; nothing while estimator.noise_floor is off)."""
+    if not stats.signal:
+        return
+    regions: list[tuple[str, RegionSignal]] = sorted(stats.signal.items())
+    verdict = GaugeMetricFamily("edgedsm_region_signal", "1 for the region's current signal quality (ok, low, "
+                                "dark, saturated, not_speckle)", labels=["region", "signal"])
+    for region, signal in regions:
+        for name in SIGNALS:
+            verdict.add_metric([region, name], float(signal.signal == name))
+    yield verdict
+    for metric, help_text, field in SIGNAL_GAUGES:
+        gauge = GaugeMetricFamily(metric, help_text, labels=["region"])
+        for region, signal in regions:
+            value = getattr(signal, field)
+            if value is not None:
+                gauge.add_metric([region], value)
+        yield gauge

@@ -163,6 +163,12 @@ def test_every_device_is_listed_and_its_map_is_drawn(plant: Plant) -> None:
     assert blank > 60
     outlines = plant.js("return [...document.querySelectorAll('#map-overlay text')].map(t => t.textContent)")
     assert sorted(outlines) == ["left", "spot"]
+    # each region row carries its signal quality (estimator.noise_floor, on by default) as a badge
+    badges = "return [...document.querySelectorAll('#regions tr.region-row')].map(r => [r.dataset.region, " \
+             "(r.querySelector('.badge.signal') || {}).textContent])"
+    verdicts = ("ok", "low", "dark", "saturated", "not speckle")
+    wait_for(lambda: sorted(name for name, verdict in plant.js(badges) if verdict in verdicts) == ["left", "spot"],
+             30, "a signal badge in each region row")
     plant.browser.save_screenshot(str(plant.shots / "dashboard.png"))
     _no_errors(plant)
 
@@ -186,6 +192,32 @@ def test_a_state_change_on_mqtt_shows_within_2_s(plant: Plant) -> None:
         assert time.monotonic() - started < SHOW_S
     plant.publish(f"{base}/availability", "offline", retain=True)
     wait_for(lambda: "offline" in plant.card_text("line-x"), SHOW_S, "line-x offline")
+    _no_errors(plant)
+
+
+@pytest.mark.timeout(60)
+def test_a_regions_signal_shows_as_a_coloured_badge_with_its_reason(plant: Plant) -> None:
+    base = "edgedsm/line-s"
+    now = time.time()
+    signal = {"signal": "saturated", "mean": 240.5, "dark_fraction": 0.0, "saturated_fraction": 0.25,
+              "speckle_contrast": 0.5, "noise_floor": 0.125, "above_noise": 0.0625, "above_noise_spread": 0.03125,
+              "reason": "signal saturated: 25% of the pixels reach full scale"}
+    stats = {"t": now, "frames": 100, "ready": True, "fps": 20.0, "laser": "on", "estimator": "s2",
+             "state": {"panel": "drying", "edge": "wet"},
+             "signal": {"panel": signal, "edge": {**signal, "signal": "ok", "reason": None}}}
+    plant.publish(f"{base}/stats", stats)
+    wait_for(lambda: "panel: drying" in plant.card_text("line-s"), 10, "the new device line-s")
+    plant.js("window.edgedsmDashboard.select('line-s')")
+    row = ("const b = document.querySelector(`#regions tr.region-row[data-region=\"${arguments[0]}\"] .badge.signal`);"
+           "return b && [b.textContent, getComputedStyle(b).backgroundColor, b.getAttribute('title'), "
+           "b.closest('tr').querySelector('.above-noise').textContent];")
+    wait_for(lambda: plant.js(row, "panel") is not None, SHOW_S, "the panel's signal badge")
+    text, colour, title, above = plant.js(row, "panel")
+    assert (text, colour) == ("saturated", "rgb(230, 162, 26)")  # amber: the light cannot be judged
+    assert title.splitlines() == ["signal saturated: 25% of the pixels reach full scale",
+                                  "mean 241 grey levels · dark 0 % · saturated 25 % · speckle contrast 0.50"]
+    assert above == "0.0625 ± 0.031 (floor 0.125)"
+    assert plant.js(row, "edge")[:2] == ["ok", "rgb(46, 158, 79)"]  # green
     _no_errors(plant)
 
 

@@ -88,8 +88,8 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     # a subscriber arriving later gets every config, retained
     late = subscribers(broker.port, [f"{PREFIX}/#", f"{topics.maps_filter}/color"])
     colour_topics = [topics.map(name) + "/color" for name in ("s1", "s2", "s3")]
-    wait_until(lambda: len(_configs(late)) >= 10 and all(late.on(topic) for topic in colour_topics), WAIT_S,
-               "retained discovery configs and colour maps")
+    wait_until(lambda: len(_configs(late)) >= 12 and all(late.on(topic) for topic in colour_topics), WAIT_S,
+               "retained discovery configs (the signal's too: estimator.noise_floor) and colour maps")
     first: dict[str, Received] = {}
     for message in late.messages:
         first.setdefault(message.topic, message)
@@ -97,8 +97,9 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     assert [t for t, m in first.items() if not m.retain] == []
     configs = _configs(late)
     kinds = sorted(topic.split("/")[1] for topic in configs)
-    assert kinds == ["binary_sensor", "binary_sensor", "image", "image", "image", "sensor", "sensor", "sensor",
-                     "sensor", "sensor"], sorted(configs)
+    assert kinds == ["binary_sensor", "binary_sensor", "image", "image", "image", *["sensor"] * 7], sorted(configs)
+    assert {f"{PREFIX}/sensor/edgedsm_e2e/plate_signal/config",
+            f"{PREFIX}/sensor/edgedsm_e2e/plate_above_noise/config"} <= set(configs)
     devices = {json.dumps(c["device"], sort_keys=True) for c in configs.values()}
     assert len(devices) == 1 and json.loads(devices.pop())["identifiers"] == ["edgedsm_edgedsm_e2e"]
 
@@ -118,8 +119,8 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
             assert value in entity["options"]
         elif topic.split("/")[1] == "binary_sensor":
             assert value in (entity["payload_on"], entity["payload_off"]), (topic, value)
-        elif value != "None":
-            assert float(value) >= 0, (topic, value)
+        elif value != "None":  # the activity above the noise may read below 0, within its spread
+            assert float(value) >= 0 or topic.endswith("_above_noise/config"), (topic, value)
         if "availability_topic" in entity:
             assert _last(live, entity["availability_topic"]).payload == b"online"
     state_entity = configs[f"{PREFIX}/sensor/edgedsm_e2e/plate_state/config"]
@@ -139,6 +140,9 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     states = [v for (name, labels), v in samples.items() if name == "edgedsm_region_state"]
     assert len(states) == 5 and sum(states) == 1
     assert ("edgedsm_region_activity", (("estimator", "s2"), ("region", "plate"))) in samples
+    verdicts = {labels: v for (name, labels), v in samples.items() if name == "edgedsm_region_signal"}
+    assert len(verdicts) == 5 and sum(verdicts.values()) == 1, verdicts
+    assert samples[("edgedsm_region_mean_intensity", (("region", "plate"),))] > 0
     assert _get(http_port, "/nothing")[0] == 404
     assert _get(http_port, "/healthz")[0] == 200  # still measuring
 
@@ -182,7 +186,7 @@ def test_new_estimators_appear_and_home_assistant_restarting_gets_every_config_a
         tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber]) -> None:
     import paho.mqtt.publish as single
 
-    from edgedsm.messages import MapStats, Stats
+    from edgedsm.messages import MapStats, RegionSignal, Stats
     from edgedsm.publish.homeassistant import HomeAssistantSink
     from edgedsm.publish.session import MqttSession
     from edgedsm.publish.settings import MqttSettings
@@ -202,13 +206,20 @@ def test_new_estimators_appear_and_home_assistant_restarting_gets_every_config_a
         wait_until(lambda: tau in _configs(watcher), WAIT_S, "the tau_c sensor")
         assert len(_configs(watcher)) == 6  # panel s2 and tau_c; 'ghost' is not a configured region
         assert _configs(watcher)[tau]["name"] == "panel TAU_C"
+        light = RegionSignal(signal="low", mean=84.0, dark_fraction=0.0, saturated_fraction=0.0,
+                             speckle_contrast=0.5, noise_floor=0.025, above_noise=0.0013, above_noise_spread=0.0006)
+        sink.publish_stats(stats.model_copy(update={"signal": {"panel": light, "ghost": light}}))
+        signal = f"{PREFIX}/sensor/edgedsm_line3/panel_signal/config"
+        wait_until(lambda: signal in _configs(watcher), WAIT_S, "the signal sensor")
+        wait_until(lambda: len(_configs(watcher)) == 8, WAIT_S, "the above-noise sensor")  # not the ghost's
+        assert _configs(watcher)[signal]["options"] == ["ok", "low", "dark", "saturated", "not_speckle"]
         before = len(watcher.messages)
         single.single(f"{PREFIX}/status", b"online", hostname="127.0.0.1", port=broker.port)
         again = lambda: {m.topic for m in watcher.messages[before:] if m.topic.endswith("/config")}  # noqa: E731
-        wait_until(lambda: len(again()) >= 6, WAIT_S, "every config again")
+        wait_until(lambda: len(again()) >= 8, WAIT_S, "every config again")
         assert again() == set(_configs(watcher))
         remembered = json.loads((tmp_path / "state" / "homeassistant-line3.json").read_text())
-        assert remembered[tau] == "panel" and len(remembered) == 6
+        assert remembered[tau] == remembered[signal] == "panel" and len(remembered) == 8
     finally:
         sink.close(1.0)
         session.close(1.0)

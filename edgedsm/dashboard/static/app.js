@@ -58,7 +58,32 @@ function regionStates(device) {
       time_to_dry_s: region.time_to_dry_s, since: region.since,
     };
   }
+  // the signal quality: the stats carry its numbers, the state report only the verdict
+  const signals = stats.signal || {};
+  for (const [name, value] of Object.entries(out)) {
+    const reported = regions[name] && regions[name].signal;
+    value.signal = signals[name] || (typeof reported === "string" ? { signal: reported } : null);
+  }
   return out;
+}
+
+const SIGNALS = ["ok", "low", "dark", "saturated", "not_speckle"];
+
+function signalBadge(signal) {
+  // ok green, low grey, a light that cannot be judged amber; the reason and the light as tooltip
+  if (!signal || typeof signal !== "object") return "–";
+  const verdict = SIGNALS.includes(signal.signal) ? signal.signal : "unknown";
+  const pct = (v) => (typeof v === "number" && isFinite(v) ? `${(100 * v).toFixed(0)} %` : "–");
+  const light = `mean ${fmt(signal.mean, 3)} grey levels · dark ${pct(signal.dark_fraction)} · saturated `
+    + `${pct(signal.saturated_fraction)} · speckle contrast ${fmt(signal.speckle_contrast, 2)}`;
+  const title = [typeof signal.reason === "string" ? signal.reason : null, signal.mean === undefined ? null : light]
+    .filter(Boolean).join("\n") || verdict;
+  return el("span", { class: `badge signal sig-${verdict}`, title }, verdict.replace("_", " "));
+}
+
+function aboveNoise(signal) {
+  if (!signal || typeof signal.above_noise !== "number") return "–";
+  return `${fmt(signal.above_noise, 3)} ± ${fmt(signal.above_noise_spread, 2)} (floor ${fmt(signal.noise_floor, 3)})`;
 }
 
 // -- device list ------------------------------------------------------------------------------
@@ -118,6 +143,8 @@ function renderDetail() {
       el("td", {}, el("span", { class: `badge ${stateClass(value.state)}` }, value.state)),
       // judged on τc: the activity is the region's correlation time, in seconds
       el("td", {}, fmt(value.activity) + (stats.estimator === "tau_c" ? " s (τc)" : "")),
+      el("td", {}, signalBadge(value.signal)),
+      el("td", { class: "above-noise" }, aboveNoise(value.signal)),
       el("td", {}, duration(value.time_to_dry_s)),
       el("td", {}, clock(value.since))));
   $("regions").tBodies[0].replaceChildren(...rows);

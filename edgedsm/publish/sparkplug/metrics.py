@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from edgedsm.messages import Alert, StateReport, Stats
+from edgedsm.messages import Alert, RegionSignal, StateReport, Stats
 from edgedsm.publish.sparkplug.payload import DataType, Value
 
 #: Units of the maps' values (docs/mqtt.md); a map not listed here is published without a unit.
@@ -56,9 +56,10 @@ def map_reading(region: str, map_name: str, mean: float | None) -> tuple[str, Re
     return f"regions/{region}/{map_name}/mean", _double(mean, MAP_UNITS.get(map_name))
 
 
-def declared_readings(regions: Iterable[str], maps: Iterable[str]) -> dict[str, Reading]:
+def declared_readings(regions: Iterable[str], maps: Iterable[str], *, signal: bool = True) -> dict[str, Reading]:
     """Every device metric known before the first message, null-valued, so that the first birth
-    already carries the whole set (a later birth adds what appears after)."""
+    already carries the whole set (a later birth adds what appears after). ``signal``: each
+    region's signal quality is published (``estimator.noise_floor``, on by default)."""
     readings: dict[str, Reading] = {
         "frames": _count(None), "frames_dropped": _count(None), "fps": _double(None, "frames/s"),
         "ready": Reading(DataType.BOOLEAN, None), "laser": _text(None), "estimator": _text(None),
@@ -72,6 +73,8 @@ def declared_readings(regions: Iterable[str], maps: Iterable[str]) -> dict[str, 
         readings.update(map_reading(region, name, None) for name in map_names)
         if "tau_c" in maps:
             readings.update(tau_readings(region))
+        if signal:
+            readings.update(signal_readings(region))
     if "tau_c" in maps:
         readings["frame_interval_s"] = _double(None, "s")
     return readings
@@ -80,6 +83,28 @@ def declared_readings(regions: Iterable[str], maps: Iterable[str]) -> dict[str, 
 def tau_readings(region: str, tau_c_s: float | None = None, status: str | None = None) -> dict[str, Reading]:
     """A region's τc in seconds (its pooled fit) and its status (measured, above, below, no_signal)."""
     return {f"regions/{region}/tau_c_s": _double(tau_c_s, "s"), f"regions/{region}/tau_c_status": _text(status)}
+
+
+#: A region's signal metrics: name under ``regions/<region>/``, the ``RegionSignal`` field, its
+#: datatype and unit. The floor and the activity above it are in the judged estimator's units (a
+#: region judged on τc: the signal's share of the variance), so they carry none.
+SIGNAL_METRICS = (
+    ("signal", "signal", DataType.STRING, None), ("signal_reason", "reason", DataType.STRING, None),
+    ("above_noise", "above_noise", DataType.DOUBLE, None),
+    ("above_noise_spread", "above_noise_spread", DataType.DOUBLE, None),
+    ("noise_floor", "noise_floor", DataType.DOUBLE, None), ("mean_intensity", "mean", DataType.DOUBLE, "grey levels"),
+    ("dark_fraction", "dark_fraction", DataType.DOUBLE, None),
+    ("saturated_fraction", "saturated_fraction", DataType.DOUBLE, None),
+    ("speckle_contrast", "speckle_contrast", DataType.DOUBLE, None),
+    ("intensity_change", "intensity_change", DataType.DOUBLE, None),
+)
+
+
+def signal_readings(region: str, signal: RegionSignal | None = None) -> dict[str, Reading]:
+    """A region's signal quality (ok, low, dark, saturated, not_speckle), why it is not ok, and its
+    light and activity against the camera's noise (docs/noise.md); all null without ``signal``."""
+    return {f"regions/{region}/{name}": Reading(datatype, None if signal is None else getattr(signal, field), unit)
+            for name, field, datatype, unit in SIGNAL_METRICS}
 
 
 def stats_readings(stats: Stats) -> dict[str, Reading]:
@@ -96,6 +121,8 @@ def stats_readings(stats: Stats) -> dict[str, Reading]:
     readings.update((f"regions/{region}/state", _text(state)) for region, state in stats.states.items())
     for region, tau in stats.tau_c.items():
         readings.update(tau_readings(region, tau.tau_c_s, tau.status))
+    for region, signal in stats.signal.items():
+        readings.update(signal_readings(region, signal))
     if stats.frame_interval_s is not None:
         readings["frame_interval_s"] = _double(stats.frame_interval_s, "s")
     return readings

@@ -63,13 +63,14 @@ class SparkplugTopics:
 
 class SparkplugSink:
     """Implements :class:`edgedsm.publish.sink.Sink` as a Sparkplug B edge node (see the module
-    docstring). ``regions`` and ``maps`` name the device metrics known before the first message;
-    others appear with a new birth. ``state_dir`` keeps the bdSeq (ConfigError naming
+    docstring). ``regions`` and ``maps`` name the device metrics known before the first message,
+    with each region's signal quality when ``signal`` (``estimator.noise_floor``); others appear
+    with a new birth. ``state_dir`` keeps the bdSeq (ConfigError naming
     ``device.state_dir`` when unusable). Nothing connects until :meth:`start`."""
 
     def __init__(self, settings: SparkplugSettings, mqtt_settings: MqttSettings, state_dir: str | Path, *,
                  regions: tuple[str, ...] | list[str] = (), maps: tuple[str, ...] | list[str] = (),
-                 password: str | None = None, clock: Clock | None = None) -> None:
+                 signal: bool = True, password: str | None = None, clock: Clock | None = None) -> None:
         self.settings, self.mqtt_settings = settings, mqtt_settings
         self.clock = clock or Clock()
         self.topics = SparkplugTopics(settings.group_id, settings.edge_node_id or mqtt_settings.device,
@@ -86,7 +87,7 @@ class SparkplugSink:
                            "Properties/Software": Reading(DataType.STRING, f"edgedsm {__version__}"),
                            "Node Info/commands_refused": Reading(DataType.UINT64, 0),
                            "Node Info/rebirth_requests": Reading(DataType.UINT64, 0)})
-        self.device.declare(declared_readings(regions, maps))
+        self.device.declare(declared_readings(regions, maps, signal=signal))
         self._seq = SeqCounter()
         self.host = PrimaryHost(settings.primary_host_id) if settings.primary_host_id else None
         self._limiter = BirthLimiter(settings.rebirth_min_interval_s)

@@ -14,7 +14,8 @@ from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.frames import Frame
 from edgedsm.publish.prometheus import _stats_families
 from edgedsm.publish.sink import RecordingSink
-from edgedsm.publish.sparkplug.metrics import declared_readings, stats_readings
+from edgedsm.publish.sparkplug.metrics import Reading, declared_readings, stats_readings
+from edgedsm.publish.sparkplug.payload import DataType
 from edgedsm.sim import load_scene
 from edgedsm.validation import validate
 from tests.unit.daemon.test_pipeline import hold_back, make_pipeline
@@ -77,6 +78,15 @@ def test_states_judged_on_tau_seconds_and_tau_published(repo):
     assert families["edgedsm_region_tau_c_seconds"].samples[0].value == pytest.approx(1.0)
     status = {s.labels["status"]: s.value for s in families["edgedsm_region_tau_c_status"].samples}
     assert status == {"measured": 0.0, "above": 1.0, "below": 0.0, "no_signal": 0.0}
+    # and each region's signal quality (estimator.noise_floor, on by default), as the stats carry it
+    signal = ready[-1].signal["plate"]
+    assert readings["regions/plate/signal"].value == signal.signal and signal.signal in ("ok", "low")
+    assert readings["regions/plate/mean_intensity"] == Reading(DataType.DOUBLE, signal.mean, "grey levels")
+    assert readings["regions/plate/above_noise"].value == signal.above_noise
+    assert "regions/plate/signal" in declared_readings(["plate"], ("s1", "s2", "s3", "tau_c"))
+    verdict = {s.labels["signal"]: s.value for s in families["edgedsm_region_signal"].samples}
+    assert verdict == {name: float(name == signal.signal) for name in ("ok", "low", "dark", "saturated", "not_speckle")}
+    assert families["edgedsm_region_mean_intensity"].samples[0].value == signal.mean > 0
 
 
 def test_tau_c_off_by_default_and_a_tau_region_beside_an_s2_one(repo):

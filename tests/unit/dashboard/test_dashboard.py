@@ -25,7 +25,7 @@ from edgedsm.dashboard import history as history_module
 from edgedsm.dashboard.history import History, Sample
 from edgedsm.dashboard.plant import MAX_DEVICES, Plant, RegionInfo
 from edgedsm.dashboard.server import DashboardServer, EventHub
-from edgedsm.messages import Alert, AlertKind, MapStats, RegionState, RegionTau, StateReport, Stats
+from edgedsm.messages import Alert, AlertKind, MapStats, RegionSignal, RegionState, RegionTau, StateReport, Stats
 from edgedsm.publish.mapcodec import encode_map
 
 #: A whole second of today: the history keeps a day, so a fixed date would age out of it.
@@ -94,6 +94,24 @@ def test_a_region_judged_on_tau_c_shows_its_tau_c_beside_others_on_s2(plant: Pla
     assert device["stats"]["activity"] == {"plate": 0.25, "edge": 0.31}  # S2 for one, τc (s) for the other
     assert history.flush(5)
     assert history.samples("cam1", "edge", NOW - 1, NOW + 1) == [(NOW, 0.31, "drying")]
+
+
+def test_each_regions_signal_quality_reaches_the_view(plant: Plant) -> None:
+    plant.handle("edgedsm/cam1/stats", stats(NOW, 0.25))  # estimator.noise_floor off: no signal
+    assert plant.snapshot()[0]["stats"]["signal"] == {}
+    light = RegionSignal(signal="dark", mean=12.5, dark_fraction=0.75, saturated_fraction=0.0, speckle_contrast=0.5,
+                         noise_floor=0.25, above_noise=0.0625, above_noise_spread=0.03125, noise_model="frames",
+                         intensity_change=0.125, reason="signal dark: 75% of the pixels dark (mean 12.5 grey levels)")
+    message = Stats.model_validate_json(stats(NOW + 1, 0.2)).model_copy(update={"signal": {"plate": light}})
+    plant.handle("edgedsm/cam1/stats", message.to_bytes())
+    (device,) = plant.snapshot()
+    assert device["rejected"] == 0 and device["stats"]["signal"] == {"plate": {
+        "signal": "dark", "mean": 12.5, "dark_fraction": 0.75, "saturated_fraction": 0.0, "speckle_contrast": 0.5,
+        "noise_floor": 0.25, "above_noise": 0.0625, "above_noise_spread": 0.03125, "noise_model": "frames",
+        "intensity_change": 0.125, "reason": "signal dark: 75% of the pixels dark (mean 12.5 grey levels)"}}
+    crowded = message.model_copy(update={"signal": {f"r{i}": light for i in range(65)}})
+    plant.handle("edgedsm/cam1/stats", crowded.to_bytes())
+    assert plant.snapshot()[0]["rejected"] == 1 and "more than 64 regions" in plant.snapshot()[0]["last_rejection"]
 
 
 # Named ids: NOW in an id would differ between pytest-xdist's workers (they collect at different

@@ -8,8 +8,8 @@ import jinja2
 import pytest
 
 from edgedsm import __version__
-from edgedsm.messages import MapStats, RegionState, StateReport, Stats
-from edgedsm.publish.ha_discovery import STATES, Discovery
+from edgedsm.messages import MapStats, RegionSignal, RegionState, StateReport, Stats
+from edgedsm.publish.ha_discovery import SIGNALS, STATES, Discovery
 from edgedsm.publish.topics import Topics
 
 TOPICS = Topics.of("plant/edgedsm", "line3")
@@ -64,6 +64,31 @@ def test_activity_and_laser_are_read_from_the_stats(discovery: Discovery) -> Non
     assert _render(laser.config["value_template"], stats.to_bytes()) == laser.config["payload_on"]
     unknown = stats.model_copy(update={"laser": "unknown"})
     assert _render(laser.config["value_template"], unknown.to_bytes()) == "None"
+
+
+def test_the_signal_quality_and_the_activity_above_the_noise_are_read_from_the_stats(discovery: Discovery) -> None:
+    signal, above = discovery.signal_entities("panel")
+    assert signal.topic == "homeassistant/sensor/edgedsm_line3/panel_signal/config" and signal.region == "panel"
+    assert signal.config["device_class"] == "enum" and SIGNALS == ["ok", "low", "dark", "saturated", "not_speckle"]
+    assert signal.config["options"] == SIGNALS and signal.config["json_attributes_topic"] == TOPICS.stats
+    assert above.topic == "homeassistant/sensor/edgedsm_line3/panel_above_noise/config"
+    assert above.config["state_topic"] == signal.config["state_topic"] == "plant/edgedsm/line3/stats"
+    light = RegionSignal(signal="saturated", mean=240.5, dark_fraction=0.0, saturated_fraction=0.25,
+                         speckle_contrast=0.5, noise_floor=0.125, above_noise=0.0625, above_noise_spread=0.03125,
+                         noise_model="frames", intensity_change=1.5, reason="signal saturated: 25% of the pixels")
+    stats = Stats(t=1.0, frames=10, ready=True, fps=20.0, laser="on", estimator="s2", signal={"panel": light})
+    assert _render(signal.config["value_template"], stats.to_bytes()) == "saturated"
+    assert _render(above.config["value_template"], stats.to_bytes()) == "0.0625"
+    attributes = json.loads(_render(signal.config["json_attributes_template"], stats.to_bytes()))
+    assert attributes == {"signal": "saturated", "mean": 240.5, "dark_fraction": 0.0, "saturated_fraction": 0.25,
+                          "speckle_contrast": 0.5, "noise_floor": 0.125, "above_noise": 0.0625,
+                          "above_noise_spread": 0.03125, "noise_model": "frames", "intensity_change": 1.5,
+                          "reason": "signal saturated: 25% of the pixels"}
+    no_model = stats.model_copy(update={"signal": {"panel": light.model_copy(update={"above_noise": None})}})
+    assert _render(above.config["value_template"], no_model.to_bytes()) == "None"
+    off = stats.model_copy(update={"signal": {}})  # estimator.noise_floor off: unknown, not an error
+    assert _render(signal.config["value_template"], off.to_bytes()) == "None"
+    assert json.loads(_render(signal.config["json_attributes_template"], off.to_bytes())) == {}
 
 
 def test_the_link_entity_reads_availability_and_the_image_the_colour_map(discovery: Discovery) -> None:

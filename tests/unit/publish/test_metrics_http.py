@@ -12,7 +12,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from edgedsm.frames import Frame
-from edgedsm.messages import MapStats, Stats
+from edgedsm.messages import MapStats, RegionSignal, Stats
 from edgedsm.publish.prometheus import MetricsSink
 from tests.ports import free_port
 
@@ -91,6 +91,33 @@ def test_metrics_carry_the_latest_stats_probes_and_link(sink: MetricsSink) -> No
     assert len(states) == 5
     assert samples[("edgedsm_engine_ms_per_frame", ())] == pytest.approx(3.0)
     assert samples[("edgedsm_engine_push_seconds_total", ())] == pytest.approx(0.006)
+
+
+def test_each_regions_signal_quality_and_activity_above_the_noise(sink: MetricsSink) -> None:
+    sink.publish_stats(_stats(10))  # estimator.noise_floor off: no signal gauges at all
+    assert not any(name.startswith(("edgedsm_region_signal", "edgedsm_region_above_noise"))
+                   for name, _labels in _samples(_get(sink, "/metrics")[1]))
+    signal = {"panel": RegionSignal(signal="low", mean=12.5, dark_fraction=0.25, saturated_fraction=0.0,
+                                    speckle_contrast=0.75, noise_floor=0.125, above_noise=0.0625,
+                                    above_noise_spread=0.03125, noise_model="frames", intensity_change=0.125,
+                                    reason="activity within the noise"),
+              "edge": RegionSignal(signal="saturated", mean=250.0, dark_fraction=0.0, saturated_fraction=0.5,
+                                   speckle_contrast=0.5)}  # no noise model yet: no floor
+    sink.publish_stats(_stats(20).model_copy(update={"signal": signal}))
+    samples = _samples(_get(sink, "/metrics")[1])
+    verdicts = {labels: value for (name, labels), value in samples.items() if name == "edgedsm_region_signal"}
+    assert verdicts == {(("region", region), ("signal", name)): float(name == current)
+                        for region, current in (("panel", "low"), ("edge", "saturated"))
+                        for name in ("ok", "low", "dark", "saturated", "not_speckle")}
+    panel = (("region", "panel"),)
+    assert {name: value for (name, labels), value in samples.items() if labels == panel} == {
+        "edgedsm_region_above_noise": 0.0625, "edgedsm_region_above_noise_spread": 0.03125,
+        "edgedsm_region_noise_floor": 0.125, "edgedsm_region_mean_intensity": 12.5,
+        "edgedsm_region_dark_fraction": 0.25, "edgedsm_region_saturated_fraction": 0.0,
+        "edgedsm_region_speckle_contrast": 0.75, "edgedsm_region_intensity_change": 0.125}
+    edge = {name: value for (name, labels), value in samples.items() if labels == (("region", "edge"),)}
+    assert edge == {"edgedsm_region_mean_intensity": 250.0, "edgedsm_region_dark_fraction": 0.0,
+                    "edgedsm_region_saturated_fraction": 0.5, "edgedsm_region_speckle_contrast": 0.5}
 
 
 def test_time_to_dry_comes_from_the_state_report(sink: MetricsSink) -> None:

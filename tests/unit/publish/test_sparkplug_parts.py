@@ -16,7 +16,7 @@ from sparkplug_decoder import command, decode, encode_varint, key, length_delimi
 
 from edgedsm.config import load_config
 from edgedsm.errors import ConfigError
-from edgedsm.messages import Alert, AlertKind, MapStats, RegionState, StateReport, Stats
+from edgedsm.messages import Alert, AlertKind, MapStats, RegionSignal, RegionState, StateReport, Stats
 from edgedsm.publish.sparkplug.book import Deadband, MetricBook
 from edgedsm.publish.sparkplug.commands import REBIRTH, judge
 from edgedsm.publish.sparkplug.metrics import Reading, alert_readings, declared_readings, state_readings, stats_readings
@@ -174,6 +174,36 @@ def test_readings_are_data_driven_new_maps_and_drop_causes_appear() -> None:
     alert = alert_readings(Alert(kind=AlertKind.FAULT, t=12.0, reason="camera lost"), 3)
     assert (alert["alerts/count"].value, alert["alerts/last_type"].value) == (3, "fault")
     assert set(declared_readings(["plate"], ["s1"])) >= {"regions/plate/s1/mean", "regions/plate/state", "fps"}
+
+
+def test_each_regions_signal_quality_is_read_from_the_stats_and_declared_for_the_birth() -> None:
+    signal = RegionSignal(signal="dark", mean=12.5, dark_fraction=0.75, saturated_fraction=0.0,
+                          speckle_contrast=0.5, noise_floor=0.25, above_noise=0.0625, above_noise_spread=0.03125,
+                          noise_model="datasheet", intensity_change=0.125, reason="signal dark: 75% of the pixels dark")
+    readings = stats_readings(_stats(signal={"plate": signal}))
+    assert {name: (reading.datatype, reading.value, reading.unit) for name, reading in readings.items()
+            if name.startswith("regions/plate/") and not name.endswith("/mean")} == {
+        "regions/plate/signal": (DataType.STRING, "dark", None),
+        "regions/plate/signal_reason": (DataType.STRING, "signal dark: 75% of the pixels dark", None),
+        "regions/plate/above_noise": (DataType.DOUBLE, 0.0625, None),
+        "regions/plate/above_noise_spread": (DataType.DOUBLE, 0.03125, None),
+        "regions/plate/noise_floor": (DataType.DOUBLE, 0.25, None),
+        "regions/plate/mean_intensity": (DataType.DOUBLE, 12.5, "grey levels"),
+        "regions/plate/dark_fraction": (DataType.DOUBLE, 0.75, None),
+        "regions/plate/saturated_fraction": (DataType.DOUBLE, 0.0, None),
+        "regions/plate/speckle_contrast": (DataType.DOUBLE, 0.5, None),
+        "regions/plate/intensity_change": (DataType.DOUBLE, 0.125, None)}
+    no_model = stats_readings(_stats(signal={"plate": signal.model_copy(update={"noise_floor": None,
+                                                                                "above_noise": None})}))
+    assert no_model["regions/plate/above_noise"].value is None and no_model["regions/plate/signal"].value == "dark"
+    assert not any("signal" in name or "noise" in name for name in stats_readings(_stats()))  # noise floor off
+    declared = declared_readings(["plate"], ["s2"])
+    assert {name: reading for name, reading in declared.items() if name in readings} == {
+        name: Reading(reading.datatype, None, reading.unit)  # the same datatypes and units, null
+        for name, reading in readings.items() if name in declared}
+    assert declared["regions/plate/signal"] == Reading(DataType.STRING, None)
+    assert len([name for name in declared if name.startswith("regions/plate/")]) == 4 + 1 + 10
+    assert not any("noise" in name for name in declared_readings(["plate"], ["s2"], signal=False))
 
 
 def test_book_aliases_unique_across_books_and_births_in_time_order() -> None:
