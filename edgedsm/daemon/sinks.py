@@ -50,7 +50,7 @@ def _build_sparkplug(config: DaemonConfig, on_command: CommandHandler, needed: S
 
     assert config.mqtt is not None and config.sparkplug is not None
     return SparkplugSink(config.sparkplug, config.mqtt, config.device.state_dir, regions=_regions(config),
-                         maps=engine_estimators(config)).start()
+                         maps=engine_estimators(config), signal=config.estimator.noise_floor).start()
 
 
 def _build_homeassistant(config: DaemonConfig, on_command: CommandHandler, needed: Sink | None) -> Sink:
@@ -106,7 +106,8 @@ SINKS: tuple[SinkSpec, ...] = (
     SinkSpec("mqtt", lambda c: c.mqtt is not None,
              lambda c: _fingerprint(_broker(c), str(c.device.state_dir)), _build_mqtt),
     SinkSpec("sparkplug", lambda c: c.mqtt is not None and c.sparkplug is not None,
-             lambda c: _fingerprint(c.sparkplug, _broker(c), str(c.device.state_dir), _regions(c)), _build_sparkplug),
+             lambda c: _fingerprint(c.sparkplug, _broker(c), str(c.device.state_dir), _regions(c),
+                                    c.estimator.noise_floor), _build_sparkplug),
     SinkSpec("homeassistant", lambda c: c.mqtt is not None and c.homeassistant is not None,
              lambda c: _fingerprint(c.homeassistant, str(c.device.state_dir), _regions(c)), _build_homeassistant,
              needs="mqtt"),

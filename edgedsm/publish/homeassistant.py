@@ -160,8 +160,10 @@ class HomeAssistantSink:
         return None
 
     def publish_stats(self, stats: Stats) -> None:
+        # a τc map's region mean would take the object id of the pooled τc's own sensor (tau_entity)
         self._add(self.discovery.activity_entity(region, estimator)
-                  for region, maps in stats.regions.items() if region in self.regions for estimator in maps)
+                  for region, maps in stats.regions.items() if region in self.regions for estimator in maps
+                  if estimator != "tau_c")
         self._add(self.discovery.tau_entity(region) for region in stats.tau_c if region in self.regions)
         self._add(entity for region in stats.signal if region in self.regions
                   for entity in self.discovery.signal_entities(region))
