@@ -1,0 +1,167 @@
+"""The candidates ``edgedsm tune`` weighs, what each does on the reference run, and the choice
+(docs/commissioning.md).
+
+A candidate is an estimator as the daemon judges it (S1, S2 or S3, plain or above the noise
+floor, or τc in seconds) at one window N, lag m and mode. Its outcome on every region: the
+separation of wet from dry, the proposed thresholds and what the state machine does with them
+(:mod:`edgedsm.tuning.scoring`), and its cost per frame, measured by the engine at the camera's
+frame size. The choice: among the candidates that separate every region (AUC >= GOOD_AUC), call
+every region dry and make no false transition, the Pareto front of (timing error, cost), the
+timing error being the worst region's distance of its dry call from the dry mark (the mark is
+the user's best knowledge of when the surface is dry: a call long before it is as suspect as one
+long after; a τc that saturates at its longest lag calls dry early, for one); the recommended
+one is the most timely, unless one within DELAY_SLACK of its error costs less.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from edgedsm.drying import Thresholds
+from edgedsm.tuning.scoring import Replay, Separation, propose, replay, separation
+from edgedsm.tuning.series import Series, Setting
+
+GOOD_AUC = 0.95  # below: wet and dry overlap too much to trust thresholds
+USABLE_AUC = 0.9  # below, for every candidate: the run cannot be tuned (exit 65)
+DELAY_SLACK = 0.1  # a cheaper candidate within this share of the fastest's delay is preferred
+NAMES = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "τc"}
+
+
+@dataclass(frozen=True)
+class Candidate:
+    estimator: str  # s1, s2, s3, tau_c
+    noise_floor: bool  # judged above the noise floor (S1-S3)
+    setting: Setting
+
+    @property
+    def variant(self) -> str:
+        """The series of :mod:`edgedsm.tuning.series` this candidate is judged on."""
+        if self.estimator == "tau_c":
+            return "tau_c"
+        return f"{self.estimator}@noise" if self.noise_floor else self.estimator
+
+    def label(self) -> str:
+        what = NAMES[self.estimator] + (" above noise" if self.noise_floor and self.estimator != "tau_c" else "")
+        return f"{what}, {self.setting.label()}"
+
+
+@dataclass(frozen=True)
+class RegionOutcome:
+    separation: Separation
+    thresholds: Thresholds
+    replay: Replay
+
+
+@dataclass(frozen=True)
+class Outcome:
+    candidate: Candidate
+    regions: dict[str, RegionOutcome]
+    cost_s: float  # engine push per frame at the camera's size, seconds
+
+    @property
+    def auc(self) -> float:
+        return min(r.separation.auc for r in self.regions.values())
+
+    @property
+    def d_prime(self) -> float:
+        return min(r.separation.d_prime for r in self.regions.values())
+
+    @property
+    def delay_s(self) -> float:
+        """The worst region's delay (inf: a region never called dry)."""
+        delays = [r.replay.delay_s for r in self.regions.values()]
+        return math.inf if any(d is None for d in delays) else max(d for d in delays if d is not None)
+
+    @property
+    def timing_error_s(self) -> float:
+        """The worst region's |dry call - dry mark| (inf: a region never called dry)."""
+        delays = [r.replay.delay_s for r in self.regions.values()]
+        return math.inf if any(d is None for d in delays) else max(abs(d) for d in delays if d is not None)
+
+    @property
+    def false_per_hour(self) -> float:
+        return sum(r.replay.false_per_hour for r in self.regions.values())
+
+    @property
+    def sound(self) -> bool:
+        """Separates every region, calls every one dry, and no false transition."""
+        return self.auc >= GOOD_AUC and math.isfinite(self.delay_s) and self.false_per_hour == 0
+
+
+def candidates(settings: Iterable[Setting]) -> list[Candidate]:
+    """Every estimator variant at each setting (τc only where the mode keeps a window)."""
+    out = []
+    for setting in settings:
+        for estimator in ("s1", "s2", "s3"):
+            out += [Candidate(estimator, True, setting), Candidate(estimator, False, setting)]
+        if setting.has_tau:
+            out.append(Candidate("tau_c", False, setting))
+    return out
+
+
+def evaluate(candidate: Candidate, series: Series, wet_until_s: float, dry_from_s: float,
+             dwell_s: dict[str, float], dt: float, cost_s: float) -> Outcome | None:
+    """The candidate's outcome on the pass ``series`` of its setting; None where a region has no
+    usable wet or dry sample (held or NaN throughout one part)."""
+    times = np.asarray(series.times, np.float64)
+    on_tau = candidate.estimator == "tau_c"
+    regions = {}
+    for name in series.values:
+        observed = series.array(name, candidate.variant)
+        activity = 1.0 / observed if on_tau else observed  # τc as its rate (scoring's convention)
+        wet = activity[(times <= wet_until_s) & np.isfinite(activity)]
+        dry = activity[(times >= dry_from_s) & np.isfinite(activity)]
+        if wet.size == 0 or dry.size == 0:
+            return None
+        most = 1.0 / (series.max_lag * dt) if on_tau and series.max_lag else None
+        thresholds = propose(wet, dry, on_tau=on_tau, min_dwell_s=dwell_s[name], most=most)
+        regions[name] = RegionOutcome(separation(wet, dry), thresholds,
+                                      replay(times, observed, thresholds, wet_until_s, dry_from_s))
+    return Outcome(candidate, regions, cost_s)
+
+
+def pareto(outcomes: Sequence[Outcome]) -> list[Outcome]:
+    """The sound outcomes no other sound one beats on both timing error and cost, most timely first."""
+    sound = [o for o in outcomes if o.sound]
+    front = [o for o in sound if not any(p.timing_error_s <= o.timing_error_s and p.cost_s <= o.cost_s
+                                         and (p.timing_error_s < o.timing_error_s or p.cost_s < o.cost_s)
+                                         for p in sound)]
+    return sorted(front, key=lambda o: (o.timing_error_s, o.cost_s))
+
+
+def recommend(outcomes: Sequence[Outcome]) -> tuple[Outcome | None, str]:
+    """The recommended outcome and the reason, in one sentence (module docstring); None with the
+    best separation found when no candidate is sound."""
+    front = pareto(outcomes)
+    if not front:
+        best = max(outcomes, key=lambda o: (o.auc, -o.false_per_hour), default=None)
+        if best is None:
+            return None, "no candidate could be scored (no wet or no dry samples)"
+        return None, (f"no candidate separates wet from dry on every region without a false transition: the best, "
+                      f"{best.candidate.label()}, has AUC {best.auc:.3f}, {best.false_per_hour:.1f} false "
+                      f"transitions per hour and calls dry {_delay(best.delay_s)}")
+    fastest = front[0]
+    cheaper = [o for o in front
+               if o.timing_error_s <= fastest.timing_error_s + DELAY_SLACK * max(fastest.timing_error_s, 1.0)]
+    chosen = min(cheaper, key=lambda o: o.cost_s)
+    reason = (f"{chosen.candidate.label()} calls every region dry {_delay(chosen.delay_s)} with "
+              f"no false transition (AUC {chosen.auc:.3f}, d′ {_d_prime(chosen.d_prime)}) at "
+              f"{chosen.cost_s * 1e3:.2f} ms per frame")
+    if chosen is not fastest:
+        reason += (f"; the most timely, {fastest.candidate.label()}, calls it {_delay(fastest.delay_s)} but costs "
+                   f"{fastest.cost_s / chosen.cost_s:.1f}× as much")
+    return chosen, reason
+
+
+def _delay(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "never"
+    return f"{seconds:.1f} s after the dry mark" if seconds >= 0 else f"{-seconds:.1f} s before the dry mark"
+
+
+def _d_prime(value: float) -> str:
+    return f"{value:.1f}" if value < 100 else "> 100"

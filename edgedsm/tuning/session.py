@@ -1,0 +1,141 @@
+"""A tuning session: the reference run read once per window setting, every candidate scored,
+within a time budget (docs/commissioning.md).
+
+The settings are tried in order of likelihood (N near 100, m near 5 first: the paper's and the
+daemon's defaults), one streaming pass each; a pass's time is measured and no pass is begun that
+the budget cannot hold (the first always runs). Each candidate's cost per frame is measured by the
+engine on frames of the run at the camera's size (the whole frame, or the regions' bounding box
+with ``estimator.area = "regions"``), as the daemon would push them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from edgedsm.analysis import bounding_box
+from edgedsm.config import DaemonConfig
+from edgedsm.errors import DataError
+from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, recommend
+from edgedsm.tuning.series import Series, Setting, push_cost, run_pass
+
+WINDOWS = (100, 200, 50, 400)
+LAGS = (5, 10, 2, 1, 20)
+COST_FRAMES = 16  # frames of the run each cost is timed over (repeated)
+MAX_SAMPLES = 2000  # samples per pass at most (the step grows on long runs)
+STATE_STEP_S = 0.5  # the daemon judges the states twice a second
+
+
+@dataclass(frozen=True)
+class Run:
+    """The reference run: a way to read its frames again, its size, clock and marks (seconds from
+    its first frame)."""
+
+    frames: Callable[[], Iterator[np.ndarray]]
+    count: int
+    bits: int | None
+    dt: float
+    times_s: np.ndarray | None
+    wet_until_s: float
+    dry_from_s: float
+    name: str
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.times_s[-1]) if self.times_s is not None else (self.count - 1) * self.dt
+
+    def frame_at(self, seconds: float) -> int:
+        """The last frame at or before ``seconds``."""
+        if self.times_s is not None:
+            return int(np.searchsorted(self.times_s, seconds, side="right")) - 1
+        return math.floor(seconds / self.dt + 1e-9)
+
+
+@dataclass
+class Result:
+    run: Run
+    series: list[Series] = field(default_factory=list)
+    outcomes: list[Outcome] = field(default_factory=list)
+    chosen: Outcome | None = None
+    reason: str = ""
+    skipped: list[Setting] = field(default_factory=list)  # settings the budget left out
+    seconds: float = 0.0
+
+
+def settings_for(run: Run, windows: Sequence[int] = WINDOWS, lags: Sequence[int] = LAGS,
+                 modes: Sequence[str] = ("sliding",)) -> list[Setting]:
+    """The settings that fit the run, likeliest first: a window must fill within the wet part (so
+    that there are wet samples) and leave dry samples; the lag at most a quarter of the window."""
+    wet_frames = run.frame_at(run.wet_until_s) + 1
+    fitting = [n for n in windows if n <= wet_frames and n < run.count]
+    if not fitting:
+        raise DataError(f"{run.name}: the run is too short for a window: the wet part holds {wet_frames} frames, "
+                        f"the shortest window tried is {min(windows)} (record longer, or mark --wet-until later)")
+    out = [Setting(n, m, mode) for n in fitting for m in lags if 4 * m <= n for mode in modes]
+    return sorted(out, key=lambda s: (abs(math.log(s.window / 100)) + abs(math.log(s.lag / 5)) / 2,
+                                      s.mode != "sliding"))
+
+
+def check_marks(run: Run) -> None:
+    """The marks inside the run and in order; a DataError (exit 65) says what is wrong."""
+    if not 0 < run.wet_until_s < run.dry_from_s < run.duration_s:
+        raise DataError(f"{run.name}: the marks must satisfy 0 < --wet-until ({run.wet_until_s:g} s) < --dry-from "
+                        f"({run.dry_from_s:g} s) < the run's end ({run.duration_s:g} s)")
+
+
+def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s: float,
+         settings: Sequence[Setting], on_frame: Callable[[], None] | None = None,
+         on_pass: Callable[[Setting, int, int], None] | None = None) -> Result:
+    """Score every candidate of ``settings`` on ``run`` within ``budget_s`` (module docstring)."""
+    check_marks(run)
+    started = time.perf_counter()
+    result = Result(run)
+    step = max(1, round(STATE_STEP_S / run.dt), math.ceil(run.count / MAX_SAMPLES))
+    dwell = {region.name: region.min_dwell_s for region in config.regions}
+    sample = _cost_frames(run, config, masks)
+    for index, setting in enumerate(settings):
+        elapsed = time.perf_counter() - started
+        if result.series and elapsed + result.series[-1].seconds > budget_s:  # a pass costs about the last
+            result.skipped = list(settings[index:])
+            break
+        if on_pass is not None:
+            on_pass(setting, index, len(settings))
+        series = run_pass(run.frames(), setting, config, masks, run.dt, step, bits=run.bits, times_s=run.times_s,
+                          on_frame=on_frame)
+        result.series.append(series)
+        costs: dict[str, float] = {}
+        for candidate in candidates([setting]):
+            if candidate.estimator not in costs:
+                costs[candidate.estimator] = _cost(sample, candidate, series, run.bits, config.estimator.q)
+            cost = costs[candidate.estimator]
+            outcome = evaluate(candidate, series, run.wet_until_s, run.dry_from_s, dwell, run.dt, cost)
+            if outcome is not None:
+                result.outcomes.append(outcome)
+    result.chosen, result.reason = recommend(result.outcomes)
+    result.seconds = time.perf_counter() - started
+    if result.chosen is None and max((o.auc for o in result.outcomes), default=0.0) < USABLE_AUC:
+        raise DataError(f"{run.name}: {result.reason}")
+    return result
+
+
+def _cost_frames(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray]) -> list[np.ndarray]:
+    """A few frames of the run as the daemon's engine would see them."""
+    frames = []
+    for frame in run.frames():
+        if config.estimator.area == "regions":
+            rows, cols = bounding_box(list(masks.values()))
+            frame = np.ascontiguousarray(frame[rows, cols])
+        frames.append(np.array(frame))
+        if len(frames) == COST_FRAMES:
+            break
+    return frames
+
+
+def _cost(frames: list[np.ndarray], candidate: Candidate, series: Series, bits: int | None, q: float) -> float:
+    estimators = ("tau_c",) if candidate.estimator == "tau_c" else (candidate.estimator,)
+    return push_cost(frames, estimators, candidate.setting, bits, max_lag=series.max_lag if
+                     candidate.estimator == "tau_c" else None, q=q)
