@@ -16,8 +16,8 @@ from edgedsm import __version__
 from edgedsm.errors import ConfigError, DataError, DeviceError, EdgedsmError
 from edgedsm.estimators.jit import configure_threading
 
-COMMANDS = ("demo", "simulate", "analyze", "thsp", "record", "reproduce", "bench", "run", "check-config", "laser",
-            "watch", "cmd", "probe", "init", "dashboard")
+COMMANDS = ("demo", "simulate", "analyze", "thsp", "tune", "record", "reproduce", "bench", "run", "check-config",
+            "laser", "watch", "cmd", "probe", "init", "dashboard")
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2

@@ -74,20 +74,58 @@ def change_reason(ratio: float, factor: float) -> str | None:
     return None
 
 
+class ModelKeeper:
+    """The camera's noise model: the datasheet's, else the best estimated from the patches' frames
+    (looked for at the first round of patches, then every REFRESH_EVERY rounds, kept until a
+    better one comes). One keeper may serve several judges (``edgedsm tune`` judges S1, S2 and S3
+    at once): a round of patches seen by one is not looked at again by the next."""
+
+    def __init__(self, datasheet: NoiseModel | None) -> None:
+        self.model = datasheet
+        self._rounds = 0
+        self._tried: int | None = None  # the round that last estimated a model from the frames
+        self._seen: Mapping[str, PatchWindow] | None = None
+
+    def see(self, patches: Mapping[str, PatchWindow]) -> None:
+        if patches is self._seen:
+            return
+        self._seen = patches
+        self._rounds += 1
+        estimating = self.model is None or self.model.source == "frames"
+        if estimating and (self._tried is None or self._rounds - self._tried >= REFRESH_EVERY):
+            self._tried = self._rounds
+            self._estimate(patches)
+
+    def _estimate(self, patches: Mapping[str, PatchWindow]) -> None:
+        best = None
+        for patch in patches.values():
+            try:
+                model = noise.from_frames(patch.frames, saturation=patch.top, mask=patch.mask)
+            except EstimatorError:
+                continue  # activity too fast to separate, or too dark: keep what we have
+            if best is None or model.relative_error < best.relative_error:
+                best = model
+        if best is not None:
+            self.model = best
+
+
 class SignalJudge:
     """Signal quality, noise floors and signal warnings of every region (evaluator thread only)."""
 
-    def __init__(self, config: DaemonConfig) -> None:
+    def __init__(self, config: DaemonConfig, keeper: ModelKeeper | None = None) -> None:
         self.config = config
         camera_noise = config.camera.noise
-        self.model: NoiseModel | None = camera_noise.model() if camera_noise is not None else None
+        self.keeper = keeper or ModelKeeper(camera_noise.model() if camera_noise is not None else None)
         self._floors: dict[str, RegionFloor] = {}
         self._basis: dict[str, tuple[NoiseModel | None, float, int]] = {}  # model, mean, assessment of a floor
         self._assessments = 0
-        self._model_tried: int | None = None  # the assessment that last estimated a model from the frames
         self.signals: dict[str, RegionSignal] = {}
         self._reference: dict[str, float] = {}  # mean intensity when the window first filled
         self._warnings: dict[str, dict[str, str]] = {}  # region -> kind -> active reason
+
+    @property
+    def model(self) -> NoiseModel | None:
+        return self.keeper.model
 
     @property
     def on(self) -> bool:
@@ -103,7 +141,7 @@ class SignalJudge:
     def apply(self, config: DaemonConfig) -> None:
         """A reload's settings (a new datasheet replaces the model; the rest is kept)."""
         if config.camera.noise != self.config.camera.noise:
-            self.model = config.camera.noise.model() if config.camera.noise is not None else None
+            self.keeper.model = config.camera.noise.model() if config.camera.noise is not None else None
             self._floors.clear()
         self.config = config
 
@@ -123,10 +161,7 @@ class SignalJudge:
         returns the warnings that began or cleared."""
         est = self.config.estimator
         self._assessments += 1
-        estimating = self.model is None or self.model.source == "frames"
-        if estimating and (self._model_tried is None or self._assessments - self._model_tried >= REFRESH_EVERY):
-            self._model_tried = self._assessments
-            self._model_from(patches)
+        self.keeper.see(patches)
         changes: list[SignalWarning] = []
         for name, patch in patches.items():
             values = estimates.get(name, {})
@@ -188,19 +223,6 @@ class SignalJudge:
         if model is not self.model or self._assessments - when >= REFRESH_EVERY or abs(now - mean) > FLOOR_KEPT * mean:
             return None
         return floor
-
-    def _model_from(self, patches: Mapping[str, PatchWindow]) -> None:
-        """The best model the patches give (the smallest stated error), kept until a better comes."""
-        best = None
-        for patch in patches.values():
-            try:
-                model = noise.from_frames(patch.frames, saturation=patch.top, mask=patch.mask)
-            except EstimatorError:
-                continue  # activity too fast to separate, or too dark: keep what we have
-            if best is None or model.relative_error < best.relative_error:
-                best = model
-        if best is not None:
-            self.model = best
 
     def _warn(self, region: str, kind: str, reason: str | None) -> list[SignalWarning]:
         active = self._warnings.setdefault(region, {})

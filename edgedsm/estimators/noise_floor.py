@@ -144,29 +144,59 @@ def _rounded_moments(mu: np.ndarray, sigma: np.ndarray, q: float, top: float) ->
 
 
 def _analog_means(mu: np.ndarray, sigma: np.ndarray, top: float) -> np.ndarray:
+    """:func:`_invert_means`, remembered for the last few inputs: S1's, S2's and S3's floors of one
+    region (and the daemon's judges) ask for the same pixel means and noise in turn."""
+    key = (mu.tobytes(), sigma.tobytes(), float(top))
+    found = _ANALOG_MEMO.get(key)
+    if found is None:
+        found = _invert_means(mu, sigma, top)
+        found.setflags(write=False)
+        if len(_ANALOG_MEMO) >= ANALOG_MEMO_SIZE:
+            _ANALOG_MEMO.pop(next(iter(_ANALOG_MEMO)))
+        _ANALOG_MEMO[key] = found
+    return found
+
+
+ANALOG_MEMO_SIZE = 8
+INVERSION_POINTS = 33
+_ANALOG_MEMO: dict[tuple[bytes, bytes, float], np.ndarray] = {}
+
+
+def _invert_means(mu: np.ndarray, sigma: np.ndarray, top: float) -> np.ndarray:
     """The analog means ν (DN) whose rounded, clipped frames have the measured means μ.
 
     E[clip(round(ν + n), 0, top)] is a smooth staircase in ν (steps of width ~σ at the
     half-steps), bent flat near 0 and full scale: a rounded mean of 3.00 with σ = 0.1 DN says ν
     is well inside the step, where the frames never change, 3.40 that it is near 3.5, where they
     flip often, and 1.0 with σ = 1.6 DN that ν is below 1 (the clipped negatives raised the
-    mean). Inverted per pixel on a grid of ν over μ ± (1.5 + 6σ); ν = μ where σ >= 1 DN and the
+    mean). Inverted per pixel on a grid of ν over μ ± (1.5 + 6σ), then on a grid across the two
+    points that bracket it (INVERSION_POINTS each: a resolution of (1.5 + 6σ)/480 DN), linearly
+    between the last two; ν = μ where σ >= 1 DN and the
     pixel is more than 1.5 + 6σ from both ends (the staircase is a straight line there within
     1e-4 DN)."""
     out = mu.copy()
     span = 1.5 + 6.0 * sigma
     invert = np.flatnonzero((sigma < 1.0) | (mu < span) | (mu > top - span))
-    for start in range(0, invert.size, 16):  # 16 pixels at a time: (16, V, J) temporaries
-        index = invert[start:start + 16]
+    steps = np.linspace(0.0, 1.0, INVERSION_POINTS)[None, :]
+    for start in range(0, invert.size, 32):  # 32 pixels at a time: (32, V, J) temporaries
+        index = invert[start:start + 32]
         m, s, half = mu[index, None], np.maximum(sigma[index, None], 1e-9), span[index, None]
-        grid = m + half * np.linspace(-1.0, 1.0, 257)[None, :]  # candidate ν, (P, V)
+        value, rows = mu[index], np.arange(index.size)
         reach = math.ceil(float((half + 6.0 * s).max())) + 2
         levels = np.floor(m)[:, :, None] + np.arange(-reach, reach + 1.0)[None, None, :]  # (P, 1, J)
-        gap = levels - grid[:, :, None]
-        prob = ndtr((gap + 0.5) / s[:, :, None]) - ndtr((gap - 0.5) / s[:, :, None])
-        expected = (prob * np.clip(levels, 0.0, top)).sum(axis=2)  # (P, V), non-decreasing in ν
-        expected += 1e-9 * np.arange(grid.shape[1])[None, :]  # strictly increasing for the inversion
-        out[index] = [np.interp(value, row, nu) for value, row, nu in zip(mu[index], expected, grid, strict=True)]
+        low, high = m - half, m + half
+        # a coarse grid of ν brackets the solution, a fine one across the bracket finds it
+        for _ in range(2):
+            grid = low + (high - low) * steps  # candidate ν, (P, V)
+            gap = levels - grid[:, :, None]
+            prob = ndtr((gap + 0.5) / s[:, :, None]) - ndtr((gap - 0.5) / s[:, :, None])
+            expected = (prob * np.clip(levels, 0.0, top)).sum(axis=2)  # (P, V), non-decreasing in ν
+            expected += 1e-9 * np.arange(grid.shape[1])[None, :]  # strictly increasing for the inversion
+            above = np.clip((expected < value[:, None]).sum(axis=1), 1, grid.shape[1] - 1)
+            low, high = grid[rows, above - 1][:, None], grid[rows, above][:, None]
+        below_e, above_e = expected[rows, above - 1], expected[rows, above]
+        share = np.clip((value - below_e) / (above_e - below_e), 0.0, 1.0)
+        out[index] = low[:, 0] + share * (high[:, 0] - low[:, 0])
     return out
 
 
@@ -187,9 +217,27 @@ def static_pair_moments(model: NoiseModel, means: np.ndarray, q: float = 0.0,
     sigma = np.sqrt(analog)
     exact = sigma < EXACT_SIGMA
     if exact.any():
-        for part, value in zip(result, _rounded_moments(mu[exact], sigma[exact], q, top), strict=True):
+        for part, value in zip(result, _rounded(mu[exact], sigma[exact], float(q), float(top)), strict=True):
             part[exact] = value
     return tuple(result)
+
+
+def _rounded(mu: np.ndarray, sigma: np.ndarray, q: float, top: float) -> tuple[np.ndarray, ...]:
+    """:func:`_rounded_moments`, remembered for the last few inputs (S1's and S3's floors of one
+    region ask for the same; so do the daemon's judges in turn)."""
+    key = (mu.tobytes(), sigma.tobytes(), q, top)
+    found = _ROUNDED_MEMO.get(key)
+    if found is None:
+        found = _rounded_moments(mu, sigma, q, top)
+        for part in found:
+            part.setflags(write=False)
+        if len(_ROUNDED_MEMO) >= ANALOG_MEMO_SIZE:
+            _ROUNDED_MEMO.pop(next(iter(_ROUNDED_MEMO)))
+        _ROUNDED_MEMO[key] = found
+    return found
+
+
+_ROUNDED_MEMO: dict[tuple[bytes, bytes, float, float], tuple[np.ndarray, ...]] = {}
 
 
 def mean_abs_difference(model: NoiseModel, means: np.ndarray | float) -> np.ndarray:

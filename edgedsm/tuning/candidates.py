@@ -104,9 +104,10 @@ def candidates(settings: Iterable[Setting]) -> list[Candidate]:
 
 
 def evaluate(candidate: Candidate, series: Series, wet_until_s: float, dry_from_s: float,
-             dwell_s: dict[str, float], dt: float, cost_s: float) -> Outcome | None:
-    """The candidate's outcome on the pass ``series`` of its setting; None where a region has no
-    usable wet or dry sample (held or NaN throughout one part)."""
+             dwell_s: dict[str, float], dt: float, cost_s: float) -> Outcome | str:
+    """The candidate's outcome on the pass ``series`` of its setting; where a region has no usable
+    wet or dry sample (the daemon would hold its state throughout one part: dark, saturated, not
+    speckle), why it cannot be scored."""
     times = np.asarray(series.times, np.float64)
     on_tau = candidate.estimator == "tau_c"
     regions = {}
@@ -116,7 +117,10 @@ def evaluate(candidate: Candidate, series: Series, wet_until_s: float, dry_from_
         wet = activity[(times <= wet_until_s) & np.isfinite(activity)]
         dry = activity[(times >= dry_from_s) & np.isfinite(activity)]
         if wet.size == 0 or dry.size == 0:
-            return None
+            part = "wet" if wet.size == 0 else "dry"
+            return (f"region {name}: no {part} sample (the daemon would hold the state: its light is dark, "
+                    "saturated or not speckle)" if candidate.noise_floor or on_tau else
+                    f"region {name}: no {part} sample")
         most = 1.0 / (series.max_lag * dt) if on_tau and series.max_lag else None
         thresholds = propose(wet, dry, on_tau=on_tau, min_dwell_s=dwell_s[name], most=most)
         regions[name] = RegionOutcome(separation(wet, dry), thresholds,
@@ -150,7 +154,7 @@ def recommend(outcomes: Sequence[Outcome]) -> tuple[Outcome | None, str]:
     chosen = min(cheaper, key=lambda o: o.cost_s)
     reason = (f"{chosen.candidate.label()} calls every region dry {_delay(chosen.delay_s)} with "
               f"no false transition (AUC {chosen.auc:.3f}, d′ {_d_prime(chosen.d_prime)}) at "
-              f"{chosen.cost_s * 1e3:.2f} ms per frame")
+              f"{chosen.cost_s * 1e3:.3g} ms per frame")
     if chosen is not fastest:
         reason += (f"; the most timely, {fastest.candidate.label()}, calls it {_delay(fastest.delay_s)} but costs "
                    f"{fastest.cost_s / chosen.cost_s:.1f}× as much")

@@ -20,7 +20,7 @@ import numpy as np
 
 from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig
-from edgedsm.daemon.signal_judge import SignalJudge
+from edgedsm.daemon.signal_judge import ModelKeeper, SignalJudge
 from edgedsm.estimators import SlidingWindow
 from edgedsm.noise_patches import NoisePatches
 
@@ -75,8 +75,9 @@ def run_pass(frames: Iterable[np.ndarray], setting: Setting, config: DaemonConfi
     estimator = config.estimator.model_copy(update={"window": setting.window, "lag": setting.lag,
                                                     "mode": setting.mode, "max_lag": max_lag})
     lags = estimator.lags if setting.has_tau else None
+    keeper = ModelKeeper(config.camera.noise.model() if config.camera.noise is not None else None)
     judges = {name: SignalJudge(config.model_copy(update={"estimator": estimator.model_copy(
-        update={"activity": name, "noise_floor": True})})) for name in PLAIN}
+        update={"activity": name, "noise_floor": True})}), keeper) for name in PLAIN}
     series = Series(setting, values={name: {variant: [] for variant in VARIANTS} for name in masks}, max_lag=lags)
     engine: SlidingWindow | None = None
     patches: NoisePatches | None = None

@@ -26,7 +26,7 @@ from edgedsm.tuning.series import Series, Setting, push_cost, run_pass
 WINDOWS = (100, 200, 50, 400)
 LAGS = (5, 10, 2, 1, 20)
 COST_FRAMES = 16  # frames of the run each cost is timed over (repeated)
-MAX_SAMPLES = 2000  # samples per pass at most (the step grows on long runs)
+MAX_SAMPLES = 400  # samples per pass at most (the step grows on long runs: the states are judged every step)
 STATE_STEP_S = 0.5  # the daemon judges the states twice a second
 
 
@@ -63,6 +63,7 @@ class Result:
     chosen: Outcome | None = None
     reason: str = ""
     skipped: list[Setting] = field(default_factory=list)  # settings the budget left out
+    excluded: list[tuple[Candidate, str]] = field(default_factory=list)  # candidates that could not be scored
     seconds: float = 0.0
 
 
@@ -113,7 +114,9 @@ def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s:
                 costs[candidate.estimator] = _cost(sample, candidate, series, run.bits, config.estimator.q)
             cost = costs[candidate.estimator]
             outcome = evaluate(candidate, series, run.wet_until_s, run.dry_from_s, dwell, run.dt, cost)
-            if outcome is not None:
+            if isinstance(outcome, str):
+                result.excluded.append((candidate, outcome))
+            else:
                 result.outcomes.append(outcome)
     result.chosen, result.reason = recommend(result.outcomes)
     result.seconds = time.perf_counter() - started
