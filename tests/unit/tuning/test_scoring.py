@@ -1,0 +1,84 @@
+"""Scoring a candidate's activity series (edgedsm.tuning.scoring): separation, thresholds, the
+state machine replayed; and the choice among candidates (edgedsm.tuning.candidates)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edgedsm.drying import Thresholds
+from edgedsm.errors import EstimatorError
+from edgedsm.tuning.candidates import Candidate, Outcome, RegionOutcome, pareto, recommend
+from edgedsm.tuning.scoring import HYSTERESIS, Replay, Separation, propose, replay, separation
+from edgedsm.tuning.series import Setting
+
+
+def test_separation_is_mann_whitney_with_ties_and_d_prime_on_logs():
+    wet, dry = np.array([3.0, 4.0, 5.0]), np.array([1.0, 2.0, 3.0])
+    result = separation(wet, dry)
+    assert result.auc == pytest.approx(8.5 / 9)  # 8 pairs wet > dry, one tie counted half
+    w, d = np.log(wet), np.log(dry)
+    assert result.d_prime == pytest.approx((w.mean() - d.mean()) / math.sqrt((w.var() + d.var()) / 2))
+    assert separation(dry, wet).auc == pytest.approx(0.5 / 9)
+    assert separation(np.array([0.0, -1.0, 2.0]), np.array([0.5])).wet_samples == 3  # clipped, not dropped
+    with pytest.raises(EstimatorError):
+        separation(np.array([]), dry)
+
+
+def test_thresholds_split_the_gap_in_thirds_and_leave_room_for_hysteresis():
+    rng = np.random.default_rng(0)
+    wet, dry = rng.uniform(0.3, 0.4, 500), rng.uniform(0.02, 0.05, 500)
+    th = propose(wet, dry, min_dwell_s=7.0)
+    high, low = np.percentile(wet, 5), np.percentile(dry, 95)
+    assert math.log(th.dry_below / low) == pytest.approx(math.log(high / low) / 3)
+    assert math.log(th.wet_above / low) == pytest.approx(2 * math.log(high / low) / 3)
+    assert (th.hysteresis, th.min_dwell_s, th.on_tau) == (HYSTERESIS, 7.0, False)
+    close = propose(np.full(50, 1.0), np.full(50, 0.99))  # no gap: around the medians, bands still apart
+    assert close.dry_below * (1 + HYSTERESIS) < close.wet_above * (1 - HYSTERESIS)
+    assert close.dry_below < math.sqrt(0.99) < close.wet_above
+
+
+def test_tau_thresholds_stay_measurable_below_the_longest_lag():
+    wet_tau, dry_tau = np.full(40, 0.1), np.full(40, 1.0)  # seconds; 1.0 s = K·Δt, where τc is capped
+    th = propose(1 / wet_tau, 1 / dry_tau, on_tau=True, most=1.0)
+    assert th.on_tau and 1 / th.dry_below * (1 - HYSTERESIS) <= 1.0 / 1.001 + 1e-12  # reached at the cap
+
+
+def test_replay_finds_the_dry_call_and_counts_moves_back_as_false():
+    times = np.arange(0.0, 100.0, 0.5)
+    falling = np.interp(times, [0, 30, 60, 100], [1.0, 1.0, 0.1, 0.1])
+    th = Thresholds(0.6, 0.3, 0.05, 2.0)
+    result = replay(times, falling, th, wet_until_s=30.0, dry_from_s=60.0)
+    assert [s[1:] for s in result.states] == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")]
+    dry_at = result.states[-1][0]
+    assert result.delay_s == pytest.approx(dry_at - 60.0) and result.delay_s < 0  # 0.3·0.95 is reached before 60 s
+    assert result.false_transitions == 0 and result.flat_s == pytest.approx(30.0 + 99.5 - dry_at)
+    bumpy = falling.copy()
+    bumpy[(times > 80) & (times < 90)] = 0.9  # back to wet after the dry call
+    worse = replay(times, bumpy, th, 30.0, 60.0)
+    assert [s[1:] for s in worse.states[3:]] == [("dry", "wet"), ("wet", "dry")]
+    assert worse.false_transitions == 1 and worse.false_per_hour == pytest.approx(3600 / worse.flat_s)
+    held = falling.copy()
+    held[times > 45] = np.nan  # the daemon holds the state: never called dry
+    assert replay(times, held, th, 30.0, 60.0).delay_s is None
+
+
+def _outcome(label: str, delay: float | None, cost: float, auc: float = 1.0, false: int = 0) -> Outcome:
+    th = Thresholds(0.6, 0.3)
+    region = RegionOutcome(Separation(auc, 5.0, 10, 10), th, Replay([], delay, false, 3600.0))
+    return Outcome(Candidate(label, True, Setting(100, 5)), {"r": region}, cost)
+
+
+def test_the_choice_is_the_most_timely_sound_candidate_unless_a_cheaper_one_is_as_timely():
+    timely = _outcome("s2", 2.0, 2e-3)
+    nearly = _outcome("s1", -2.1, 1e-3)  # as timely within 10 %, half the cost
+    late = _outcome("s3", 30.0, 0.5e-3)
+    unsound = _outcome("tau_c", 0.0, 0.1e-3, false=1)
+    front = pareto([timely, nearly, late, unsound])
+    assert front == [timely, nearly, late]  # none beats another on both; the unsound one is out
+    chosen, reason = recommend([timely, nearly, late, unsound])
+    assert chosen is nearly and "2.1 s before the dry mark" in reason and "1 ms per frame" in reason
+    none, why = recommend([unsound, _outcome("s1", None, 1e-3)])
+    assert none is None and why.startswith("no candidate separates wet from dry")
