@@ -100,6 +100,10 @@ SECTION_CHANGE: dict[str, str] = {
     "recording": KEEP,      # the recorder is rebuilt beside the running measurement
 }
 
+#: Fields of restarting sections that the evaluator applies in place (the noise model's datasheet,
+#: the light-change factor): a change of these alone keeps the measurement.
+APPLIED_FIELDS = {"camera": frozenset({"noise"}), "estimator": frozenset({"intensity_change"})}
+
 #: The region fields that are drying thresholds (applied in place); every other one is geometry.
 THRESHOLD_FIELDS = frozenset({"wet_above", "dry_below", "wet_below_s", "dry_above_s", "hysteresis", "min_dwell_s",
                               "trend_window_s"})
@@ -111,6 +115,16 @@ def changed_sections(new: DaemonConfig, running: DaemonConfig) -> list[str]:
     return [name for name in SECTION_CHANGE if not same_settings(getattr(new, name), getattr(running, name))]
 
 
+def _applied_only(name: str, new: DaemonConfig, running: DaemonConfig) -> bool:
+    """Whether section ``name`` differs only in fields the evaluator applies in place."""
+    fields = APPLIED_FIELDS.get(name)
+    if fields is None:
+        return False
+    old, fresh = getattr(running, name), getattr(new, name)
+    return fresh.model_dump(exclude=set(fields)) == old.model_dump(exclude=set(fields)) and \
+        same_settings(fresh.model_copy(update={f: getattr(old, f) for f in fields}), old)
+
+
 def _geometry(config: DaemonConfig) -> list[tuple[str, dict[str, object]]]:
     return [(type(r).__name__, r.model_dump(exclude=THRESHOLD_FIELDS)) for r in config.regions]
 
@@ -118,7 +132,7 @@ def _geometry(config: DaemonConfig) -> list[tuple[str, dict[str, object]]]:
 def restart_reasons(new: DaemonConfig, running: DaemonConfig) -> list[str]:
     """Why the measurement must restart (empty: the reload is applied to it while it runs)."""
     reasons = [name for name in changed_sections(new, running) if SECTION_CHANGE[name] == RESTART
-               and name != "regions"]
+               and name != "regions" and not _applied_only(name, new, running)]
     if new.base_dir != running.base_dir:
         reasons.append("configuration directory")
     if _geometry(new) != _geometry(running):

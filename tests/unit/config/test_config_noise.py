@@ -50,3 +50,17 @@ def test_check_config_says_how_the_states_meet_the_noise(tmp_path, capsys):
     assert main(["check-config", "--json", str(path)]) == 0
     assert json.loads(capsys.readouterr().out)["noise_floor"] == {"on": False, "model": None, "patch_px": 64,
                                                                   "intensity_change": 3.0}
+
+
+def test_a_new_datasheet_or_light_change_factor_is_applied_without_restarting_the_measurement():
+    from edgedsm.daemon.reload import restart_reasons
+
+    running = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<a>")
+    sheet = validate(DaemonConfig, {"camera": {"uri": "sim:default", "noise": {"gain": 0.2}},
+                                    "estimator": {"intensity_change": 5.0}}, "<b>")
+    assert restart_reasons(sheet, running) == []
+    patch = validate(DaemonConfig, {"camera": {"uri": "sim:default"}, "estimator": {"noise_patch": 32}}, "<c>")
+    assert restart_reasons(patch, running) == ["estimator"]  # the patches are allocated with the engine
+    moved = validate(DaemonConfig, {"camera": {"uri": "sim:default", "noise": {"gain": 0.2},
+                                               "exposure_us": 100.0}}, "<d>")
+    assert restart_reasons(moved, running) == ["camera"]
