@@ -1,0 +1,267 @@
+"""Region τc of disjoint windows (tumbling) without per-pixel lag products.
+
+A region's τc is fitted to its pooled correlation Ĉ(k) = Σ_p cov_p(k) / Σ_p var_p
+(docs/tau_c.md, "Regions"). When only regions are wanted (``analyze --timeline``), the
+per-pixel lag products the engine keeps (one row per lag, plus a copy of the completed
+window's) need not be kept: per pixel, over a window of N frames with T = ΣI, Q = ΣI²,
+P_k = Σ_{t=1}^{N-k} I_t·I_{t+k} and E_k = the sum of the first k and the last k frames,
+the covariance of docs/tau_c.md's estimator is (Σ_{t<=N-k} I_t + Σ_{t>k} I_t = 2T - E_k)::
+
+    (N-k)·cov(k) = P_k - Ī·(2T - E_k) + (N-k)·Ī²,   Ī = T/N
+    N²·(N-k)·cov(k) = N²·P_k + N·T·E_k - (N+k)·T²
+    N²·var          = N·Q - T²
+
+All of it is integer. Summed over the region's pixels, ΣP_k and ΣQ pool as the frames arrive
+(a few scalars per frame); only ΣT·E_k and ΣT² need per-pixel values, once, at the window's
+end: T, the sums of the first k frames (at the lags k of ``tau_lags(K)``) and the last K
+frames (a ring that also gives each new frame its lag partners). Per pixel that is
+K frames + L head sums + T: 43 bytes for 8-bit data at K = 20 (L = 9), against the engine's
+~250 (its lag products, edge sums and their copies). Hence::
+
+    Ĉ(k) = [N²·ΣP_k + N·ΣT·E_k - (N+k)·ΣT²] / [(N-k)·(N·ΣQ - ΣT²)]
+
+formed with exact integers (Python's, so no bound on the region's size) and divided once: the
+same pooled correlation as :meth:`edgedsm.estimators.SlidingWindow.region_tau_c` (which forms
+each pixel's covariances in float64 after an integer re-centring and then sums them) to
+rounding, and the same fit. Pixels in several regions are pooled once per "atom" (the set of
+pixels sharing one membership), so the cost does not grow with the number of regions.
+
+Units: intensities in grey levels, τc in frames. Only tumbling windows (disjoint sets of N
+frames, the paper's Figs. 10-11 processing): a sliding window would need the frames that
+leave it, i.e. a ring of N frames, which the engine already keeps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from edgedsm.errors import EstimatorError
+from edgedsm.estimators.correlation_time import TauC, _check_mask, fit_pooled, tau_lags
+
+try:
+    import numba
+except ImportError:  # the 'fast' extra is not installed: numpy below
+    numba = None
+
+MAX_REGIONS = 62  # a pixel's membership is packed into the bits of one int64
+#: Pixels per partial sum of a frame: a thread's share of the work; each term I·I' < 2^32, so a
+#: chunk's sum stays far inside int64 (the window's-end terms are larger: see _window_chunk).
+CHUNK = 1 << 18
+
+
+def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    if numba is None:
+        return lambda function: function
+    return numba.njit(cache=True, **options)
+
+
+@_compiled(parallel=True, nogil=True)
+def _frame_kernel(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, slots: np.ndarray, pairs: int,
+                  write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
+                  head: np.ndarray, chunk: int, out: np.ndarray) -> None:
+    """One frame: out[c, a, j] += Σ I·I_{-k_j} (j < pairs), out[c, a, L] += Σ I² over the pixels
+    of chunk c in atom a+1; T += I; head rows j >= head_from += I; the frame into ring[write]."""
+    pixels = frame.size
+    lags = lag_values.size
+    for c in numba.prange(out.shape[0]):
+        for p in range(c * chunk, min(pixels, (c + 1) * chunk)):
+            atom = np.int64(labels[p]) - 1
+            if atom < 0:
+                continue
+            x = np.int64(frame[p])
+            out[c, atom, lags] += x * x
+            for j in range(pairs):
+                out[c, atom, j] += x * np.int64(ring[slots[j], p])
+            if first:
+                total[p] = x
+            else:
+                total[p] += x
+            for j in range(head_from, lags):
+                if first:
+                    head[j, p] = x
+                else:
+                    head[j, p] += x
+            ring[write, p] = frame[p]
+
+
+@_compiled(parallel=True, nogil=True)
+def _window_kernel(total: np.ndarray, head: np.ndarray, ring: np.ndarray, labels: np.ndarray,
+                   last_slots: np.ndarray, lag_values: np.ndarray, chunk: int, out: np.ndarray) -> None:
+    """The window's end: out[c, a, j] += Σ T·E_{k_j}, out[c, a, L] += Σ T² (last_slots[s]: the ring
+    slot of the s-th frame from the end)."""
+    pixels = total.size
+    lags = lag_values.size
+    for c in numba.prange(out.shape[0]):
+        for p in range(c * chunk, min(pixels, (c + 1) * chunk)):
+            atom = np.int64(labels[p]) - 1
+            if atom < 0:
+                continue
+            t = np.int64(total[p])
+            out[c, atom, lags] += t * t
+            tail = np.int64(0)
+            done = 0
+            for j in range(lags):
+                while done < lag_values[j]:
+                    tail += np.int64(ring[last_slots[done], p])
+                    done += 1
+                out[c, atom, j] += t * (np.int64(head[j, p]) + tail)
+
+
+def _frame_numpy(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, slots: np.ndarray, pairs: int,
+                 write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
+                 head: np.ndarray, chunk: int, out: np.ndarray) -> None:
+    """_frame_kernel without numba (the same sums, whole rows at a time)."""
+    lags = lag_values.size
+    for c in range(out.shape[0]):
+        part = slice(c * chunk, (c + 1) * chunk)
+        x = frame[part].astype(np.int64)
+        terms = [ring[slots[j], part].astype(np.int64) * x for j in range(pairs)] + [x * x]
+        _pool_rows(labels[part], terms, [*range(pairs), lags], out[c])
+    total[:] = frame if first else total + frame
+    head[head_from:] = frame if first else head[head_from:] + frame
+    ring[write] = frame
+
+
+def _window_numpy(total: np.ndarray, head: np.ndarray, ring: np.ndarray, labels: np.ndarray,
+                  last_slots: np.ndarray, lag_values: np.ndarray, chunk: int, out: np.ndarray) -> None:
+    """_window_kernel without numba."""
+    lags = lag_values.size
+    for c in range(out.shape[0]):
+        part = slice(c * chunk, (c + 1) * chunk)
+        t = total[part].astype(np.int64)
+        tails = np.cumsum(ring[last_slots[:int(lag_values[-1])], part].astype(np.int64), axis=0)
+        terms = [t * (head[j, part].astype(np.int64) + tails[int(k) - 1]) for j, k in enumerate(lag_values)]
+        _pool_rows(labels[part], [*terms, t * t], list(range(lags + 1)), out[c])
+
+
+def _pool_rows(labels: np.ndarray, terms: list[np.ndarray], columns: list[int], out: np.ndarray) -> None:
+    """out[a-1, columns[i]] += Σ terms[i] over the pixels labelled a (int64 dots: exact)."""
+    for atom in range(out.shape[0]):
+        inside = labels == atom + 1
+        if inside.any():
+            for column, term in zip(columns, terms, strict=True):
+                out[atom, column] += int(term[inside].sum())
+
+
+def _window_chunk(window: int, top: int) -> int:
+    """Pixels per partial sum at the window's end: T·E_k < 2·(N·top)² (E_k <= 2K·top < 2N·top),
+    and a chunk's sum must stay in int64 (0: not even one pixel's term fits)."""
+    return min(CHUNK, 2**62 // (2 * (window * top) ** 2))
+
+
+def atoms_of(masks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Label every pixel by the set of regions it is in: (labels (P,), 0 = in none, 1..A the
+    atoms; member (R, A) bool, region r holds atom a+1)."""
+    code = np.zeros(masks[0].size, np.int64)
+    for bit, mask in enumerate(masks):
+        code |= mask.reshape(-1).astype(np.int64) << bit
+    codes, inverse = np.unique(code, return_inverse=True)
+    if codes[0] != 0:  # every pixel is in some region: label 0 stays unused
+        codes, inverse = np.concatenate(([0], codes)), inverse + 1
+    dtype = np.uint8 if codes.size <= 256 else np.uint16 if codes.size <= 65536 else np.int32
+    member = ((codes[None, 1:] >> np.arange(len(masks))[:, None]) & 1).astype(bool)
+    return inverse.astype(dtype), member
+
+
+class TumblingRegionTau:
+    """τc of each region over disjoint windows of N frames (frames 0..N-1, N..2N-1, ...).
+
+    ``push`` takes the frames one at a time; when a window completes, ``last`` holds each
+    region's :class:`TauC` (frames) for it, as ``SlidingWindow(..., mode="tumbling",
+    max_lag=K).region_tau_c(mask)`` would give. Frames: 2-D uint8 (bits <= 8) or uint16
+    arrays of ``shape``; ``bits`` their depth (1..16).
+    """
+
+    def __init__(self, shape: tuple[int, int], regions: Mapping[str, np.ndarray], window: int, max_lag: int,
+                 bits: int) -> None:
+        if not regions or len(regions) > MAX_REGIONS:
+            raise EstimatorError(f"1 to {MAX_REGIONS} regions, got {len(regions)}")
+        if not 1 <= bits <= 16:
+            raise EstimatorError(f"bits must be 1..16, got {bits}")
+        if not 1 <= max_lag <= window - 2:
+            raise EstimatorError(f"max_lag K={max_lag} does not fit a window of N={window} frames "
+                                 "(need 1 <= K < N-1)")
+        top = (1 << bits) - 1
+        self._window_chunk = _window_chunk(window, top)
+        if self._window_chunk < 1:
+            raise EstimatorError(f"a window of N={window} {bits}-bit frames is too long for exact int64 sums "
+                                 "(use the engine's region_tau_c)")
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.names = tuple(regions)
+        masks = [_check_mask(mask, self.shape) for mask in regions.values()]
+        self.labels, self._member = atoms_of(masks)
+        self.window, self.max_lag, self.bits = int(window), int(max_lag), int(bits)
+        self.lags = tau_lags(self.max_lag)
+        pixels = self.shape[0] * self.shape[1]
+        frame_type = np.uint8 if bits <= 8 else np.uint16
+        self._frame_type = np.dtype(frame_type)
+        self._ring = np.zeros((self.max_lag, pixels), frame_type)  # the last K frames, frame j in slot j % K
+        # one type for every N (uint16 would save 2 bytes below N = 258 at 8 bits, at the price of
+        # a second compiled variant)
+        self._total = np.zeros(pixels, np.uint32 if window * top <= 0xFFFFFFFF else np.int64)
+        self._head = np.zeros((self.lags.size, pixels), np.uint16 if self.max_lag * top <= 0xFFFF else np.uint32)
+        atoms = self._member.shape[1]
+        self._frame_out = np.zeros((-(-pixels // CHUNK), atoms, self.lags.size + 1), np.int64)
+        self._window_out = np.zeros((-(-pixels // self._window_chunk), atoms, self.lags.size + 1), np.int64)
+        self._pooled = [[0] * (self.lags.size + 1) for _ in range(atoms)]  # Python ints: exact, unbounded
+        self.frames_seen = 0
+        self.last: dict[str, TauC] | None = None  # the last completed window's τc per region
+
+    @property
+    def bytes_per_pixel(self) -> float:
+        """Memory of the per-pixel state (ring, head sums, T, labels), bytes per pixel."""
+        arrays = (self._ring, self._total, self._head, self.labels)
+        return sum(array.nbytes for array in arrays) / (self.shape[0] * self.shape[1])
+
+    def push(self, frame: np.ndarray) -> dict[str, TauC] | None:
+        """Take the next frame; at a window's last frame, return (and keep in ``last``) each
+        region's τc of that window."""
+        if frame.shape != self.shape or frame.dtype != self._frame_type or not frame.flags.c_contiguous:
+            raise EstimatorError(f"frames must be C-contiguous {self._frame_type} arrays of shape {self.shape}, "
+                                 f"got {frame.dtype} {frame.shape}")
+        position = self.frames_seen % self.window
+        pairs = int(np.searchsorted(self.lags, position, side="right"))  # lags k <= position: a frame k before
+        slots = np.ascontiguousarray((position - self.lags) % self.max_lag)
+        head_from = pairs if position < self.max_lag else self.lags.size  # heads of k > position take the frame
+        out = self._frame_out
+        out.fill(0)
+        kernel = _frame_kernel if numba is not None else _frame_numpy
+        kernel(frame.reshape(-1), self._ring, self.labels, slots, pairs, position % self.max_lag, position == 0,
+               head_from, self.lags, self._total, self._head, CHUNK, out)
+        self._add(out)
+        self.frames_seen += 1
+        if position < self.window - 1:
+            return None
+        ends = np.array([(position - s) % self.max_lag for s in range(self.max_lag)], np.int64)
+        out = self._window_out
+        out.fill(0)
+        (_window_kernel if numba is not None else _window_numpy)(self._total, self._head, self._ring, self.labels,
+                                                                 ends, self.lags, self._window_chunk, out)
+        window_sums = [[int(v) for v in atom] for atom in out.astype(object).sum(axis=0)]
+        self.last = {name: self._fit(member, window_sums) for name, member in zip(self.names, self._member,
+                                                                                 strict=True)}
+        self._pooled = [[0] * (self.lags.size + 1) for _ in self._pooled]
+        return self.last
+
+    def _add(self, out: np.ndarray) -> None:
+        """Add one frame's partial sums (chunks, atoms, L+1) into the window's Python ints."""
+        sums = out.astype(object).sum(axis=0)
+        for atom, row in enumerate(sums):
+            pooled = self._pooled[atom]
+            for j, value in enumerate(row):
+                pooled[j] += int(value)
+
+    def _fit(self, member: np.ndarray, window_sums: list[list[int]]) -> TauC:
+        """Ĉ(k) of the atoms in ``member`` pooled (module docstring), then the engine's fit."""
+        n, lags = self.window, self.lags.size
+        chosen = np.flatnonzero(member)
+        products = [sum(self._pooled[a][j] for a in chosen) for j in range(lags + 1)]  # ΣP_k, then ΣQ
+        edges = [sum(window_sums[a][j] for a in chosen) for j in range(lags + 1)]  # ΣT·E_k, then ΣT²
+        squares = edges[lags]
+        spread = n * products[lags] - squares  # N²·Σvar
+        cov = [(n * n * products[j] + n * edges[j] - (n + int(k)) * squares) / (n * n * (n - int(k)))
+               for j, k in enumerate(self.lags)]
+        return fit_pooled(np.array(cov)[:, None], np.array([spread / (n * n)]), n, self.lags)
