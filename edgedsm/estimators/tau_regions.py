@@ -47,9 +47,10 @@ except ImportError:  # the 'fast' extra is not installed: numpy below
     numba = None
 
 MAX_REGIONS = 62  # a pixel's membership is packed into the bits of one int64
-#: Pixels per partial sum of a frame: a thread's share of the work; each term I·I' < 2^32, so a
-#: chunk's sum stays far inside int64 (the window's-end terms are larger: see _window_chunk).
-CHUNK = 1 << 18
+#: Pixels per partial sum of a frame (a task of the parallel pass, small enough to stay in cache
+#: while it is read once per lag); each term I·I' < 2^32, so the sum over a frame of fewer than
+#: 2^31 pixels stays in int64 (the window's-end terms are larger: see _window_chunk).
+CHUNK = 1 << 12
 
 
 def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
@@ -63,28 +64,42 @@ def _frame_kernel(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, slots
                   write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
                   head: np.ndarray, chunk: int, out: np.ndarray) -> None:
     """One frame: out[c, a, j] += Σ I·I_{-k_j} (j < pairs), out[c, a, L] += Σ I² over the pixels
-    of chunk c in atom a+1; T += I; head rows j >= head_from += I; the frame into ring[write]."""
+    of chunk c in atom a+1; T += I; head rows j >= head_from += I; the frame into ring[write].
+
+    Per chunk and atom the frame is masked once (0 outside the atom), then each lag is a plain
+    multiply-add over the chunk, which vectorises (a test of the label inside the lag loops
+    does not)."""
     pixels = frame.size
     lags = lag_values.size
+    atoms = out.shape[1]
     for c in numba.prange(out.shape[0]):
-        for p in range(c * chunk, min(pixels, (c + 1) * chunk)):
-            atom = np.int64(labels[p]) - 1
-            if atom < 0:
+        lo = c * chunk
+        hi = min(pixels, lo + chunk)
+        masked = np.empty(hi - lo, np.int64)
+        for atom in range(atoms):
+            present = 0
+            for p in range(lo, hi):
+                inside = labels[p] == atom + 1
+                masked[p - lo] = np.int64(frame[p]) if inside else 0
+                present += inside
+            if present == 0:
                 continue
-            x = np.int64(frame[p])
-            out[c, atom, lags] += x * x
+            acc = np.int64(0)
+            for i in range(hi - lo):
+                acc += masked[i] * masked[i]
+            out[c, atom, lags] += acc
             for j in range(pairs):
-                out[c, atom, j] += x * np.int64(ring[slots[j], p])
-            if first:
-                total[p] = x
-            else:
-                total[p] += x
+                row = ring[slots[j]]
+                acc = np.int64(0)
+                for i in range(hi - lo):
+                    acc += masked[i] * np.int64(row[lo + i])
+                out[c, atom, j] += acc
+        for p in range(lo, hi):
+            x = frame[p]
+            total[p] = x if first else total[p] + x
             for j in range(head_from, lags):
-                if first:
-                    head[j, p] = x
-                else:
-                    head[j, p] += x
-            ring[write, p] = frame[p]
+                head[j, p] = x if first else head[j, p] + x
+            ring[write, p] = x
 
 
 @_compiled(parallel=True, nogil=True)
@@ -190,6 +205,9 @@ class TumblingRegionTau:
             raise EstimatorError(f"a window of N={window} {bits}-bit frames is too long for exact int64 sums "
                                  "(use the engine's region_tau_c)")
         self.shape = (int(shape[0]), int(shape[1]))
+        if self.shape[0] * self.shape[1] * top * top >= 2**63:
+            raise EstimatorError(f"a {self.shape[1]}x{self.shape[0]} frame of {bits}-bit data is too large for exact "
+                                 "int64 sums of one frame")
         self.names = tuple(regions)
         masks = [_check_mask(mask, self.shape) for mask in regions.values()]
         self.labels, self._member = atoms_of(masks)
@@ -248,7 +266,7 @@ class TumblingRegionTau:
 
     def _add(self, out: np.ndarray) -> None:
         """Add one frame's partial sums (chunks, atoms, L+1) into the window's Python ints."""
-        sums = out.astype(object).sum(axis=0)
+        sums = out.sum(axis=0)  # < pixels·(2^bits - 1)² < 2^63 (checked at the start)
         for atom, row in enumerate(sums):
             pooled = self._pooled[atom]
             for j, value in enumerate(row):
