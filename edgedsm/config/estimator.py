@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from edgedsm.estimators.correlation_time import default_max_lag, tau_mode_problem
+from edgedsm.estimators.correlation_time import default_max_lag, max_lag_problem, tau_mode_problem
 from edgedsm.validation import StrictModel
 
 
@@ -26,7 +26,7 @@ class EstimatorSection(StrictModel):
                            "'sliding' or 'tumbling'")
     max_lag: int | None = Field(None, ge=1, le=99_998,
                                 description="K: the longest lag in frames that τc is fitted over, at multi-tau lags "
-                                            "1, 2, 3, 4, 6, 8, … K (default min(2·lag, window-2)); τc is measured up "
+                                            "1, 2, 3, 4, 6, 8, … K (default window/2); τc is measured up "
                                             "to K·Δt, above it reported as '> K·Δt'")
     tau_c_map: bool = Field(True, description="publish the τc map (seconds) with the other maps")
     tau_c_map_block: int | None = Field(
@@ -60,9 +60,8 @@ class EstimatorSection(StrictModel):
         cores = os.cpu_count() or 1
         if self.threads is not None and self.threads > cores:
             raise ValueError(f"threads ({self.threads}) is more than this machine's {cores} cores")
-        if self.max_lag is not None and self.max_lag > self.window - 2:
-            raise ValueError(f"max_lag ({self.max_lag}) must be at most window - 2 ({self.window - 2}): τc needs "
-                             "K < N - 1")
+        if self.max_lag is not None and (problem := max_lag_problem(self.max_lag, self.window)):
+            raise ValueError(problem)
         if (self.activity == "tau_c" or self.tau_c) and (problem := tau_mode_problem(self.mode)):
             raise ValueError(f"{'activity' if self.activity == 'tau_c' else 'tau_c'}: {problem}")
         return self
@@ -70,4 +69,4 @@ class EstimatorSection(StrictModel):
     @property
     def lags(self) -> int:
         """K, the τc lags in frames (``max_lag`` or its default)."""
-        return self.max_lag if self.max_lag is not None else default_max_lag(self.window, self.lag)
+        return self.max_lag if self.max_lag is not None else default_max_lag(self.window)

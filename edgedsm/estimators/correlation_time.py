@@ -60,9 +60,24 @@ TAU_FLOOR = 1.0 / 3.0  # frames: e^-3 = 5 % correlation left after one frame
 TAU_MODES = ("sliding", "tumbling")
 
 
-def default_max_lag(window: int, lag: int) -> int:
-    """K, the longest τc lag in frames when none is given: twice the lag m, at most N - 2."""
-    return max(1, min(2 * lag, window - 2))
+def longest_lag(window: int) -> int:
+    """The longest lag K an N-frame window allows: N - 2 (the fit needs K < N - 1)."""
+    return window - 2
+
+
+def max_lag_problem(max_lag: int, window: int) -> str | None:
+    """Why K = ``max_lag`` does not fit an N-frame window (None: it does); the one statement of it."""
+    if 1 <= max_lag <= longest_lag(window):
+        return None
+    return f"max_lag K={max_lag} does not fit a window of N={window} frames (need 1 <= K <= N-2)"
+
+
+def default_max_lag(window: int) -> int:
+    """K, the longest τc lag in frames when none is given: N/2 (rounded down, at least 1, at most
+    N - 2). The multi-tau lags make the count grow as log K (N = 200: 14 lags up to 100, against 9
+    up to 20), so a slow process is timed up to N/2·Δt for about the cost of a short ladder;
+    beyond N/2 fewer than N/2 pairs are left per lag and the window-mean bias dominates."""
+    return max(1, min(window // 2, longest_lag(window)))
 
 
 def tau_threshold_problem(wet_below_s: float, dry_above_s: float, hysteresis: float, lags: int,
@@ -239,6 +254,7 @@ def _fit_chunk(y: np.ndarray, grid: np.ndarray, g: np.ndarray,
     parabola through its neighbours in log τ, then one more parabola through exact residuals
     a quarter step apart. w is kept in [0, 1/d], i.e. A in [0, 1]."""
     _, sum_gg, w_top, c, delta = model
+    a = -1.0 / n
     sum_yy = np.einsum("kp,kp->p", y, y)[:, None]  # (P, 1)
     g_y = y.T @ g.T  # (P, G): Σ_k g_k(τ_g)·y_k, the one O(L·G) step
     w = np.clip(g_y / sum_gg, 0.0, w_top)
@@ -260,9 +276,14 @@ def _fit_chunk(y: np.ndarray, grid: np.ndarray, g: np.ndarray,
     fitted_amp = w_best * c / (1.0 - w_best * delta[best])  # A = w·c/(1 - w·δ)
     lag_max = float(lags[-1])
     status = np.full(y.shape[1], MEASURED, np.int8)
-    # nothing to time: the fitted correlation left at lag 1 is within noise (2/sqrt(N) is two
-    # standard errors of a white-noise sample correlation) or below LAG1_MIN
-    below = (tau < TAU_FLOOR) | (fitted_amp * np.exp(-1.0 / tau) < max(LAG1_MIN, 2.0 / math.sqrt(n)))
+    # nothing to time: the correlation at the shortest lag is within noise (2/sqrt(N) is two
+    # standard errors of a white-noise sample correlation) or below LAG1_MIN, as fitted or as
+    # measured. The measured one matters at long K: a white-noise pixel's long lags scatter by
+    # 1/sqrt(N-k), and a slow decay with a large amplitude (which the window-mean bias bends
+    # below zero there) can fit that scatter better than no correlation at all; it read "above
+    # K" for 11 % of pure-noise pixels at K = N/2 = 100 (docs/tau_c.md, "The longest lag")
+    noise = max(LAG1_MIN, 2.0 / math.sqrt(n))
+    below = (tau < TAU_FLOOR) | (fitted_amp * np.exp(-1.0 / tau) < noise) | (y[0] + a / c < noise)
     above = ~below & ((best == grid.size - 1) | (tau > lag_max))
     status[above] = ABOVE
     status[below] = BELOW
@@ -376,10 +397,8 @@ def _check(frames: np.ndarray, max_lag: int) -> np.ndarray:
     stack = check_frames(frames)
     if isinstance(max_lag, bool) or not isinstance(max_lag, int | np.integer):
         raise EstimatorError(f"max_lag must be an integer number of frames, got {max_lag!r}")
-    n = stack.shape[0]
-    if not 1 <= max_lag < n - 1:
-        raise EstimatorError(f"max_lag K={max_lag} does not fit a window of N={n} frames "
-                             "(need 1 <= K < N-1)")
+    if problem := max_lag_problem(max_lag, stack.shape[0]):
+        raise EstimatorError(problem)
     return stack
 
 

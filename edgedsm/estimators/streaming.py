@@ -33,7 +33,7 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.correlation_time import TauC, _check_mask, default_max_lag, tau_lags, tau_mode_problem
+from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags, tau_mode_problem
 from edgedsm.estimators.fixed_point import _NO_LUT, ratio_kind, ratio_lut, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
 
@@ -99,7 +99,7 @@ class SlidingWindow:
             and so do frames under PARALLEL_MIN_PIXELS (65 536) pixels, run on one thread.
         resync_every: sliding mode only: recompute the sums from the ring every this many
             frames (None: never; the sums are exact, this only guards against bad memory).
-        max_lag: K, the longest lag of "tau_c" (None: min(2m, N-2)); 1 <= K <= N-2. τc is
+        max_lag: K, the longest lag of "tau_c" (None: N/2); 1 <= K <= N-2. τc is
             fitted at the multi-tau lags ``tau_lags(K)`` (1, 2, 3, 4, 6, 8, 11, 15, 20 for
             K = 20), one row of lag products each. "tau_c" needs mode "sliding" or "tumbling"
             (its bias model is that of a finite window).
@@ -149,9 +149,7 @@ class SlidingWindow:
         self._do_sums = self._do_sigma or self._do_tau  # ΣI and ΣI² serve S3 and τc
         if self._do_tau and (problem := tau_mode_problem(mode)):
             raise EstimatorError(f"estimator 'tau_c': {problem}")
-        default_lag = default_max_lag(self.window, self.lag)
-        self.max_lag = default_lag if max_lag is None else _check_int("max_lag K", max_lag, 1,
-                                                                      max(1, self.window - 2))
+        self.max_lag = tau_stream.max_lag_of(self.window, max_lag)
         self.tau_lags = tau_lags(self.max_lag)  # the lags τc keeps products for (frames)
         if self._do_tau and self.window < 3:
             raise EstimatorError("estimator 'tau_c' needs a window of at least 3 frames (K < N-1)")

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators.correlation_time import TauC, _check_mask, fit_pooled, tau_lags
+from edgedsm.estimators.correlation_time import TauC, _check_mask, fit_pooled, max_lag_problem, tau_lags
 
 try:
     import numba
@@ -196,9 +196,8 @@ class TumblingRegionTau:
             raise EstimatorError(f"1 to {MAX_REGIONS} regions, got {len(regions)}")
         if not 1 <= bits <= 16:
             raise EstimatorError(f"bits must be 1..16, got {bits}")
-        if not 1 <= max_lag <= window - 2:
-            raise EstimatorError(f"max_lag K={max_lag} does not fit a window of N={window} frames "
-                                 "(need 1 <= K < N-1)")
+        if problem := max_lag_problem(max_lag, window):
+            raise EstimatorError(problem)
         top = (1 << bits) - 1
         self._window_chunk = _window_chunk(window, top)
         if self._window_chunk < 1:

@@ -16,9 +16,30 @@ from __future__ import annotations
 
 import numpy as np
 
-from edgedsm.estimators.correlation_time import TauC, covariances_from_sums, fit_map, fit_pooled, tau_lags
+from edgedsm.errors import EstimatorError
+from edgedsm.estimators.correlation_time import (
+    TauC,
+    covariances_from_sums,
+    default_max_lag,
+    fit_map,
+    fit_pooled,
+    max_lag_problem,
+    tau_lags,
+)
 
 _INT32_MAX = 2**31 - 1
+
+
+def max_lag_of(window: int, max_lag: int | None) -> int:
+    """The engine's K: ``max_lag``, or the default N/2 when None; a K that does not fit the window
+    is refused (K = 1 passes at N = 2, where τc is refused on its own: N < 3)."""
+    if max_lag is None:
+        return default_max_lag(window)
+    if isinstance(max_lag, bool) or not isinstance(max_lag, int | np.integer):
+        raise EstimatorError(f"max_lag K must be an integer, got {max_lag!r}")
+    if (problem := max_lag_problem(int(max_lag), window)) and max_lag != 1:
+        raise EstimatorError(problem)
+    return int(max_lag)
 
 
 def product_dtype(window: int, bits: int) -> type[np.signedinteger]:

@@ -17,7 +17,7 @@ TAU_REGION = "[[regions]]\nname = 'plate'\nwet_below_s = 0.2\ndry_above_s = 0.5\
 
 def test_tau_c_is_off_unless_asked_for_or_needed():
     plain = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<plain>")
-    assert not plain.tau_c_on and plain.estimator.lags == 20  # min(2m, N-2) with m = 10, N = 200
+    assert not plain.tau_c_on and plain.estimator.lags == 100  # N/2 with N = 200
     asked = validate(DaemonConfig, {"camera": {"uri": "sim:default"}, "estimator": {"tau_c": True}}, "<asked>")
     assert asked.tau_c_on and asked.regions[0].thresholds().on_tau is False
     needed = validate(DaemonConfig, {"camera": {"uri": "sim:default"}, "regions": [
@@ -29,7 +29,7 @@ def test_tau_c_is_off_unless_asked_for_or_needed():
     judged = validate(DaemonConfig, {"camera": {"uri": "sim:default"}, "estimator": {"activity": "tau_c", "window": 50,
                                                                                      "lag": 2}, "regions": [
         {"name": "b", "wet_below_s": 0.2, "dry_above_s": 0.5}]}, "<judged>")
-    assert judged.tau_c_on and judged.estimator.lags == 4
+    assert judged.tau_c_on and judged.estimator.lags == 25  # N/2, N = 50
 
 
 @pytest.mark.parametrize(("text", "message"), [
@@ -47,7 +47,7 @@ def test_tau_c_is_off_unless_asked_for_or_needed():
     (CAMERA + "[[regions]]\nname = 'a'\nwet_below_s = 0\ndry_above_s = 0.5\n",
      "regions.0.wet_below_s: Input should be greater than 0"),
     (CAMERA + "[estimator]\nwindow = 20\nlag = 2\nmax_lag = 19\n",
-     "estimator: Value error, max_lag (19) must be at most window - 2 (18)"),
+     "estimator: Value error, max_lag K=19 does not fit a window of N=20 frames (need 1 <= K <= N-2)"),
     (CAMERA + "[estimator]\nmax_lag = 0\n", "estimator.max_lag: Input should be greater than or equal to 1"),
     (CAMERA + "[estimator]\ntau_c = true\nmode = 'exponential'\n",
      "estimator: Value error, tau_c: τc needs mode 'sliding' or 'tumbling', not 'exponential'"),
@@ -55,7 +55,7 @@ def test_tau_c_is_off_unless_asked_for_or_needed():
      "estimator: Value error, activity: τc needs mode 'sliding' or 'tumbling'"),
     (CAMERA + "[estimator]\nmode = 'exponential'\n" + TAU_REGION,
      "regions.0.wet_below_s: τc thresholds in seconds: estimator.mode: τc needs mode 'sliding' or 'tumbling'"),
-    (CAMERA + "frame_interval_s = 0.05\n[estimator]\nwindow = 100\nlag = 5\n" + TAU_REGION,
+    (CAMERA + "frame_interval_s = 0.05\n[estimator]\nwindow = 20\nlag = 5\n" + TAU_REGION,
      "regions.0: dry_above_s (0.5 s; 0.5263 s with the hysteresis) is beyond the longest τc measured, "
      "estimator.max_lag x Δt = 10 x 0.05 s = 0.5 s"),
     (CAMERA + "frame_interval_s = 0.7\n[estimator]\nwindow = 100\nlag = 5\n" + TAU_REGION,

@@ -108,8 +108,9 @@ def test_resync_reproduces_the_lag_products():
 
 
 def test_default_max_lag_and_refusals():
-    assert SlidingWindow((4, 4), 200, 10, estimators=["tau_c"]).max_lag == 20
-    assert SlidingWindow((4, 4), 12, 10, estimators=["tau_c"]).max_lag == 10
+    assert SlidingWindow((4, 4), 200, 10, estimators=["tau_c"]).max_lag == 100  # N/2
+    assert SlidingWindow((4, 4), 12, 10, estimators=["tau_c"]).max_lag == 6
+    assert SlidingWindow((4, 4), 3, 1, estimators=["tau_c"]).max_lag == 1  # at most N-2
     with pytest.raises(EstimatorError, match="sliding' or 'tumbling"):
         SlidingWindow((4, 4), 50, 5, estimators=["tau_c"], mode="exponential")
     with pytest.raises(EstimatorError, match="max_lag"):
