@@ -81,6 +81,7 @@ def main() -> int:
     parser.add_argument("--lag", type=int, default=5)
     parser.add_argument("--every", type=int, default=200)
     parser.add_argument("--max-lag", type=int, default=20)
+    parser.add_argument("--also-max-lag", type=int, metavar="K", help="also run analyze --timeline with this K")
     parser.add_argument("--part", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.part:
@@ -100,7 +101,9 @@ def main() -> int:
                           ("decode + push, S1-S3", [python, __file__, args.folder, *shape, "--part", "push-s123"]),
                           ("decode + push, S1-S3 + τc", [python, __file__, args.folder, *shape, "--part", "push-tau"]),
                           ("analyze --timeline", timeline),
-                          ("analyze --timeline --no-tau-c", [*timeline, "--no-tau-c"])):
+                          ("analyze --timeline --no-tau-c", [*timeline, "--no-tau-c"]),
+                          *([(f"analyze --timeline --max-lag {args.also_max_lag}",
+                              [*timeline, "--max-lag", str(args.also_max_lag)])] if args.also_max_lag else [])):
         runs[name] = measure(command)
         print(f"{name:32s} {runs[name][0]:7.1f} s  peak RSS {runs[name][1]:5.2f} GiB", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.1f}")

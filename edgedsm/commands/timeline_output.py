@@ -29,10 +29,12 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
                        help="write timeline.csv, timeline.png and histogram.png to OUT_DIR")
     group.add_argument("-c", "--config", metavar="CONFIG.toml", help="take the regions from this daemon config")
     group.add_argument("--every", type=int, metavar="FRAMES", help="frames between samples (default N/4)")
-    group.add_argument("--max-lag", type=int, default=20, metavar="K", help="lags fitted for τc (default 20)")
+    group.add_argument("--max-lag", type=int, default=20, metavar="K",
+                       help="longest lag fitted for τc (default 20; N/2 times slower stages: disjoint sets keep "
+                            "the last K frames, K bytes per pixel at 8 bits)")
     group.add_argument("--no-tau-c", dest="with_tau", action="store_false",
-                       help="leave τc out: its sums are most of the memory (about 250 bytes per pixel at "
-                            "K = 20, against 45 for S1-S3); the τc columns then read 'off'")
+                       help="leave τc out: its sums cost about 43 bytes per pixel on disjoint sets (K = 20) and "
+                            "250 on overlapping ones, against 45 for S1-S3; the τc columns then read 'off'")
     group.add_argument("--dt", type=float, metavar="SECONDS",
                        help="frame interval (default: the scene's, the config's camera.frame_interval_s, else 1)")
     group.add_argument("--frames", dest="frame_count", type=int, metavar="COUNT",
