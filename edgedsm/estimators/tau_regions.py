@@ -15,7 +15,7 @@ All of it is integer. Summed over the region's pixels, ΣP_k and ΣQ pool as the
 (a few scalars per frame); only ΣT·E_k and ΣT² need per-pixel values, once, at the window's
 end: T, the sums of the first k frames (at the lags k of ``tau_lags(K)``) and the last K
 frames (a ring that also gives each new frame its lag partners). Per pixel that is
-K frames + L head sums + T: 43 bytes for 8-bit data at K = 20 (L = 9), against the engine's
+K frames + L head sums + T: 41 bytes for 8-bit data at K = 20 (L = 9) and N <= 257, against the engine's
 ~250 (its lag products, edge sums and their copies). Hence::
 
     Ĉ(k) = [N²·ΣP_k + N·ΣT·E_k - (N+k)·ΣT²] / [(N-k)·(N·ΣQ - ΣT²)]
@@ -60,28 +60,38 @@ def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., An
 
 
 @_compiled(parallel=True, nogil=True)
-def _frame_kernel(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, slots: np.ndarray, pairs: int,
-                  write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
+def _frame_kernel(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, uniform: np.ndarray, slots: np.ndarray,
+                  pairs: int, write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
                   head: np.ndarray, chunk: int, out: np.ndarray) -> None:
     """One frame: out[c, a, j] += Σ I·I_{-k_j} (j < pairs), out[c, a, L] += Σ I² over the pixels
     of chunk c in atom a+1; T += I; head rows j >= head_from += I; the frame into ring[write].
 
     Per chunk and atom the frame is masked once (0 outside the atom), then each lag is a plain
     multiply-add over the chunk, which vectorises (a test of the label inside the lag loops
-    does not)."""
+    does not). A chunk wholly in one atom (``uniform[c]`` = its label) takes the frame as it is;
+    a chunk in no region (``uniform[c]`` = -1) is skipped (its sums are never read)."""
     pixels = frame.size
     lags = lag_values.size
     atoms = out.shape[1]
     for c in numba.prange(out.shape[0]):
+        if uniform[c] < 0:
+            continue
         lo = c * chunk
         hi = min(pixels, lo + chunk)
         masked = np.empty(hi - lo, np.int64)
         for atom in range(atoms):
-            present = 0
-            for p in range(lo, hi):
-                inside = labels[p] == atom + 1
-                masked[p - lo] = np.int64(frame[p]) if inside else 0
-                present += inside
+            if uniform[c] > 0 and uniform[c] != atom + 1:
+                continue
+            present = hi - lo
+            if uniform[c] > 0:
+                for p in range(lo, hi):
+                    masked[p - lo] = frame[p]
+            else:
+                present = 0
+                for p in range(lo, hi):
+                    inside = labels[p] == atom + 1
+                    masked[p - lo] = np.int64(frame[p]) if inside else 0
+                    present += inside
             if present == 0:
                 continue
             acc = np.int64(0)
@@ -125,8 +135,8 @@ def _window_kernel(total: np.ndarray, head: np.ndarray, ring: np.ndarray, labels
                 out[c, atom, j] += t * (np.int64(head[j, p]) + tail)
 
 
-def _frame_numpy(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, slots: np.ndarray, pairs: int,
-                 write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
+def _frame_numpy(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, uniform: np.ndarray, slots: np.ndarray,
+                 pairs: int, write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
                  head: np.ndarray, chunk: int, out: np.ndarray) -> None:
     """_frame_kernel without numba (the same sums, whole rows at a time)."""
     lags = lag_values.size
@@ -165,6 +175,15 @@ def _window_chunk(window: int, top: int) -> int:
     """Pixels per partial sum at the window's end: T·E_k < 2·(N·top)² (E_k <= 2K·top < 2N·top),
     and a chunk's sum must stay in int64 (0: not even one pixel's term fits)."""
     return min(CHUNK, 2**62 // (2 * (window * top) ** 2))
+
+
+def _chunk_atoms(labels: np.ndarray, chunk: int) -> np.ndarray:
+    """Per chunk of ``chunk`` pixels: its label when all its pixels share one atom, 0 when they
+    do not, -1 when none is in a region."""
+    pad = -labels.size % chunk
+    rows = np.concatenate((labels, np.full(pad, labels[-1], labels.dtype))).reshape(-1, chunk).astype(np.int64)
+    same = (rows == rows[:, :1]).all(axis=1)
+    return np.where(same, np.where(rows[:, 0] > 0, rows[:, 0], -1), 0)
 
 
 def atoms_of(masks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -210,15 +229,15 @@ class TumblingRegionTau:
         self.names = tuple(regions)
         masks = [_check_mask(mask, self.shape) for mask in regions.values()]
         self.labels, self._member = atoms_of(masks)
+        self._uniform = _chunk_atoms(self.labels, CHUNK)
         self.window, self.max_lag, self.bits = int(window), int(max_lag), int(bits)
         self.lags = tau_lags(self.max_lag)
         pixels = self.shape[0] * self.shape[1]
         frame_type = np.uint8 if bits <= 8 else np.uint16
         self._frame_type = np.dtype(frame_type)
         self._ring = np.zeros((self.max_lag, pixels), frame_type)  # the last K frames, frame j in slot j % K
-        # one type for every N (uint16 would save 2 bytes below N = 258 at 8 bits, at the price of
-        # a second compiled variant)
-        self._total = np.zeros(pixels, np.uint32 if window * top <= 0xFFFFFFFF else np.int64)
+        self._total = np.zeros(pixels, np.uint16 if window * top <= 0xFFFF else
+                               np.uint32 if window * top <= 0xFFFFFFFF else np.int64)
         self._head = np.zeros((self.lags.size, pixels), np.uint16 if self.max_lag * top <= 0xFFFF else np.uint32)
         atoms = self._member.shape[1]
         self._frame_out = np.zeros((-(-pixels // CHUNK), atoms, self.lags.size + 1), np.int64)
@@ -246,8 +265,8 @@ class TumblingRegionTau:
         out = self._frame_out
         out.fill(0)
         kernel = _frame_kernel if numba is not None else _frame_numpy
-        kernel(frame.reshape(-1), self._ring, self.labels, slots, pairs, position % self.max_lag, position == 0,
-               head_from, self.lags, self._total, self._head, CHUNK, out)
+        kernel(frame.reshape(-1), self._ring, self.labels, self._uniform, slots, pairs, position % self.max_lag,
+               position == 0, head_from, self.lags, self._total, self._head, CHUNK, out)
         self._add(out)
         self.frames_seen += 1
         if position < self.window - 1:

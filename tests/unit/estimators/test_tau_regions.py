@@ -112,8 +112,8 @@ def test_constant_region_has_no_signal_and_the_window_restarts() -> None:
 
 def test_memory_per_pixel_is_the_ring_and_head_sums() -> None:
     pooled = TumblingRegionTau((H, W), _regions(), 200, 20, 8)
-    # 20 frames + 9 head sums (uint16) + T (uint32) + the atom label (uint8)
-    assert pooled.bytes_per_pixel == 20 + 9 * 2 + 4 + 1
+    # 20 frames + 9 head sums (uint16) + T (uint16: 200 x 255 fits) + the atom label (uint8)
+    assert pooled.bytes_per_pixel == 20 + 9 * 2 + 2 + 1
     engine = SlidingWindow((H, W), 200, 5, bits=8, mode="tumbling", estimators=("s1", "s2", "s3", "tau_c"),
                            max_lag=20)
     plain = SlidingWindow((H, W), 200, 5, bits=8, mode="tumbling", estimators=("s1", "s2", "s3"))
