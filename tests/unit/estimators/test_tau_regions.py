@@ -25,14 +25,14 @@ def _regions() -> dict[str, np.ndarray]:
             "pixel": (y == 3) & (x == 40)}
 
 
-def _random(count: int, bits: int, seed: int) -> np.ndarray:
+def _random(count: int, bits: int, seed: int, shape: tuple[int, int] = (H, W)) -> np.ndarray:
     # complex Gaussian AR(1) field (τc = 4 frames in intensity) scaled to the bit depth
     rng = np.random.default_rng(seed)
     r = np.exp(-1 / 8)
-    field = rng.standard_normal((2, H, W))
-    frames = np.empty((count, H, W), np.uint8 if bits <= 8 else np.uint16)
+    field = rng.standard_normal((2, *shape))
+    frames = np.empty((count, *shape), np.uint8 if bits <= 8 else np.uint16)
     for t in range(count):
-        field = r * field + np.sqrt(1 - r * r) * rng.standard_normal((2, H, W))
+        field = r * field + np.sqrt(1 - r * r) * rng.standard_normal((2, *shape))
         frames[t] = np.clip((field**2).sum(axis=0) * (2**bits / 8), 0, 2**bits - 1)
     frames[:, 0, :5] = frames[0, 0, :5]  # constant pixels: σ = 0
     return frames
@@ -84,6 +84,31 @@ def test_region_tau_equals_the_engines(path: str, source: str, bits: int, window
         assert pooled.tau == pytest.approx(engine.tau, rel=1e-12, abs=1e-12), name
         measured += engine.status == MEASURED
     assert measured >= len(pairs) - 3  # the one-pixel region may read otherwise
+
+
+@pytest.mark.parametrize("layout", ["one region", "chunks whole, empty and mixed"])
+def test_chunks_wholly_in_one_region_or_in_none(path: str, layout: str) -> None:
+    # 96 x 128 = 3 chunks of 4096 pixels: rows 0-31, 32-63, 64-95
+    shape = (96, 128)
+    regions = {"all": np.ones(shape, bool)}
+    if layout != "one region":
+        regions = {"top": np.zeros(shape, bool), "corner": np.zeros(shape, bool)}
+        regions["top"][:32] = True  # chunk 0 wholly in it, chunk 1 in no region
+        regions["corner"][90:, :7] = True  # chunk 2 mixed
+    assert tau_regions.CHUNK == 4096
+    frames = _random(90, 8, seed=7, shape=shape)
+    engine = SlidingWindow(shape, 40, 3, bits=8, mode="tumbling", estimators=("s1", "tau_c"), max_lag=12)
+    pooled = TumblingRegionTau(shape, regions, 40, 12, 8)
+    compared = 0
+    for frame in frames:
+        engine.push(frame)
+        if result := pooled.push(frame):
+            for name, mask in regions.items():
+                expected = engine.region_tau_c(mask)
+                assert result[name].status == expected.status == MEASURED
+                assert result[name].tau == pytest.approx(expected.tau, rel=1e-12)
+                compared += 1
+    assert compared == 2 * len(regions)
 
 
 def test_the_compiled_and_numpy_paths_agree_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
