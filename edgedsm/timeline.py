@@ -12,7 +12,7 @@ the same frames, from exact sums of each completed set, without the ring of N fr
 window keeps (the memory of a set follows the lag m, not N). The regions' τc then come from
 :class:`~edgedsm.estimators.tau_regions.TumblingRegionTau`, which pools the lag products over
 each region as the frames arrive instead of keeping them per pixel (the engine then keeps no τc
-sums: about 43 bytes per pixel instead of 250 at K = 20), with the engine's values to rounding.
+sums: about 41 bytes per pixel instead of 250 at K = 20 and 8 bits), with the engine's values to rounding.
 """
 
 from __future__ import annotations

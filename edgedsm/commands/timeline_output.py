@@ -33,7 +33,7 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
                        help="longest lag fitted for τc (default 20; N/2 times slower stages: disjoint sets keep "
                             "the last K frames, K bytes per pixel at 8 bits)")
     group.add_argument("--no-tau-c", dest="with_tau", action="store_false",
-                       help="leave τc out: its sums cost about 43 bytes per pixel on disjoint sets (K = 20) and "
+                       help="leave τc out: its sums cost about 41 bytes per pixel on disjoint sets (K = 20) and "
                             "250 on overlapping ones, against 45 for S1-S3; the τc columns then read 'off'")
     group.add_argument("--dt", type=float, metavar="SECONDS",
                        help="frame interval (default: the scene's, the config's camera.frame_interval_s, else 1)")

@@ -88,3 +88,25 @@ def test_pure_noise_is_never_a_tau(bits: int, mean: float) -> None:
 def test_constant_frames_have_no_signal(bits: int) -> None:
     frames = np.full((50, 6, 6), 7, np.uint8 if bits == 8 else np.uint16)
     assert tau_c_bounds(frames, max_lag=default_max_lag(50), mask=np.ones((6, 6), bool)) == (0.0, NO_SIGNAL)
+
+
+def test_a_darkening_drying_film_keeps_rising_through_its_stages() -> None:
+    # config/scenes/darkening_film.toml at 64²: τc 2 -> 200 frames while the light falls to a
+    # tenth; disjoint sets of N = 200 frames (docs/tau_c.md, "The longest lag")
+    import tomllib
+    from pathlib import Path
+
+    from edgedsm.sim import Simulator, scene_from_dict
+    from edgedsm.timeline import timeline
+
+    path = Path(__file__).parents[3] / "config" / "scenes" / "darkening_film.toml"
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    data["scene"]["size"] = 64
+    frames = list(Simulator(scene_from_dict(data)).frames(1200))
+    regions = {"film": np.ones((64, 64), bool)}
+    full = timeline(iter(frames), regions, 200, 5, 200, max_lag=default_max_lag(200), bits=8)
+    short = timeline(iter(frames), regions, 200, 5, 200, max_lag=20, bits=8)
+    taus, statuses = full.series("film", "tau_c_frames"), [row[8] for row in full.rows]
+    assert statuses == ["measured"] * 5 + ["above"]  # the last set's τc (126…200) is beyond N/2
+    assert np.all(np.diff(taus[:5]) > 0) and 1.5 < taus[0] < 3 and 50 < taus[4] < 100
+    assert [row[8] for row in short.rows][3:] == ["above"] * 3
