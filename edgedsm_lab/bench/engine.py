@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.estimators import SlidingWindow, all_maps
-from edgedsm.estimators.correlation_time import default_max_lag
+from edgedsm.estimators.correlation_time import longest_lag
 from edgedsm_lab.bench.engine_report import MODES, Row, noise_table, plot, speed_table
 from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
@@ -172,7 +172,7 @@ def exact_s2(samples: np.ndarray, lag: int) -> np.ndarray:
 def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, threads: int | None,
               pool: list[np.ndarray], log: Callable[[str], None]) -> list[dict[str, Any]]:
     """Sliding pushes with τc (K = 2m), alone and beside S1, S2, S3: ms/frame and maps() ms."""
-    lags = default_max_lag(window, lag)
+    lags = max(1, min(2 * lag, longest_lag(window)))  # K = 2m, as the tables before the N/2 default
     out = []
     for estimators in (("s1", "s2", "s3"), ("tau_c",), ("s1", "s2", "s3", "tau_c")):
         engine = SlidingWindow(shape, window, lag, bits=8, kernel=kernel, threads=threads,
