@@ -25,7 +25,7 @@ import numpy as np
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL, TauC
-from edgedsm.estimators.tau_regions import TumblingRegionTau
+from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
 
 STATUS_NAMES = {MEASURED: "measured", ABOVE: "above", BELOW: "below", NO_SIGNAL: "no_signal"}
 COLUMNS = ("frame", "time_s", "region", "s1", "s2", "s3", "tau_c_frames", "tau_c_s", "tau_c_status")
@@ -88,12 +88,13 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
                 if mask.shape != frame.shape:
                     raise EstimatorError(f"region {name!r} is {mask.shape[1]}x{mask.shape[0]}, "
                                          f"the frames {frame.shape[1]}x{frame.shape[0]}")
-            in_engine = with_tau and mode != "tumbling"
+            depth = bits or 8 * frame.dtype.itemsize
+            in_engine = with_tau and (mode != "tumbling" or int64_problem(frame.shape, window, depth) is not None)
             estimators = ("s1", "s2", "s3", "tau_c") if in_engine else ("s1", "s2", "s3")
             engine = SlidingWindow(frame.shape, window, lag, bits=bits, mode=mode, estimators=estimators,
                                    max_lag=max_lag if in_engine else None)
             if with_tau and not in_engine:
-                pooled = TumblingRegionTau(frame.shape, regions, window, max_lag, bits or 8 * frame.dtype.itemsize)
+                pooled = TumblingRegionTau(frame.shape, regions, window, max_lag, depth)
         engine.push(frame)
         if pooled is not None:
             pooled.push(frame)

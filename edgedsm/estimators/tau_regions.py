@@ -177,6 +177,17 @@ def _window_chunk(window: int, top: int) -> int:
     return min(CHUNK, 2**62 // (2 * (window * top) ** 2))
 
 
+def int64_problem(shape: tuple[int, int], window: int, bits: int) -> str | None:
+    """Why the partial sums would leave int64 (None: they stay in it): a frame's Σ I·I' (below
+    pixels·(2^bits - 1)²) or one pixel's window-end term T·E_k (below 2·(N·(2^bits - 1))²)."""
+    top = (1 << bits) - 1
+    if _window_chunk(window, top) < 1:
+        return f"a window of N={window} {bits}-bit frames is too long for exact int64 sums (use the engine's τc)"
+    if int(shape[0]) * int(shape[1]) * top * top >= 2**63:
+        return f"a {shape[1]}x{shape[0]} frame of {bits}-bit data is too large for exact int64 sums of one frame"
+    return None
+
+
 def _chunk_atoms(labels: np.ndarray, chunk: int) -> np.ndarray:
     """Per chunk of ``chunk`` pixels: its label when all its pixels share one atom, 0 when they
     do not, -1 when none is in a region."""
@@ -217,15 +228,11 @@ class TumblingRegionTau:
             raise EstimatorError(f"bits must be 1..16, got {bits}")
         if problem := max_lag_problem(max_lag, window):
             raise EstimatorError(problem)
+        if problem := int64_problem(shape, window, bits):
+            raise EstimatorError(problem)
         top = (1 << bits) - 1
         self._window_chunk = _window_chunk(window, top)
-        if self._window_chunk < 1:
-            raise EstimatorError(f"a window of N={window} {bits}-bit frames is too long for exact int64 sums "
-                                 "(use the engine's region_tau_c)")
         self.shape = (int(shape[0]), int(shape[1]))
-        if self.shape[0] * self.shape[1] * top * top >= 2**63:
-            raise EstimatorError(f"a {self.shape[1]}x{self.shape[0]} frame of {bits}-bit data is too large for exact "
-                                 "int64 sums of one frame")
         self.names = tuple(regions)
         masks = [_check_mask(mask, self.shape) for mask in regions.values()]
         self.labels, self._member = atoms_of(masks)

@@ -133,3 +133,21 @@ def test_without_tau_c_the_same_activity_and_tau_columns_off(tmp_path: Path) -> 
     for a, b in zip(runs["with"], runs["without"], strict=True):
         assert [a[c] for c in ("frame", "s1", "s2", "s3")] == [b[c] for c in ("frame", "s1", "s2", "s3")]
         assert a["tau_c_status"] != "off" and b["tau_c_status"] == "off" and b["tau_c_frames"] == "nan"
+
+
+def test_disjoint_sets_too_long_for_pooled_int64_sums_take_the_engines_tau(monkeypatch: pytest.MonkeyPatch) -> None:
+    # windows whose window-end sums would leave int64 (16-bit N > 23 170) take τc from the engine:
+    # the same values, to rounding
+    import edgedsm.timeline as module
+    from edgedsm.estimators.tau_regions import int64_problem
+
+    assert int64_problem((8, 8), 23_000, 16) is None and "too long" in int64_problem((8, 8), 24_000, 16)
+    rng = np.random.default_rng(8)
+    frames = rng.poisson(40.0, size=(64, 16, 16)).astype(np.uint8)
+    regions = {"all": np.ones((16, 16), bool)}
+    pooled = timeline(iter(frames), regions, window=32, lag=2, every=32, max_lag=6)
+    monkeypatch.setattr(module, "int64_problem", lambda *args: "too long")
+    engine = timeline(iter(frames), regions, window=32, lag=2, every=32, max_lag=6)
+    for a, b in zip(pooled.rows, engine.rows, strict=True):
+        np.testing.assert_allclose(a[6], b[6], rtol=1e-12)
+        assert a[8] == b[8]
