@@ -36,7 +36,8 @@ Results (units: frames, i.e. Δt), with a status per value (:data:`MEASURED` ...
 - ABOVE (1): the fitted τ exceeds K (no decorrelation worth the name within K lags): τ = K,
   to be read as "> K·Δt".
 - BELOW (-1): no correlation left at lag 1 (fitted A·e^(-1/τ) below max(LAG1_MIN, 2/sqrt(N)),
-  i.e. within noise, or τ < TAU_FLOOR): τ = TAU_FLOOR, to be read as "< TAU_FLOOR·Δt".
+  i.e. within noise; a fit beyond K whose measured shortest-lag Ĉ is within that noise; or
+  τ < TAU_FLOOR): τ = TAU_FLOOR, to be read as "< TAU_FLOOR·Δt".
 - NO_SIGNAL (2): σ = 0 (constant, dead or saturated pixel): τ = 0.0; regions leave such
   pixels out (all of them constant: τ = 0.0, NO_SIGNAL).
 
@@ -276,15 +277,16 @@ def _fit_chunk(y: np.ndarray, grid: np.ndarray, g: np.ndarray,
     fitted_amp = w_best * c / (1.0 - w_best * delta[best])  # A = w·c/(1 - w·δ)
     lag_max = float(lags[-1])
     status = np.full(y.shape[1], MEASURED, np.int8)
-    # nothing to time: the correlation at the shortest lag is within noise (2/sqrt(N) is two
-    # standard errors of a white-noise sample correlation) or below LAG1_MIN, as fitted or as
-    # measured. The measured one matters at long K: a white-noise pixel's long lags scatter by
+    # nothing to time: the fitted correlation left at the shortest lag is within noise (2/sqrt(N)
+    # is two standard errors of a white-noise sample correlation) or below LAG1_MIN. A fit beyond
+    # K needs the *measured* one above it too: a white-noise pixel's long lags scatter by
     # 1/sqrt(N-k), and a slow decay with a large amplitude (which the window-mean bias bends
     # below zero there) can fit that scatter better than no correlation at all; it read "above
     # K" for 11 % of pure-noise pixels at K = N/2 = 100 (docs/tau_c.md, "The longest lag")
     noise = max(LAG1_MIN, 2.0 / math.sqrt(n))
-    below = (tau < TAU_FLOOR) | (fitted_amp * np.exp(-1.0 / tau) < noise) | (y[0] + a / c < noise)
-    above = ~below & ((best == grid.size - 1) | (tau > lag_max))
+    beyond = (best == grid.size - 1) | (tau > lag_max)
+    below = (tau < TAU_FLOOR) | (fitted_amp * np.exp(-1.0 / tau) < noise) | (beyond & (y[0] + a / c < noise))
+    above = ~below & beyond
     status[above] = ABOVE
     status[below] = BELOW
     tau = np.where(above, lag_max, np.where(below, TAU_FLOOR, tau))
