@@ -259,10 +259,10 @@ class SlidingWindow:
         # small frames: waking worker threads would cost more than the whole pass
         parallel = self.shape[0] * self.shape[1] >= PARALLEL_MIN_PIXELS
         self._parallel = parallel and self.kernel == "numba"
+        self._maps_step = kernels.maps_kernel(*flags, parallel, self.mode == "exponential")
         if self.mode == "exponential":
             self._step_exp = kernels.exponential_kernel(*flags, parallel)
         else:
-            self._maps_step = kernels.maps_kernel(*flags, parallel)
             # "grow": add only (tumbling, and sliding until N frames are in); "slide": add+remove
             self._step_grow = kernels.window_kernel(*sum_flags, kind, False, parallel)
             narrow = np.dtype(self._layout(bits)["products"][1]) == np.dtype(np.int32)
@@ -514,12 +514,8 @@ class SlidingWindow:
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
                                  f"{self.window} frames pushed (check .ready)")
-        if self.mode == "exponential":
-            flat = self._exponential_maps()
-        elif set(wanted) <= {"tau_c"}:
-            flat = {}
-        else:
-            flat = self._window_maps("" if self.mode == "sliding" else "done_")
+        only_tau = set(wanted) <= {"tau_c"}
+        flat = {} if only_tau else self._window_maps("" if self.mode != "tumbling" else "done_")
         return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
                 for name in wanted}
 
@@ -612,7 +608,8 @@ class SlidingWindow:
             shape=self.shape, mode=self.mode, estimators=wanted, window=self.window,
             pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
             sums=sums,
-            weight_frames=self._weight_frames, maps_step=self._kernels.maps_kernel(*flags, False))
+            weight_frames=self._weight_frames,
+            maps_step=self._kernels.maps_kernel(*flags, False, self.mode == "exponential"))
 
     def tau_snapshot(self, into: TauSnapshot | None = None) -> TauSnapshot:
         """Copies of the integer sums τc is formed from (needs "tau_c"): about L+4 sums of
@@ -650,29 +647,18 @@ class SlidingWindow:
                            edges=edges, ends=ends)
 
     def _window_maps(self, prefix: str) -> dict[str, np.ndarray]:
-        """S1, S2, S3 and σ from the integer sums, one fused pass (see maps_kernel)."""
+        """S1, S2, S3 and σ from the sums, one fused pass (see maps_kernel)."""
         arrays = self._arrays
+        exponential = self.mode == "exponential"
         n_px = self.shape[0] * self.shape[1]
         out = {name: np.empty(n_px if wanted else 0) for name, wanted in
                (("s1", self._do_abs), ("s2", self._do_ratio), ("s3", self._do_sigma),
                 ("sigma", self._do_sigma))}
         # S1 is the correctly rounded Σ|ΔI|/(N-m), as in batch.s1; 2^-K is exact
-        self._maps_step(arrays[prefix + "abs"], arrays[prefix + "ratio"],
-                        arrays[prefix + "total"], arrays[prefix + "total_sq"], self.pairs,
-                        2.0**-self.scale_bits, self.window, out["s1"], out["s2"], out["s3"],
-                        out["sigma"])
-        return out
-
-    def _exponential_maps(self) -> dict[str, np.ndarray]:
-        arrays = self._arrays
-        out: dict[str, np.ndarray] = {}
-        if self._do_abs:
-            out["s1"] = arrays["abs"].copy()
-        if self._do_ratio:
-            out["s2"] = arrays["ratio"].copy()
-        if self._do_sigma:
-            sigma = np.sqrt(arrays["m2"] / self._weight_frames)  # M2 >= 0 by construction
-            out["s3"] = _safe_ratio(out["s1"], sigma)
+        second, fourth = ("m2", "m2") if exponential else (prefix + "total", prefix + "total_sq")
+        self._maps_step(arrays[prefix + "abs"], arrays[prefix + "ratio"], arrays[second], arrays[fourth],
+                        self.pairs, 2.0**-self.scale_bits, self.window, out["s1"], out["s2"], out["s3"],
+                        out["sigma"], self._weight_frames)
         return out
 
     def sigma(self) -> np.ndarray:
@@ -682,11 +668,7 @@ class SlidingWindow:
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
                                  f"{self.window} frames pushed (check .ready)")
-        if self.mode == "exponential":
-            sigma = np.sqrt(self._arrays["m2"] / self._weight_frames)
-        else:
-            sigma = self._window_maps("" if self.mode == "sliding" else "done_")["sigma"]
-        return sigma.reshape(self.shape)
+        return self._window_maps("" if self.mode != "tumbling" else "done_")["sigma"].reshape(self.shape)
 
     def _snapshot(self) -> dict[str, Any]:
         """Copies of the whole state (for tests and debugging), lag products brought up to date."""
@@ -701,10 +683,3 @@ class SlidingWindow:
         return (f"SlidingWindow(shape={self.shape}, window={self.window}, lag={self.lag}, "
                 f"q={self.q}, bits={self.bits}, estimators={self.estimators}, "
                 f"mode={self.mode!r}, kernel={self.kernel!r}, frames_seen={self.frames_seen})")
-
-
-def _safe_ratio(s1_map: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Eq. 3: S3 = S1/σ, defined as 0 where σ = 0 (every intensity of the window equal)."""
-    result = np.zeros_like(s1_map)
-    np.divide(s1_map, sigma, out=result, where=sigma > 0)
-    return result
