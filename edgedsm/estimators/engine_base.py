@@ -22,7 +22,6 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
-from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import TauC, _check_mask, default_max_lag, tau_lags, tau_mode_problem
 from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.lag_products import LagProducts
@@ -356,16 +355,14 @@ class SlidingWindow:
     def tau_c_bounds(self) -> TauC:
         """Per-pixel τc (frames) and status of the current window, equal to
         :func:`edgedsm.estimators.tau_c_bounds` on it with ``max_lag`` K."""
-        cov, var = self._tau_covariances()
-        return tau_stream.tau_map(self.window, self.max_lag, self.shape, cov, var)
+        return self._tau.tau_map(self.shape, *self._tau_covariances())
 
     def region_tau_c(self, mask: np.ndarray) -> TauC:
         """A region's τc (frames) and status from its pooled correlations (boolean (H, W)
         ``mask``), equal to ``tau_c_bounds(window, K, mask=mask)``; costs O(K) per pixel of
         the region."""
         region = _check_mask(mask, self.shape)
-        cov, var = self._tau_covariances(np.flatnonzero(region))
-        return tau_stream.tau_region(self.window, self.max_lag, cov, var)
+        return self._tau.region(*self._tau_covariances(np.flatnonzero(region)))
 
     def tau_snapshot(self, into: TauSnapshot | None = None) -> TauSnapshot:
         """Copies of the integer sums τc is formed from (needs "tau_c"): about L+4 sums of

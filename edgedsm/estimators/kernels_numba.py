@@ -6,7 +6,7 @@ Each ``*_kernel(...)`` factory returns a compiled function specialised for one s
 removal): the choices are compile-time constants, so the loop has no branches on them. (With
 run-time flags, some combinations ran up to 100x slower with numba 0.68.) The caller picks
 the kernel without removal while the window fills, and expresses "no pair yet" by a neutral
-input (the frame paired with itself), see :mod:`edgedsm.estimators.streaming`.
+input (the frame paired with itself), see :mod:`edgedsm.estimators.moment_sums`.
 
 All functions take flat (1-D, C-contiguous) arrays, update the sums in place and write the
 new frame into its ring slot after reading the slot. ``fastmath`` stays off: every

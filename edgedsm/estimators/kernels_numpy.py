@@ -2,7 +2,7 @@
 
 Same factories, arguments and bit-identical results as
 :mod:`edgedsm.estimators.kernels_numba` (tested); see that module and
-:mod:`edgedsm.estimators.streaming` for what each sum means. The pass over the pixels is cut
+:mod:`edgedsm.estimators.moment_sums` for what each sum means. The pass over the pixels is cut
 into chunks of :data:`CHUNK` pixels so the temporaries stay in cache: the frame and the sums
 are still read and written once per frame, as in the fused numba pass, but on one thread.
 The factories take ``parallel`` for symmetry with numba and ignore it.

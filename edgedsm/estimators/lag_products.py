@@ -3,9 +3,9 @@
 Per pixel, Σ I_t·I_{t+k} at the multi-tau lags k of ``tau_lags(K)`` (one row of sums per lag, L
 rows; :mod:`edgedsm.estimators.tau_stream` for their types and bounds), next to ΣI and ΣI² that
 the S1/S2/S3 accumulator keeps for both (:class:`edgedsm.estimators.moment_sums.WindowMoments`).
-The covariances, the per-pixel fit and the pooled fit of a region are τc's own
-(:mod:`edgedsm.estimators.tau_stream`, :mod:`edgedsm.estimators.correlation_time`); this module
-only keeps the sums current:
+The accumulators keep the sums current and hand them to τc's own formulas
+(:mod:`edgedsm.estimators.tau_stream`, :mod:`edgedsm.estimators.correlation_time`): covariances,
+the per-pixel fit (the map) and the pooled fit of a region (its region reduction).
 
 - :class:`SlidingLagProducts`: each push adds I_i·I_{i-k} and removes I_{i-N}·I_{i-N+k}. When
   the window is long enough (N >= K + TAU_BATCH), the last TAU_BATCH frames that left the ring
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.correlation_time import tau_lags
+from edgedsm.estimators.correlation_time import TauC, tau_lags
 
 #: Frames whose lag products are added (sliding: and removed) in one pass over the sums.
 TAU_BATCH = 16
@@ -62,6 +62,14 @@ class LagProducts:
                     edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """cov (L, P) and var (P,) of the window from its exact sums (tau_stream.covariances)."""
         return tau_stream.covariances(self.window, self.max_lag, total, total_sq, products, edges)
+
+    def tau_map(self, shape: tuple[int, int], cov: np.ndarray, var: np.ndarray) -> TauC:
+        """Per-pixel τc (frames) and status from every pixel's covariances (tau_stream.tau_map)."""
+        return tau_stream.tau_map(self.window, self.max_lag, shape, cov, var)
+
+    def region(self, cov: np.ndarray, var: np.ndarray) -> TauC:
+        """A region's τc (frames) from its pixels' pooled covariances (tau_stream.tau_region)."""
+        return tau_stream.tau_region(self.window, self.max_lag, cov, var)
 
 
 class SlidingLagProducts(LagProducts):
