@@ -254,7 +254,7 @@ def _combine(totals: np.ndarray, carries: np.ndarray) -> float:
 def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], wanted: tuple[str, ...],
                        spread: bool) -> dict[str, dict[str, Moments]]:
     """Without numba: the float maps, reduced by masked_moments (same sample, same rounding class)."""
-    values = maps_from(EngineSnapshot(**{**sums.__dict__, "estimators": wanted}))
+    values = maps_from(sums)  # all the snapshot's maps: its maps kernel was chosen for them
     result: dict[str, dict[str, Moments]] = {}
     for name, plan in regions.items():
         box = plan.box
