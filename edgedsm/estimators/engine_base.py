@@ -429,7 +429,7 @@ class SlidingWindow:
             shape=self.shape, mode=self.mode, estimators=wanted, window=self.window,
             pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
             sums=sums, weight_frames=self._moments.weight_frames,
-            maps_step=self._moments.maps_step(self._kernels, flags))
+            maps_step=self._moments.maps_step(self._kernels, flags), value_names=self._moments.value_names)
 
     def _snapshot(self) -> dict[str, Any]:
         """Copies of the whole state (for tests and debugging), lag products brought up to date."""

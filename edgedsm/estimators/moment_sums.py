@@ -42,6 +42,8 @@ class Moments:
     exponential = False
     #: The sums a snapshot copies (names of the engine's arrays).
     snapshot_names: tuple[str, ...] = ()
+    #: The sums activity.pixel_values reads, in its argument order (abs, ratio, second, fourth).
+    value_names: tuple[str, str, str, str] = ("abs", "ratio", "total", "total_sq")
 
     def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float) -> None:
         self.window = window
@@ -66,9 +68,6 @@ class Moments:
         """Σλ^k over the frames (exponential mode; 0 in the window modes)."""
         return self.weights[0]
 
-    def _arguments(self, sums: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """abs, ratio, second, fourth as activity.pixel_values takes them."""
-        raise NotImplementedError
 
     def maps(self, sums: Mapping[str, np.ndarray], pixels: int) -> dict[str, np.ndarray]:
         """S1, S2, S3 and σ (flat float64, the maps asked for; others empty) from ``sums``, one
@@ -76,8 +75,9 @@ class Moments:
         assert self._maps is not None, "bind() first"
         out = {name: np.empty(pixels if wanted else 0) for name, wanted in
                (("s1", self.do_abs), ("s2", self.do_ratio), ("s3", self.do_sigma), ("sigma", self.do_sigma))}
-        self._maps(*self._arguments(sums), self.pairs, self.ratio_unit, self.window, out["s1"], out["s2"],
-                   out["s3"], out["sigma"], self.weight_frames)
+        inputs = (sums[name] for name in self.value_names)
+        self._maps(*inputs, self.pairs, self.ratio_unit, self.window, out["s1"], out["s2"], out["s3"], out["sigma"],
+                   self.weight_frames)
         return out
 
     def maps_step(self, kernels: ModuleType, flags: tuple[bool, bool, bool]) -> Callable[..., None]:
@@ -159,9 +159,6 @@ class WindowMoments(Moments):
         for j in range(len(frames) - lag):
             self.add_pair(sums, frames[j], frames[j + lag])
 
-    def _arguments(self, sums: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return sums["abs"], sums["ratio"], sums["total"], sums["total_sq"]
-
 
 class ExponentialMoments(Moments):
     """Exponentially weighted means (float64): |ΔI| (``abs``), the S2 term (``ratio``), the
@@ -169,6 +166,7 @@ class ExponentialMoments(Moments):
 
     exponential = True
     snapshot_names = ("abs", "ratio", "m2")
+    value_names = ("abs", "ratio", "m2", "m2")  # σ² = M2/Σλ^k: M2 in both places of ΣI and ΣI²
 
     def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float) -> None:
         super().__init__(estimators, window, lag, q)
@@ -200,6 +198,3 @@ class ExponentialMoments(Moments):
         # before frame m there is no pair: weight 0 leaves the pair means unchanged
         self._step(new, slot, sums["mean"], sums["m2"], sums["abs"], sums["ratio"], self.decay, 1.0 / frames,
                    1.0 / pairs if has_pair else 0.0, self.q)
-
-    def _arguments(self, sums: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return sums["abs"], sums["ratio"], sums["m2"], sums["m2"]

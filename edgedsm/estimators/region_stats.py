@@ -199,17 +199,12 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
     if sums.mode not in ("sliding", "tumbling", "exponential") or not wanted:
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
     layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
-    exponential = sums.mode == "exponential"
-    arrays = sums.sums
-    second = arrays["m2"] if exponential else arrays["total"]
-    fourth = arrays["m2"] if exponential else arrays["total_sq"]
-    kind = "exponential" if exponential else "window"
+    kind = "exponential" if sums.mode == "exponential" else "window"
     kernels = _kernels(*(name in wanted for name in MAPS), kind, parallel)
     if kernels is None:
         return _moments_from_maps(sums, layout.plans, wanted, spread)
     block_sums, sample_values = kernels
-    common = (arrays["abs"], arrays["ratio"], second, fourth, sums.pairs, sums.ratio_unit, sums.window,
-              sums.weight_frames)
+    common = (*sums.value_inputs, sums.pairs, sums.ratio_unit, sums.window, sums.weight_frames)
     count = len(layout.plans)
     shift = np.zeros((count, len(MAPS)))
     if spread:

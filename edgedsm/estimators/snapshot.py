@@ -35,6 +35,12 @@ class EngineSnapshot:
     sums: dict[str, np.ndarray]  # window modes: abs, ratio, total, total_sq; exponential: abs, ratio, m2
     weight_frames: float  # exponential mode: Σλ^k over the frames
     maps_step: Callable[..., None]  # the engine's maps kernel for one thread
+    value_names: tuple[str, ...]  # the sums activity.pixel_values reads, in its order (moment_sums)
+
+    @property
+    def value_inputs(self) -> tuple[np.ndarray, ...]:
+        """The sums a pixel's values are formed from, in the order of activity.pixel_values."""
+        return tuple(self.sums[name] for name in self.value_names)
 
     @property
     def nbytes(self) -> int:
@@ -91,13 +97,10 @@ def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
 def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> dict[str, np.ndarray]:
     """The requested maps of a snapshot as float64 (H, W) arrays (pure; any thread): new arrays,
     or with ``buffers`` arrays of that pool that nobody holds any more."""
-    sums = snapshot.sums
     sizes = map_sizes(snapshot)
     flat = buffers.take(sizes) if buffers is not None else {name: np.empty(size) for name, size in sizes.items()}
-    # exponential mode: M2 in the place of ΣI and ΣI² (see activity.pixel_values)
-    second, fourth = (sums["m2"], sums["m2"]) if snapshot.mode == "exponential" else (sums["total"], sums["total_sq"])
-    snapshot.maps_step(sums["abs"], sums["ratio"], second, fourth, snapshot.pairs, snapshot.ratio_unit,
-                       snapshot.window, flat["s1"], flat["s2"], flat["s3"], flat["sigma"], snapshot.weight_frames)
+    snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window, flat["s1"],
+                       flat["s2"], flat["s3"], flat["sigma"], snapshot.weight_frames)
     return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}
 
 
