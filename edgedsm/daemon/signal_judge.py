@@ -77,8 +77,9 @@ def change_reason(ratio: float, factor: float) -> str | None:
 class ModelKeeper:
     """The camera's noise model: the datasheet's, else the best the patches' frames give (looked for
     at the first round of patches, then every REFRESH_EVERY rounds; a new estimate replaces the
-    last, as the camera's gain may have been changed; a failed one keeps it). One keeper may serve several judges (``edgedsm tune`` judges S1, S2 and S3
-    at once): a round of patches seen by one is not looked at again by the next."""
+    last, as the camera's gain may have been changed; a failed one keeps it). One keeper may
+    serve several judges (``edgedsm tune`` judges S1, S2 and S3 at once): a round of patches seen
+    by one is not looked at again by the next."""
 
     def __init__(self, datasheet: NoiseModel | None) -> None:
         self.model = datasheet

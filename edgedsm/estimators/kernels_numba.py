@@ -6,7 +6,7 @@ Each ``*_kernel(...)`` factory returns a compiled function specialised for one s
 removal): the choices are compile-time constants, so the loop has no branches on them. (With
 run-time flags, some combinations ran up to 100x slower with numba 0.68.) The caller picks
 the kernel without removal while the window fills, and expresses "no pair yet" by a neutral
-input (the frame paired with itself), see :mod:`edgedsm.estimators.streaming`.
+input (the frame paired with itself), see :mod:`edgedsm.estimators.moment_sums`.
 
 All functions take flat (1-D, C-contiguous) arrays, update the sums in place and write the
 new frame into its ring slot after reading the slot. ``fastmath`` stays off: every
@@ -31,6 +31,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
+from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.jit import kernel_variant
 
 KERNEL = "numba"
@@ -177,47 +178,31 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     return kernel
 
 
-@numba.njit(inline="always", nogil=True, cache=True)
-def centred_spread(s, total_sq, n, k, limit):  # pragma: no cover - compiled
-    """N²σ² (Eq. 4) of a pixel from its integer sums ΣI = ``s`` and ΣI² = ``total_sq`` over N =
-    ``n`` frames: N·Σ(I-k)² - r² with r = ΣI - kN, for any integer ``k`` (round(ΣI/N) keeps both
-    terms small), exact in int64 while N·Σ(I-k)² <= ``limit`` = (2^63 - 1) // N."""
-    r = s - k * n
-    centred = total_sq - k * (s + r)
-    if centred <= limit:
-        return np.float64(n * centred - r * r)
-    return n * np.float64(centred) - np.float64(r * r)  # r² <= (N/2+1)² is negligible beside >= 2^63
-
-
 @functools.cache
-def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
-                parallel: bool = True) -> Callable[..., None]:
-    """Kernel turning the integer sums of a window into float64 maps, all pixels, one pass.
+def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, parallel: bool = True,
+                exponential: bool = False) -> Callable[..., None]:
+    """Kernel turning a window's sums into float64 maps, all pixels, one pass.
 
-    ``kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma)``
-    writes S1 = Σ|ΔI|/(N-m) (Eq. 1), S2 = ΣT·2^-K/(N-m) (Eq. 2), σ (Eq. 4) and S3 = S1/σ
-    (Eq. 3, 0 where σ = 0). N²σ² = N·Σ(I-k)² - r² with r = ΣI - kN holds for every integer
-    k; k = round(ΣI/N) keeps both terms small and exact in int64 (see streaming.py).
+    ``kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma,
+    weight=1.0)`` writes S1, S2, S3 and σ (Eq. 1-4) of every pixel as
+    :func:`edgedsm.estimators.activity.pixel_values` forms them (window modes: the integer sums;
+    ``exponential``: the weighted means, M2 as ``total`` and ``total_sq``, Σλ^k as ``weight``).
     """
 
     @kernel_variant(parallel)
-    def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3,
-               sigma):  # pragma: no cover - compiled
+    def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma,
+               weight=1.0):  # pragma: no cover - compiled
         size = s1.size if do_abs else s2.size
-        limit = np.int64(9223372036854775807) // n  # N·Σ(I-k)² fits in int64 below this
         for p in numba.prange(size):
-            value = 0.0
+            v1, v2, v3, deviation = pixel_values(exponential, do_abs, do_ratio, do_sigma, p, abs_sum, ratio_sum,
+                                                 total, total_sq, pairs, ratio_unit, n, weight)
             if do_abs:
-                value = np.float64(abs_sum[p]) / pairs
-                s1[p] = value
+                s1[p] = v1
             if do_ratio:
-                s2[p] = np.float64(ratio_sum[p]) * ratio_unit / pairs
+                s2[p] = v2
             if do_sigma:
-                s = np.int64(total[p])
-                k = np.int64(np.floor(np.float64(s) / n + 0.5))
-                deviation = np.sqrt(centred_spread(s, np.int64(total_sq[p]), n, k, limit)) / n
                 sigma[p] = deviation
-                s3[p] = value / deviation if deviation > 0.0 else 0.0
+                s3[p] = v3
 
     return kernel
 

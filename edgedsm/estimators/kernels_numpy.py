@@ -2,7 +2,7 @@
 
 Same factories, arguments and bit-identical results as
 :mod:`edgedsm.estimators.kernels_numba` (tested); see that module and
-:mod:`edgedsm.estimators.streaming` for what each sum means. The pass over the pixels is cut
+:mod:`edgedsm.estimators.moment_sums` for what each sum means. The pass over the pixels is cut
 into chunks of :data:`CHUNK` pixels so the temporaries stay in cache: the frame and the sums
 are still read and written once per frame, as in the fused numba pass, but on one thread.
 The factories take ``parallel`` for symmetry with numba and ignore it.
@@ -17,7 +17,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from edgedsm.estimators.activity import values_numpy
+from edgedsm.estimators.activity import window_sigmas as sigma_from_sums
+
 KERNEL = "numpy"
+__all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "exponential_kernel", "maps_kernel",
+           "max_threads", "pairs_kernel", "products_kernel", "set_threads", "sigma_from_sums", "window_kernel"]
 CHUNK = 1 << 15  # pixels per chunk: the int64/float64 temporaries (256 KiB each) stay in L2
 
 
@@ -139,37 +144,15 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     return kernel
 
 
-def sigma_from_sums(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
-    """Eq. 4: σ = sqrt(N·ΣI² - (ΣI)²)/N from integer sums, float64 (see maps_kernel)."""
-    s = total.astype(np.int64)
-    k = np.floor(s.astype(np.float64) / n + 0.5).astype(np.int64)
-    r = s - k * n
-    centred = total_sq.astype(np.int64) - k * (s + r)  # Σ(I-k)² >= 0, exact
-    fits = centred <= (2**63 - 1) // n
-    spread = (n * np.where(fits, centred, 0) - r * r).astype(np.float64)
-    if not fits.all():  # r² <= (N/2+1)² is negligible beside N·Σ(I-k)² >= 2^63
-        wide = ~fits
-        spread[wide] = n * centred[wide].astype(np.float64) - (r[wide] * r[wide]).astype(np.float64)
-    return np.sqrt(spread) / n
-
-
 @functools.cache
-def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
-                parallel: bool = True) -> Callable[..., None]:
-    """See kernels_numba.maps_kernel."""
+def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, parallel: bool = True,
+                exponential: bool = False) -> Callable[..., None]:
+    """See kernels_numba.maps_kernel (the NumPy twins of edgedsm.estimators.activity)."""
 
-    def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3,
-               sigma) -> None:
-        if do_abs:
-            np.divide(abs_sum.astype(np.float64), pairs, out=s1)
-        if do_ratio:
-            scaled = ratio_sum.astype(np.float64)
-            scaled *= ratio_unit  # exact: a power of two
-            np.divide(scaled, pairs, out=s2)
-        if do_sigma:
-            sigma[:] = sigma_from_sums(total, total_sq, n)
-            s3[:] = 0.0
-            np.divide(s1, sigma, out=s3, where=sigma > 0.0)
+    def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma,
+               weight=1.0) -> None:
+        values_numpy(exponential, do_abs, do_ratio, do_sigma, abs_sum, ratio_sum, total, total_sq, pairs,
+                     ratio_unit, n, weight, s1, s2, s3, sigma)
 
     return kernel
 

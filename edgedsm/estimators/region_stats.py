@@ -13,18 +13,18 @@ Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 re
 
 - the sample for percentiles is the same pixels as ``masked_moments`` takes (every k-th selected
   pixel in row-major order, k = ⌈pixels / samples⌉): their flat indices are fixed with the mask,
-  found once (:class:`RegionPlan`), and the values there are computed with the arithmetic of the
-  engine's maps kernel (``kernels_numba.maps_kernel``), so they equal the map's bit for bit;
-  they are computed in the same pass, while their rows are in cache;
+  found once (:class:`RegionPlan`), and their values are computed in the same pass, while their
+  rows are in cache;
 - mean and deviation come from one pass of sums shifted by c, the mean of every 256th pixel of
   the sample (gathered before the pass): Σ(x-c) and Σ(x-c)². With c within a few deviations of
   the mean, var = Σ(x-c)²/n - (Σ(x-c)/n)² loses nothing to cancellation, and one pass replaces
   the two a centred sum needs. The sums along a row run in vector lanes (reassociated: a few
   ulps), rows are added with Neumaier compensation per block of rows and the blocks likewise.
   Blocks are fixed by the layout (not by the thread count), so the result is the same whatever
-  the threads. In the pass, each pixel's values take products by reciprocals computed once (a
-  few ulps from the map's) and, where the engine's ΣI² is int32, N²σ² = N·ΣI² − (ΣI)² in
-  float64, exact since both products stay below 2^53.
+  the threads.
+
+Every pixel's S1, S2, S3 (row buffers and samples alike) is formed by the one definition the
+engine's maps use, :func:`edgedsm.estimators.activity.pixel_values`: bit for bit the map's value.
 
 The kernels are module-level functions, or closures over plain constants only, so numba's disk
 cache finds them again in the next process (a closure over another compiled closure gets a new
@@ -44,6 +44,7 @@ import numpy as np
 
 from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, percentiles
 from edgedsm.analysis_kernels import masked_moments
+from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
 
@@ -58,8 +59,6 @@ MAPS = ("s1", "s2", "s3")
 BLOCK_PIXELS = 1 << 16
 #: The shift c of the one-pass sums is the mean of every SHIFT_STRIDE-th pixel of the sample.
 SHIFT_STRIDE = 256
-#: Below this window length, N·ΣI² and (ΣI)² of int32 sums stay under 2^53 (exact in float64).
-DIRECT_SPREAD_MAX_WINDOW = 1 << 22
 
 
 def mask_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -200,17 +199,12 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
     if sums.mode not in ("sliding", "tumbling", "exponential") or not wanted:
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
     layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
-    exponential = sums.mode == "exponential"
-    arrays = sums.sums
-    second = arrays["m2"] if exponential else arrays["total"]
-    fourth = arrays["m2"] if exponential else arrays["total_sq"]
-    kind = "exponential" if exponential else "direct" if _direct_spread(fourth, sums.window) else "integer"
+    kind = "exponential" if sums.mode == "exponential" else "window"
     kernels = _kernels(*(name in wanted for name in MAPS), kind, parallel)
     if kernels is None:
         return _moments_from_maps(sums, layout.plans, wanted, spread)
     block_sums, sample_values = kernels
-    common = (arrays["abs"], arrays["ratio"], second, fourth, sums.pairs, sums.ratio_unit, sums.window,
-              sums.weight_frames)
+    common = (*sums.value_inputs, sums.pairs, sums.ratio_unit, sums.window, sums.weight_frames)
     count = len(layout.plans)
     shift = np.zeros((count, len(MAPS)))
     if spread:
@@ -242,12 +236,6 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
     return result
 
 
-def _direct_spread(total_sq: np.ndarray, window: int) -> bool:
-    """N²σ² = N·ΣI² − (ΣI)² is exact in float64: ΣI² fits int32 and N < 2^22, so both
-    products stay below 2^53 ((ΣI)² <= N·ΣI², Cauchy-Schwarz)."""
-    return total_sq.dtype.itemsize <= 4 and window < DIRECT_SPREAD_MAX_WINDOW
-
-
 def _combine(totals: np.ndarray, carries: np.ndarray) -> float:
     """Σ of the blocks' compensated partial sums (Neumaier over the totals, carries added)."""
     total, carry = 0.0, float(carries.sum())
@@ -261,7 +249,7 @@ def _combine(totals: np.ndarray, carries: np.ndarray) -> float:
 def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], wanted: tuple[str, ...],
                        spread: bool) -> dict[str, dict[str, Moments]]:
     """Without numba: the float maps, reduced by masked_moments (same sample, same rounding class)."""
-    values = maps_from(EngineSnapshot(**{**sums.__dict__, "estimators": wanted}))
+    values = maps_from(sums)  # all the snapshot's maps: its maps kernel was chosen for them
     result: dict[str, dict[str, Moments]] = {}
     for name, plan in regions.items():
         box = plan.box
@@ -278,77 +266,21 @@ def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], 
 # the closures of _kernels pass as constants, so the branches on them fold away.
 
 if numba is not None:
-    from edgedsm.estimators.kernels_numba import centred_spread
 
     @numba.njit(inline="always", nogil=True, cache=True)
-    def _exact_values(exponential, do_abs, do_s2, do_s3, p, abs_sum, ratio_sum, second, fourth, pairs,
-                      ratio_unit, n, weight):  # pragma: no cover - compiled
-        """(S1, S2, S3) of flat pixel p with the arithmetic of maps_kernel (window modes) or of the
-        exponential maps: every operation as there, in the same order (the same float64)."""
-        value = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        if exponential:
+    def _row_values(exponential, do_abs, do_s2, do_s3, size, abs_sum, ratio_sum, second, fourth, out1, out2, out3,
+                    pairs, ratio_unit, n, weight):  # pragma: no cover - compiled
+        """One run of a row (views starting at index 0): S1, S2, S3 into out1..3, each pixel's
+        values as the maps kernel forms them (:func:`edgedsm.estimators.activity.pixel_values`)."""
+        for j in range(size):
+            v1, v2, v3, _ = pixel_values(exponential, do_abs, do_s2, do_s3, j, abs_sum, ratio_sum, second, fourth,
+                                         pairs, ratio_unit, n, weight)
             if do_abs:
-                value = abs_sum[p]
+                out1[j] = v1
             if do_s2:
-                s2 = ratio_sum[p]
+                out2[j] = v2
             if do_s3:
-                deviation = np.sqrt(second[p] / weight)
-                s3 = value / deviation if deviation > 0.0 else 0.0
-            return value, s2, s3
-        if do_abs:
-            value = np.float64(abs_sum[p]) / pairs
-        if do_s2:
-            s2 = np.float64(ratio_sum[p]) * ratio_unit / pairs
-        if do_s3:
-            limit = np.int64(9223372036854775807) // n
-            s = np.int64(second[p])
-            k = np.int64(np.floor(np.float64(s) / n + 0.5))
-            deviation = np.sqrt(centred_spread(s, np.int64(fourth[p]), n, k, limit)) / n
-            s3 = value / deviation if deviation > 0.0 else 0.0
-        return value, s2, s3
-
-    @numba.njit(inline="always", nogil=True, cache=True)
-    def _row_values(kind, do_abs, do_s2, do_s3, size, abs_sum, ratio_sum, second, fourth, out1, out2, out3,
-                    inv_pairs, s2_unit, n, s3_unit, weight):  # pragma: no cover - compiled
-        """One run of a row (views starting at index 0, so the loops vectorise): S1, S2, S3 into
-        out1..3, within a few ulps of maps_kernel (products by reciprocals; for ``kind``
-        "direct" N²σ² = N·ΣI² − (ΣI)² in float64, exact; "integer" centred in int64 as
-        maps_kernel, any round(ΣI/N) +- 1 being exact too)."""
-        if kind == "exponential":
-            for j in range(size):
-                value = abs_sum[j] if do_abs else 0.0
-                if do_abs:
-                    out1[j] = value
-                if do_s2:
-                    out2[j] = ratio_sum[j]
-                if do_s3:
-                    deviation = np.sqrt(second[j] / weight)
-                    out3[j] = value / deviation if deviation > 0.0 else 0.0
-            return
-        if do_abs:
-            for j in range(size):
-                out1[j] = np.float64(abs_sum[j]) * inv_pairs
-        if do_s2:
-            for j in range(size):
-                out2[j] = np.float64(ratio_sum[j]) * s2_unit
-        if do_s3:
-            fn = np.float64(n)
-            if kind == "direct":
-                for j in range(size):
-                    s = np.float64(second[j])
-                    spread = fn * np.float64(fourth[j]) - s * s
-                    deviation = np.sqrt(spread)
-                    out3[j] = np.float64(abs_sum[j]) * s3_unit / deviation if spread > 0.0 else 0.0
-            else:
-                inv_n = 1.0 / fn
-                limit = np.int64(9223372036854775807) // n
-                for j in range(size):
-                    s = np.int64(second[j])
-                    k = np.int64(np.floor(np.float64(s) * inv_n + 0.5))
-                    spread = centred_spread(s, np.int64(fourth[j]), n, k, limit)
-                    out3[j] = np.float64(abs_sum[j]) * s3_unit / np.sqrt(spread) if spread > 0.0 else 0.0
+                out3[j] = v3
 
     @numba.njit(nogil=True, fastmath={"reassoc", "nsz"}, cache=True)
     def _run_moments(values, shift):  # pragma: no cover - compiled
@@ -392,9 +324,7 @@ if numba is not None:
                partials, spread, sample_ptr, sample_index, samples):  # pragma: no cover - compiled
         """One block of rows: the union's values into row buffers, each region's runs summed, and
         with ``spread`` the exact values of the sample pixels on these rows (in cache now)."""
-        inv_pairs = 1.0 / pairs
-        s2_unit = ratio_unit / pairs
-        s3_unit = np.float64(n) / pairs
+        exponential = kind == "exponential"
         buffer1 = np.empty(cols if do_abs else 0)
         buffer2 = np.empty(cols if do_s2 else 0)
         buffer3 = np.empty(cols if do_s3 else 0)
@@ -404,17 +334,17 @@ if numba is not None:
             for c in range(cover_ptr[i], cover_ptr[i + 1]):
                 start, stop = cover[c, 0], cover[c, 1]
                 first, last = base + start, base + stop
-                _row_values(kind, do_abs, do_s2, do_s3, stop - start, abs_sum[first:last] if do_abs else abs_sum,
+                _row_values(exponential, do_abs, do_s2, do_s3, stop - start, abs_sum[first:last] if do_abs else abs_sum,
                             ratio_sum[first:last] if do_s2 else ratio_sum,
                             second[first:last] if do_s3 else second, fourth[first:last] if do_s3 else fourth,
                             buffer1[start:stop] if do_abs else buffer1, buffer2[start:stop] if do_s2 else buffer2,
-                            buffer3[start:stop] if do_s3 else buffer3, inv_pairs, s2_unit, n, s3_unit, weight)
+                            buffer3[start:stop] if do_s3 else buffer3, pairs, ratio_unit, n, weight)
             for r in range(run_ptr.shape[0]):
                 if spread:
                     for q in range(sample_ptr[r, i], sample_ptr[r, i + 1]):
-                        v1, v2, v3 = _exact_values(kind == "exponential", do_abs, do_s2, do_s3, sample_index[q],
-                                                   abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
-                                                   weight)
+                        v1, v2, v3, _ = pixel_values(exponential, do_abs, do_s2, do_s3, sample_index[q],
+                                                     abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
+                                                     weight)
                         samples[0, q] = v1
                         samples[1, q] = v2
                         samples[2, q] = v3
@@ -430,7 +360,7 @@ if numba is not None:
 def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str,
              parallel: bool) -> tuple[Callable[..., None], Callable[..., None]] | None:
     """The compiled (block sums, sample values) pair for one set of maps and one ``kind`` of
-    sums ("direct", "integer", "exponential"), or None without numba. The choices are
+    sums ("window": integer sums; "exponential": weighted means), or None without numba. The choices are
     compile-time constants (closure over plain values only, so the disk cache finds it)."""
     if numba is None:
         return None
@@ -441,8 +371,8 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str,
     def sample_values(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, index,
                       out):  # pragma: no cover - compiled
         for i in numba.prange(index.size):
-            v1, v2, v3 = _exact_values(exponential, do_abs, want_s2, want_s3, index[i], abs_sum, ratio_sum, second,
-                                       fourth, pairs, ratio_unit, n, weight)
+            v1, v2, v3, _ = pixel_values(exponential, do_abs, want_s2, want_s3, index[i], abs_sum, ratio_sum, second,
+                                         fourth, pairs, ratio_unit, n, weight)
             out[0, i] = v1
             out[1, i] = v2
             out[2, i] = v3

@@ -1,7 +1,7 @@
 """A frozen copy of a streaming engine's sums, and the maps computed from it on another thread.
 
 :meth:`SlidingWindow.snapshot` copies the state the maps depend on (sliding and tumbling: the
-integer sums; exponential: the float64 means) — a memory copy, about the cost of one push.
+integer sums; exponential: the float64 means and M2) — a memory copy, about the cost of one push.
 :func:`maps_from` turns that copy into float maps with the engine's own maps kernel compiled
 for the calling thread alone (``parallel=False``; the numba kernels release the GIL), so an
 evaluator thread computes maps beside the next pushes without touching the engine. The maps
@@ -34,7 +34,13 @@ class EngineSnapshot:
     frames_seen: int
     sums: dict[str, np.ndarray]  # window modes: abs, ratio, total, total_sq; exponential: abs, ratio, m2
     weight_frames: float  # exponential mode: Σλ^k over the frames
-    maps_step: Callable[..., None]  # the engine's maps kernel for one thread (window modes)
+    maps_step: Callable[..., None]  # the engine's maps kernel for one thread
+    value_names: tuple[str, ...]  # the sums activity.pixel_values reads, in its order (moment_sums)
+
+    @property
+    def value_inputs(self) -> tuple[np.ndarray, ...]:
+        """The sums a pixel's values are formed from, in the order of activity.pixel_values."""
+        return tuple(self.sums[name] for name in self.value_names)
 
     @property
     def nbytes(self) -> int:
@@ -58,10 +64,9 @@ class MapBuffers:
 
     def reserve(self, snapshot: EngineSnapshot) -> None:
         """Pool one set of arrays for :func:`maps_from` of snapshots like this one, written once
-        now so that the first maps evaluation faults in no fresh pages (window modes)."""
-        if snapshot.mode != "exponential":
-            for array in self.take(map_sizes(snapshot)).values():
-                array.fill(0.0)
+        now so that the first maps evaluation faults in no fresh pages."""
+        for array in self.take(map_sizes(snapshot)).values():
+            array.fill(0.0)
 
     def take(self, sizes: dict[str, int]) -> dict[str, np.ndarray]:
         """Arrays of these sizes nobody else holds: a pooled set, or a new one (pooled)."""
@@ -81,7 +86,7 @@ def _unshared(arrays: dict[str, np.ndarray]) -> bool:
 
 
 def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
-    """Pixels of each array the maps kernel writes for this snapshot (0: not computed); window modes."""
+    """Pixels of each array the maps kernel writes for this snapshot (0: not computed)."""
     wanted = set(snapshot.estimators)
     pixels = snapshot.shape[0] * snapshot.shape[1]
     do_abs, do_ratio, do_sigma = "s1" in wanted or "s3" in wanted, "s2" in wanted, "s3" in wanted
@@ -92,23 +97,10 @@ def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
 def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> dict[str, np.ndarray]:
     """The requested maps of a snapshot as float64 (H, W) arrays (pure; any thread): new arrays,
     or with ``buffers`` arrays of that pool that nobody holds any more."""
-    sums = snapshot.sums
-    wanted = set(snapshot.estimators)
-    if snapshot.mode == "exponential":
-        flat: dict[str, np.ndarray] = {}
-        if "s1" in wanted or "s3" in wanted:
-            flat["s1"] = sums["abs"]
-        if "s2" in wanted:
-            flat["s2"] = sums["ratio"]
-        if "s3" in wanted:
-            sigma = np.sqrt(sums["m2"] / snapshot.weight_frames)
-            flat["s3"] = np.zeros_like(flat["s1"])
-            np.divide(flat["s1"], sigma, out=flat["s3"], where=sigma > 0)
-    else:
-        sizes = map_sizes(snapshot)
-        flat = buffers.take(sizes) if buffers is not None else {name: np.empty(size) for name, size in sizes.items()}
-        snapshot.maps_step(sums["abs"], sums["ratio"], sums["total"], sums["total_sq"], snapshot.pairs,
-                           snapshot.ratio_unit, snapshot.window, flat["s1"], flat["s2"], flat["s3"], flat["sigma"])
+    sizes = map_sizes(snapshot)
+    flat = buffers.take(sizes) if buffers is not None else {name: np.empty(size) for name, size in sizes.items()}
+    snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window, flat["s1"],
+                       flat["s2"], flat["s3"], flat["sigma"], snapshot.weight_frames)
     return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}
 
 

@@ -124,8 +124,7 @@ def handover(source: SlidingWindow, target: SlidingWindow) -> None:
         np.copyto(target._arrays[name], array)
     target.frames_seen = source.frames_seen
     target.blocks_completed = source.blocks_completed
-    target._weight_frames = source._weight_frames
-    target._weight_pairs = source._weight_pairs
+    target._moments.weights = source._moments.weights  # exponential mode: Σλ^k over frames and pairs
 
 
 def timed_pushes(engine: SlidingWindow, pool: list[np.ndarray], first: int,

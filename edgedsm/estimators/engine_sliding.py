@@ -1,0 +1,92 @@
+"""The sliding engine: exact maps of the last N frames (paper Eq. 1-4), and τc.
+
+The window is the last N frames i-N+1..i; its N-m pairs are (j, j+m). Each push adds the pair
+(i-m, i) and the frame i, and removes the pair (i-N, i-N+m) and the frame i-N, in the S1/S2/S3
+sums (:class:`edgedsm.estimators.moment_sums.WindowMoments`) and τc's lag products
+(:class:`edgedsm.estimators.lag_products.SlidingLagProducts`). The ring holds N frames, not
+N+1: slot j % N holds frame j, and the slot of frame i-N is read and overwritten by frame i in
+the same pass. Bounds and memory: docs/engine.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from edgedsm.estimators.engine_base import SlidingWindow
+from edgedsm.estimators.lag_products import SlidingLagProducts
+from edgedsm.estimators.moment_sums import Layout, WindowMoments
+from edgedsm.estimators.snapshot import TauSnapshot
+
+
+class SlidingEngine(SlidingWindow, mode="sliding"):
+    """:class:`SlidingWindow` with ``mode="sliding"``."""
+
+    _moments: WindowMoments
+    _tau: SlidingLagProducts
+
+    def _accumulators(self) -> tuple[WindowMoments, SlidingLagProducts]:
+        return (WindowMoments(self.estimators, self.window, self.lag, self.q, keep_totals=self._do_tau),
+                SlidingLagProducts(self.window, self.max_lag, self._do_tau))
+
+    def _layout(self, bits: int) -> Layout:
+        pixels = self.shape[0] * self.shape[1]
+        return {"ring": ((self.window, pixels), np.uint8 if bits <= 8 else np.uint16),
+                **self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits)}
+
+    def _bind(self, bits: int, parallel: bool) -> None:
+        self._moments.bind(self._kernels, self.ratio_kind, self.scale_bits, parallel, slide=True)
+        self._tau.bind(self._kernels, parallel, bits)
+
+    def _frame_reads(self) -> int:
+        # the new frame and frame i-m read, a ring slot written, frames i-N (from the slot it
+        # overwrites) and i-N+m read; with τc frames i-k and i-N+k for each lag k
+        return 5 + (2 * self.tau_lags.size if self._do_tau else 0)
+
+    def _push(self, new: np.ndarray) -> None:
+        i, n, m = self.frames_seen, self.window, self.lag
+        arrays = self._arrays
+        ring = arrays["ring"]
+        slot = ring[i % n]  # slot j % N holds frame j: frame i replaces frame i-N
+        # no pair before frame m: pairing the frame with itself adds |x-x| = 0 exactly
+        lagged = ring[(i - m) % n] if i >= m else new
+        self._tau.push(arrays, new, i)  # reads the ring only: before frame i is written
+        if i >= n:  # slot holds frame i-N: the kernel reads it, then writes frame i there
+            self._moments.slide(arrays, new, slot, lagged, ring[(i - n + m) % n])
+        else:
+            self._moments.add(arrays, new, slot, lagged)
+        self._tau.after_push(arrays, i)
+
+    def _flush(self) -> None:
+        self._tau.flush(self._arrays, self.frames_seen)
+
+    def _tau_edges(self, every: Any) -> np.ndarray:
+        return self._tau.edges(self._arrays["ring"], self.frames_seen, every)
+
+    def _tau_snapshot_edges(self, old: TauSnapshot | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        # the window's first K and last K frames, in time order: the edge sums are formed from
+        # them off the pipeline thread (snapshot.tau_covariances)
+        ring, slots = self._arrays["ring"], self._tau.end_slots(self.frames_seen)
+        target = old.ends if old and old.ends is not None and old.ends.shape[0] == slots.size \
+            and old.ends.dtype == ring.dtype else None
+        return None, np.take(ring, slots, axis=0, out=target) if target is not None else np.take(ring, slots, axis=0)
+
+    def resync(self) -> None:
+        """Recompute every sum from the frames in the ring (O(N) per pixel).
+
+        The running sums are exact, so this reproduces them bit for bit; it exists to
+        repair state damaged from outside (bad memory) in runs of months.
+        """
+        if self.frames_seen == 0:
+            return
+        n = self.window
+        ring = self._arrays["ring"]
+        frames = [ring[j % n] for j in range(max(0, self.frames_seen - n), self.frames_seen)]
+        fresh = {name: np.zeros_like(array) for name, array in self._arrays.items() if name != "ring"}
+        self._moments.rebuild(fresh, frames, self.lag)
+        if self._do_tau:
+            fresh["products"][:] = self._tau.rebuild(frames)
+            fresh["retired"][:] = self._arrays["retired"]
+            self._tau.pending = 0  # the rebuilt sums hold every frame of the window
+        self._arrays.update(fresh)

@@ -1,0 +1,200 @@
+"""The S1/S2/S3 accumulators of the streaming engine (paper Eq. 1-4): their sums, push kernels, maps.
+
+One accumulator keeps, per pixel, what S1, S2 and S3 are formed from (only the sums of the maps
+asked for), pushes each frame into them with the kernel module's fused pass, and turns them into
+maps with :func:`edgedsm.estimators.activity.pixel_values` (the per-pixel arithmetic, written
+once; region statistics read the same sums through :mod:`edgedsm.estimators.region_stats`).
+
+- :class:`WindowMoments` (sliding and tumbling windows): Σ|I_j - I_{j+m}| (Eq. 1), the S2 terms
+  in fixed point (Eq. 2, :mod:`edgedsm.estimators.fixed_point`), ΣI and ΣI² (Eq. 4), exact
+  integers: what a push adds it subtracts when the frame leaves, so nothing drifts.
+- :class:`ExponentialMoments`: the weighted means of |ΔI| and of the S2 term and the weighted
+  mean and M2 of the intensity, weights λ^k with λ = 1 - 1/N, float64 (docs/engine.md).
+
+Units: grey levels (S1, ΣI), grey levels² (ΣI², M2), dimensionless (S2 terms); N and m in frames.
+The accumulators know nothing of rings and modes: the engines (engine_sliding, engine_tumbling,
+engine_exponential) hand them the frames and the sums to update.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from edgedsm.estimators.fixed_point import _NO_LUT, ratio_lut
+
+_INT32_MAX = 2**31 - 1
+
+Layout = dict[str, tuple[tuple[int, ...], Any]]
+
+
+def sum_dtype(largest: int) -> type[np.signedinteger[Any]]:
+    """int32 when the largest value a sum can reach fits, else int64 (less memory traffic)."""
+    return np.int32 if largest <= _INT32_MAX else np.int64
+
+
+class Moments:
+    """What both accumulators share: which maps are kept, and the maps from the sums."""
+
+    exponential = False
+    #: The sums a snapshot copies (names of the engine's arrays).
+    snapshot_names: tuple[str, ...] = ()
+    #: The sums activity.pixel_values reads, in its argument order (abs, ratio, second, fourth).
+    value_names: tuple[str, str, str, str] = ("abs", "ratio", "total", "total_sq")
+
+    def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float) -> None:
+        self.window = window
+        self.pairs = window - lag  # N - m pairs per window (Eq. 1-3)
+        self.q = q
+        self.do_abs = "s1" in estimators or "s3" in estimators
+        self.do_ratio = "s2" in estimators
+        self.do_sigma = "s3" in estimators
+        self.ratio_unit = 1.0  # 2^-K, the S2 fixed-point unit (window modes)
+        self.weights = (0.0, 0.0)  # exponential mode: Σλ^k over the frames and over the pairs
+        self._maps: Callable[..., None] | None = None
+
+    @property
+    def flags(self) -> tuple[bool, bool, bool]:
+        return self.do_abs, self.do_ratio, self.do_sigma
+
+    def reset(self) -> None:
+        """Forget every frame (the arrays are the engine's: it zeroes them)."""
+
+    @property
+    def weight_frames(self) -> float:
+        """Σλ^k over the frames (exponential mode; 0 in the window modes)."""
+        return self.weights[0]
+
+
+    def maps(self, sums: Mapping[str, np.ndarray], pixels: int) -> dict[str, np.ndarray]:
+        """S1, S2, S3 and σ (flat float64, the maps asked for; others empty) from ``sums``, one
+        fused pass of the maps kernel."""
+        assert self._maps is not None, "bind() first"
+        out = {name: np.empty(pixels if wanted else 0) for name, wanted in
+               (("s1", self.do_abs), ("s2", self.do_ratio), ("s3", self.do_sigma), ("sigma", self.do_sigma))}
+        inputs = (sums[name] for name in self.value_names)
+        self._maps(*inputs, self.pairs, self.ratio_unit, self.window, out["s1"], out["s2"], out["s3"], out["sigma"],
+                   self.weight_frames)
+        return out
+
+    def maps_step(self, kernels: ModuleType, flags: tuple[bool, bool, bool]) -> Callable[..., None]:
+        """The maps kernel of ``flags`` for one thread (snapshots: maps on another thread)."""
+        return kernels.maps_kernel(*flags, False, self.exponential)
+
+
+class WindowMoments(Moments):
+    """Exact integer sums of the window modes: Σ|ΔI| (``abs``), Σ S2 term·2^K (``ratio``), ΣI
+    (``total``) and ΣI² (``total_sq``). ``keep_totals``: ΣI and ΣI² are kept for τc as well."""
+
+    snapshot_names = ("abs", "ratio", "total", "total_sq")
+
+    def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float, keep_totals: bool) -> None:
+        super().__init__(estimators, window, lag, q)
+        self.do_totals = self.do_sigma or keep_totals  # ΣI and ΣI² serve S3 and τc
+        self.lut = _NO_LUT
+        self.scale = 1.0  # 2^K
+        self._grow: Callable[..., None] | None = None
+        self._slide: Callable[..., None] | None = None
+        self._pairs: Callable[..., None] | None = None
+
+    def layout(self, pixels: int, bits: int) -> Layout:
+        """Name -> (shape, dtype) of the sums; the sums of maps not asked for get 0 pixels."""
+        top = (1 << bits) - 1
+        n = self.window
+        return {
+            "abs": ((pixels if self.do_abs else 0,), sum_dtype(self.pairs * top)),
+            "ratio": ((pixels if self.do_ratio else 0,), np.int64),
+            "total": ((pixels if self.do_totals else 0,), sum_dtype(n * top)),
+            "total_sq": ((pixels if self.do_totals else 0,), sum_dtype(n * top * top)),
+        }
+
+    def bind(self, kernels: ModuleType, kind: str, scale_bits: int, parallel: bool, slide: bool) -> None:
+        """Pick the compiled kernels for the data's S2 term ``kind`` and K = ``scale_bits``;
+        ``slide``: the kernels that also remove a leaving frame and pair (sliding window)."""
+        self.ratio_unit = 2.0**-scale_bits
+        self.scale = float(2**scale_bits)
+        self.lut = ratio_lut(self.q, scale_bits) if kind == "lut" and self.do_ratio else _NO_LUT
+        sum_flags = (self.do_abs, self.do_ratio, self.do_totals)
+        # "grow": add only (tumbling, and sliding until N frames are in); "slide": add and remove
+        self._grow = kernels.window_kernel(*sum_flags, kind, False, parallel)
+        if slide:
+            self._slide = kernels.window_kernel(*sum_flags, kind, True, parallel)
+            self._pairs = kernels.pairs_kernel(self.do_abs, self.do_ratio, kind, parallel)
+        self._maps = kernels.maps_kernel(*self.flags, parallel)
+
+    def add(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, lagged: np.ndarray) -> None:
+        """Frame i (``new``, then written into ``slot``) and the pair (i-m, i) join the sums;
+        frame i-m is ``lagged`` (no pair yet: ``new`` itself, which adds |x-x| = 0 exactly)."""
+        assert self._grow is not None
+        self._grow(new, slot, lagged, lagged, sums["abs"], sums["ratio"], sums["total"], sums["total_sq"],
+                   self.lut, self.scale, self.q)
+
+    def slide(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, lagged: np.ndarray,
+              leaving: np.ndarray) -> None:
+        """As :meth:`add`, and frame i-N (read from ``slot`` before frame i overwrites it) and
+        the pair (i-N, i-N+m) (frame i-N+m: ``leaving``) leave the sums."""
+        assert self._slide is not None
+        self._slide(new, slot, lagged, leaving, sums["abs"], sums["ratio"], sums["total"], sums["total_sq"],
+                    self.lut, self.scale, self.q)
+
+    def add_pair(self, sums: Mapping[str, np.ndarray], first: np.ndarray, second: np.ndarray) -> None:
+        """The pair (first, second) joins Σ|ΔI| and the S2 sum (rebuilding the sums)."""
+        assert self._pairs is not None
+        self._pairs(first, second, sums["abs"], sums["ratio"], self.lut, self.scale, self.q)
+
+    def rebuild(self, sums: Mapping[str, np.ndarray], frames: list[np.ndarray], lag: int) -> None:
+        """Recompute ``sums`` (zeroed) from the window's ``frames`` in time order, O(N) per pixel."""
+        if self.do_totals:
+            total = np.zeros(frames[0].size, np.int64)
+            total_sq = np.zeros(frames[0].size, np.int64)
+            for frame in frames:
+                wide = frame.astype(np.int64)
+                total += wide
+                total_sq += wide * wide
+            sums["total"][:] = total
+            sums["total_sq"][:] = total_sq
+        for j in range(len(frames) - lag):
+            self.add_pair(sums, frames[j], frames[j + lag])
+
+
+class ExponentialMoments(Moments):
+    """Exponentially weighted means (float64): |ΔI| (``abs``), the S2 term (``ratio``), the
+    intensity (``mean``) and its M2 (``m2``), with normalised (bias-free) weights."""
+
+    exponential = True
+    snapshot_names = ("abs", "ratio", "m2")
+    value_names = ("abs", "ratio", "m2", "m2")  # σ² = M2/Σλ^k: M2 in both places of ΣI and ΣI²
+
+    def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float) -> None:
+        super().__init__(estimators, window, lag, q)
+        self.decay = 1.0 - 1.0 / window  # λ
+        self._step: Callable[..., None] | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        self.weights = (0.0, 0.0)
+
+    def layout(self, pixels: int, bits: int) -> Layout:
+        sigma, abs_, ratio = (pixels if on else 0 for on in (self.do_sigma, self.do_abs, self.do_ratio))
+        return {"mean": ((sigma,), np.float64), "m2": ((sigma,), np.float64), "abs": ((abs_,), np.float64),
+                "ratio": ((ratio,), np.float64)}
+
+    def bind(self, kernels: ModuleType, parallel: bool) -> None:
+        self._step = kernels.exponential_kernel(*self.flags, parallel)
+        self._maps = kernels.maps_kernel(*self.flags, parallel, True)
+
+    def push(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, has_pair: bool) -> None:
+        """Frame i (``new``) joins the weighted means, and the pair (i-m, i) with frame i-m read
+        from ``slot`` (then overwritten by frame i) when ``has_pair`` (i >= m)."""
+        assert self._step is not None
+        frames, pairs = self.weights
+        frames = self.decay * frames + 1.0
+        if has_pair:
+            pairs = self.decay * pairs + 1.0
+        self.weights = (frames, pairs)
+        # before frame m there is no pair: weight 0 leaves the pair means unchanged
+        self._step(new, slot, sums["mean"], sums["m2"], sums["abs"], sums["ratio"], self.decay, 1.0 / frames,
+                   1.0 / pairs if has_pair else 0.0, self.q)
