@@ -17,18 +17,54 @@ sums: about 41 bytes per pixel instead of 250 at K = 20 and 8 bits), with the en
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from edgedsm.analysis import RegionBox
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import SlidingWindow
+from edgedsm.estimators import ESTIMATORS, SlidingWindow, noise, signal_quality
 from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL, TauC
+from edgedsm.estimators.noise import NoiseModel
+from edgedsm.estimators.noise_summary import above_of, region_floor
 from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
+from edgedsm.noise_patches import NoisePatches, PatchWindow
 
 STATUS_NAMES = {MEASURED: "measured", ABOVE: "above", BELOW: "below", NO_SIGNAL: "no_signal"}
-COLUMNS = ("frame", "time_s", "region", "s1", "s2", "s3", "tau_c_frames", "tau_c_s", "tau_c_status")
+COLUMNS = ("frame", "time_s", "region", "s1", "s2", "s3", "tau_c_frames", "tau_c_s", "tau_c_status",
+           "mean_intensity", "signal", "s1_above_noise", "s2_above_noise", "s3_above_noise")
+#: the columns of the light and the activity above the camera's noise (docs/noise.md)
+NOISE_COLUMNS = COLUMNS[9:]
+
+
+PATCH_SIDE = 64  # the daemon's default estimator.noise_patch
+_NO_NOISE = (float("nan"), "off", float("nan"), float("nan"), float("nan"))
+
+
+class _Light:
+    """A region's light and its activity above the noise at one sample (the daemon's rules,
+    docs/noise.md §5c, without its warnings): the model given, else the last the frames gave."""
+
+    def __init__(self, model: NoiseModel | None) -> None:
+        self.model = model
+        self.given = model is not None
+
+    def judge(self, patch: PatchWindow, estimates: dict[str, float], lag: int, verdict_of: str) -> tuple:
+        if not self.given:
+            with contextlib.suppress(EstimatorError):  # activity faster than a few frames, or dark: keep the last
+                self.model = noise.from_frames(patch.frames, saturation=patch.top, mask=patch.mask)
+        above = {}
+        if self.model is not None:
+            for name in ESTIMATORS:
+                floor = region_floor(patch.frames, name, lag, self.model, mask=patch.mask, top=patch.top)
+                above[name] = above_of(floor, estimates)
+        light = signal_quality.light_stats(patch.frames, self.model or noise.from_datasheet(0.0, 0.0), patch.top,
+                                           patch.mask)
+        quality = signal_quality.signal_quality(light, above.get(verdict_of))
+        return (light.mean, quality.verdict, *(float(above[n].value) if n in above else float("nan")
+                                               for n in ESTIMATORS))
 
 
 @dataclass
@@ -57,7 +93,8 @@ class Timeline:
 def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], window: int, lag: int,
              every: int, dt: float = 1.0, max_lag: int = 20, bins: int = 64, histogram_estimator: str = "s2",
              histogram_range: tuple[float, float] | None = None, bits: int | None = None,
-             times_s: Sequence[float] | None = None, mode: str | None = None, with_tau: bool = True) -> Timeline:
+             times_s: Sequence[float] | None = None, mode: str | None = None, with_tau: bool = True,
+             with_noise: bool = True, noise_model: NoiseModel | None = None) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
     The first sample is at the frame that fills the window (index window-1), time = frame · dt,
@@ -69,6 +106,11 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     ``window`` (see the module docstring), else sliding. Without ``with_tau`` the engine keeps
     no τc sums (they are most of its memory: lag products and the window's edge frames for every
     pixel) and the τc columns read NaN with status "off".
+    With ``with_noise`` each region's light and its S1, S2, S3 above the camera's noise floor
+    (docs/noise.md) are judged on a patch at its centre, as the daemon judges them
+    (:mod:`edgedsm.noise_patches`): ``noise_model`` (a datasheet's), else the last model the
+    frames gave; the above-noise columns read NaN while there is none, the signal column
+    "off" without ``with_noise``.
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
@@ -81,6 +123,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         mode = "tumbling" if every % window == 0 else "sliding"
     engine: SlidingWindow | None = None
     pooled: TumblingRegionTau | None = None  # tumbling: the regions' τc without per-pixel lag products
+    patches: NoisePatches | None = None
+    light = _Light(noise_model)
     count = 0
     for index, frame in enumerate(frames):
         if engine is None:
@@ -95,7 +139,12 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
                                    max_lag=max_lag if in_engine else None)
             if with_tau and not in_engine:
                 pooled = TumblingRegionTau(frame.shape, regions, window, max_lag, depth)
+            if with_noise:
+                patches = NoisePatches({name: RegionBox.of(mask) for name, mask in regions.items()}, window,
+                                       PATCH_SIDE, frame.dtype, bits)
         engine.push(frame)
+        if patches is not None:
+            patches.push(frame)
         if pooled is not None:
             pooled.push(frame)
         count = index + 1
@@ -103,14 +152,17 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
             continue
         maps = engine.maps(("s1", "s2", "s3"))  # τc per region below: the per-pixel τc map is not needed
         time = index * dt if times_s is None else float(times_s[index])
+        windows = patches.take() if patches is not None else {}
         for name, mask in regions.items():
             means = (float(maps["s1"][mask].mean()), float(maps["s2"][mask].mean()), float(maps["s3"][mask].mean()))
             if with_tau:
                 tau: TauC = pooled.last[name] if pooled is not None and pooled.last else engine.region_tau_c(mask)
-                result.rows.append((index, time, name, *means, float(tau.tau), float(tau.tau) * dt,
-                                    STATUS_NAMES[int(tau.status)]))
+                taus = (float(tau.tau), float(tau.tau) * dt, STATUS_NAMES[int(tau.status)])
             else:
-                result.rows.append((index, time, name, *means, float("nan"), float("nan"), "off"))
+                taus = (float("nan"), float("nan"), "off")
+            judged = light.judge(windows[name], dict(zip(ESTIMATORS, means, strict=True)), lag,
+                                 histogram_estimator) if name in windows else _NO_NOISE
+            result.rows.append((index, time, name, *means, *taus, *judged))
         values = maps[histogram_estimator]
         if histogram_range is None:
             top = 1.25 * float(np.percentile(values, 99.5))

@@ -32,6 +32,9 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--max-lag", type=int, default=20, metavar="K",
                        help="longest lag fitted for τc (default 20; N/2 times slower stages: disjoint sets keep "
                             "the last K frames, K bytes per pixel at 8 bits)")
+    group.add_argument("--no-noise-floor", dest="with_noise", action="store_false",
+                       help="leave out each region's light and activity above the camera's noise (the columns "
+                            "mean_intensity, signal, s1/s2/s3_above_noise; docs/noise.md)")
     group.add_argument("--no-tau-c", dest="with_tau", action="store_false",
                        help="leave τc out: its sums cost about 41 bytes per pixel on disjoint sets (K = 20) and "
                             "250 on overlapping ones, against 45 for S1-S3; the τc columns then read 'off'")
@@ -90,6 +93,16 @@ def _regions(args: argparse.Namespace, shape: tuple[int, int]) -> tuple[dict[str
             config.camera.frame_interval_s)
 
 
+def _datasheet(args: argparse.Namespace):
+    """The camera's noise from analyze's --noise-gain (docs/noise.md), or None: from the frames."""
+    gain = getattr(args, "noise_gain", None)
+    if gain is None:
+        return None
+    from edgedsm.estimators.noise import from_datasheet
+
+    return from_datasheet(gain, args.dark_noise, args.dark_mean)
+
+
 def run_timeline(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         return _run_timeline(args, stack)
@@ -116,7 +129,7 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
 
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
                       max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times,
-                      with_tau=args.with_tau)
+                      with_tau=args.with_tau, with_noise=args.with_noise, noise_model=_datasheet(args))
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)

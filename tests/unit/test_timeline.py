@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import tomllib
 from pathlib import Path
 
@@ -109,12 +110,14 @@ def test_a_disjoint_timeline_holds_m_frames_not_n() -> None:
     rng = np.random.default_rng(6)
     frames = rng.integers(0, 255, size=(400, 64, 64), dtype=np.uint8)
     regions = {"all": np.ones((64, 64), bool)}
+    # (the noise patches keep N frames of a 64² square per region whatever the frame size, here the
+    # whole 64² frame: left out, they are not the engine's memory)
     for window in (40, 400):  # one-time allocations (and compiling) first
-        timeline(iter(frames[:window]), regions, window=window, lag=2, every=window, max_lag=4)
+        timeline(iter(frames[:window]), regions, window=window, lag=2, every=window, max_lag=4, with_noise=False)
     peaks = []
     for window in (40, 400):
         tracemalloc.start()
-        timeline(iter(frames[:window]), regions, window=window, lag=2, every=window, max_lag=4)
+        timeline(iter(frames[:window]), regions, window=window, lag=2, every=window, max_lag=4, with_noise=False)
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
     ring = 64 * 64 * 360  # what 360 more frames of a sliding ring would hold (a sliding timeline grows by it)
@@ -151,3 +154,25 @@ def test_disjoint_sets_too_long_for_pooled_int64_sums_take_the_engines_tau(monke
     for a, b in zip(pooled.rows, engine.rows, strict=True):
         np.testing.assert_allclose(a[6], b[6], rtol=1e-12)
         assert a[8] == b[8]
+
+
+def test_the_light_and_the_activity_above_the_noise_follow_a_darkening_film(tmp_path: Path) -> None:
+    scene = Path(__file__).resolve().parents[2] / "config" / "scenes" / "darkening_film.toml"
+    small = tmp_path / "film.toml"
+    small.write_text(scene.read_text().replace("size = 128", "size = 48"))
+    out = tmp_path / "out"
+    assert main(["analyze", str(small), "--timeline", str(out), "--window", "100", "--lag", "5",
+                 "--every", "100", "--no-progress"]) == 0
+    rows = read_rows(out / "timeline.csv")
+    assert len(rows) == 12
+    light = [float(r["mean_intensity"]) for r in rows]
+    assert light[-1] < light[0] / 5  # the film's light fell (to a tenth by the end)
+    above = [float(r["s2_above_noise"]) for r in rows]
+    plain = [float(r["s2"]) for r in rows]
+    assert all(math.isfinite(a) for a in above[3:])  # a model from the frames once the activity slows
+    assert above[-1] < 0.5 * plain[-1] and above[-1] < above[3] / 4  # most of the dry film's S2 is noise
+    assert {r["signal"] for r in rows} <= {"ok", "low"}
+    off = tmp_path / "off"
+    assert main(["analyze", str(small), "--timeline", str(off), "--window", "100", "--lag", "5", "--every", "100",
+                 "--no-noise-floor", "--no-tau-c", "--no-progress"]) == 0
+    assert {r["signal"] for r in read_rows(off / "timeline.csv")} == {"off"}
