@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers_daemon import Daemon
+from helpers_daemon import DEMO_PLATE, Daemon
 from helpers_faults import TOPICS, Plant, RelayRig, daemon_config
 from helpers_mqtt import REPO, Broker
 
@@ -44,7 +44,7 @@ def test_broker_stopped_and_restarted_five_times_loses_no_alert(
     plant = Plant(broker.port, [TOPICS.alerts, TOPICS.stats], client_id="plant-faults").start()
     try:
         daemon = daemons(daemon_config(tmp_path, camera=DRYING_CAMERA, port=broker.port, laser=relay_board.uri,
-                                       window=100, lag=5, wet_above=0.24, dry_below=0.10, min_dwell_s=1.0))
+                                       window=100, lag=5, **DEMO_PLATE, min_dwell_s=1.0))
         daemon.wait_until(lambda: board.is_on and plant.frames() > 0, 30, "measuring with the laser on")
         lit = board.switched(True, after=0.0)
         downs: list[float] = []

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers_daemon import Daemon
+from helpers_daemon import DEMO_PLATE, Daemon
 from helpers_faults import Plant, RelayRig, daemon_config
 from helpers_mqtt import REPO, Broker
 
@@ -39,7 +39,7 @@ def test_sigkill_at_random_moments_then_restart_loses_no_alert(
     rng = random.Random(seed)
     board = relay_board.board
     config = daemon_config(tmp_path, camera=DRYING_CAMERA, port=broker.port, laser=relay_board.uri, window=100,
-                           lag=5, wet_above=0.24, dry_below=0.10, min_dwell_s=1.0)
+                           lag=5, **DEMO_PLATE, min_dwell_s=1.0)
 
     moments: list[float] = []
     daemon = daemons(config)

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers_daemon import Daemon
+from helpers_daemon import DEMO_PLATE, Daemon
 from helpers_faults import TOPICS, Plant, RelayRig, daemon_config
 from helpers_mqtt import REPO, Broker, Subscriber
 from test_storage_faults import tmpfs  # noqa: F401  (the fixture: small tmpfs mounts, unmounted after)
@@ -32,7 +32,7 @@ TRANSITION = r"region plate: \w+ -> \w+"
 
 def _config(tmp_path: Path, broker: Broker, relay: RelayRig, recording: dict[str, Any]) -> dict[str, Any]:
     config = daemon_config(tmp_path, camera=DRYING_CAMERA, port=broker.port, laser=relay.uri, window=100, lag=5,
-                           wet_above=0.24, dry_below=0.10, min_dwell_s=1.0)
+                           **DEMO_PLATE, min_dwell_s=1.0)
     config["recording"] = recording
     return config
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers_daemon import Daemon
+from helpers_daemon import DEMO_PLATE, Daemon
 from helpers_faults import Plant, RelayRig, daemon_config
 from helpers_mqtt import REPO, Broker
 from test_storage_faults import tmpfs  # noqa: F401  (the fixture: small tmpfs mounts, unmounted after)
@@ -52,7 +52,7 @@ def test_state_dir_full_while_alerts_are_raised_then_freed(
     board = relay_board.board
     disk = tmpfs("size=512k")
     config = daemon_config(tmp_path, camera=DRYING_CAMERA, port=broker.port, laser=relay_board.uri,
-                           window=100, lag=5, wet_above=0.24, dry_below=0.10, min_dwell_s=1.0)
+                           window=100, lag=5, **DEMO_PLATE, min_dwell_s=1.0)
     config["device"]["state_dir"] = disk / "state"
     daemon = daemons(config)
     daemon.wait_until(lambda: board.is_on and plant.frames() > 0, 30, "measuring with the laser on")

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -152,6 +153,10 @@ class Daemon:
 # -- the demo plate as the daemon's camera ---------------------------------------------------
 
 DRYING_SCENE = REPO / "config" / "scenes" / "drying_demo.toml"
+#: The demo config's plate thresholds, judged on S2 above the noise floor (one statement: the
+#: shipped demo's, so that a test and a user see the same plate go wet -> drying -> dry).
+DEMO_PLATE: dict[str, float] = {key: tomllib.loads((REPO / "config" / "daemon" / "demo.toml").read_text())
+                                ["regions"][0][key] for key in ("wet_above", "dry_below")}
 #: The demo plate at 100 frames/s instead of 20: wet → drying → dry in about 12 s.
 SIM_CAMERA = f"sim:{DRYING_SCENE}?time_scale=0.2"
 
@@ -164,7 +169,7 @@ def base_config(tmp_path: Path, *, device: str = "e2e", camera: str = SIM_CAMERA
         "camera": {"uri": camera},
         "acquisition": {"dark_frames": 5 if laser else 0, "dark_every_min": 0},
         "estimator": {"activity": "s2", "window": 100, "lag": 5, "q": 1.0},
-        "regions": [{"name": region, "wet_above": 0.24, "dry_below": 0.10, "hysteresis": 0.05,
+        "regions": [{"name": region, **DEMO_PLATE, "hysteresis": 0.05,
                      "min_dwell_s": 1.0}],
         "logging": {"level": "info"},
     }

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import pytest
 from helpers_daemon import (
+    DEMO_PLATE,
     DRYING_SCENE,
     SIM_CAMERA,
     Daemon,
@@ -115,7 +116,8 @@ def test_drying_states_and_alerts_exactly_once_across_broker_and_daemon_restarts
     assert all(raw == by_key[(raw["stream"], raw["seq"])] for raw in scada.alerts(topics))
     # the thresholds were really crossed: S2 activity falls through the cycle
     activities = [a["activity"] for a in alerts[:3]]
-    assert activities[0] >= 0.24 and 0.10 < activities[1] < 0.24 * 0.95 and activities[2] <= 0.10 * 0.95
+    wet, dry = DEMO_PLATE["wet_above"], DEMO_PLATE["dry_below"]
+    assert activities[0] >= wet and dry < activities[1] < wet * 0.95 and activities[2] <= dry * 0.95
 
     # States in order: the second daemon's live states went through the whole cycle; the first
     # one's never went backwards (some were published while the broker was down).

@@ -186,7 +186,7 @@ def test_new_estimators_appear_and_home_assistant_restarting_gets_every_config_a
         tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber]) -> None:
     import paho.mqtt.publish as single
 
-    from edgedsm.messages import MapStats, RegionSignal, Stats
+    from edgedsm.messages import MapStats, RegionSignal, RegionTau, Stats
     from edgedsm.publish.homeassistant import HomeAssistantSink
     from edgedsm.publish.session import MqttSession
     from edgedsm.publish.settings import MqttSettings
@@ -199,13 +199,16 @@ def test_new_estimators_appear_and_home_assistant_restarting_gets_every_config_a
     try:
         wait_until(lambda: sink.connected and len(_configs(watcher)) == 4, WAIT_S, "the static entities")
         one = MapStats(pixels=4, mean=0.2, std=0.1, p05=0.1, median=0.2, p95=0.3)
+        # as a daemon's stats: a τc map's region mean beside the region's pooled τc, which owns the sensor
+        tau_c = RegionTau(tau_c_s=2.5, status="measured")
         stats = Stats(t=1.0, frames=5, ready=True, fps=10.0, laser="on", estimator="s2",
-                      regions={"panel": {"s2": one, "tau_c": one}, "ghost": {"s2": one}})
+                      regions={"panel": {"s2": one, "tau_c": one}, "ghost": {"s2": one}},
+                      tau_c={"panel": tau_c, "ghost": tau_c})
         sink.publish_stats(stats)
         tau = f"{PREFIX}/sensor/edgedsm_line3/panel_tau_c/config"
         wait_until(lambda: tau in _configs(watcher), WAIT_S, "the tau_c sensor")
         assert len(_configs(watcher)) == 6  # panel s2 and tau_c; 'ghost' is not a configured region
-        assert _configs(watcher)[tau]["name"] == "panel TAU_C"
+        assert _configs(watcher)[tau]["name"] == "panel τc"
         light = RegionSignal(signal="low", mean=84.0, dark_fraction=0.0, saturated_fraction=0.0,
                              speckle_contrast=0.5, noise_floor=0.025, above_noise=0.0013, above_noise_spread=0.0006)
         sink.publish_stats(stats.model_copy(update={"signal": {"panel": light, "ghost": light}}))
