@@ -30,25 +30,27 @@ class DetectorRows:
         self.detector = detector
         self.effects = scene.active_effects
         ambient = scene.ambient_light
-        self.ambient_mean = 0.0 if ambient is None else ambient.eta * detector.n_max
-        self.ambient: ConstantPoisson | None = None
+        levels = [0.0] if ambient is None else ambient.levels
+        #: η·N_max photons for each η the run takes (one alias table each, built once)
+        self.ambient_means = {eta: eta * detector.n_max for eta in levels}
+        self.ambient: dict[float, ConstantPoisson] = {}
         if "ambient_light" in self.effects and detector.shot_noise:  # else: its mean, no noise
-            self.ambient = ConstantPoisson(self.ambient_mean)
+            self.ambient = {eta: ConstantPoisson(mean) for eta, mean in self.ambient_means.items() if mean > 0}
         self.dark = ConstantPoisson(detector.dark_current) if "dark_current" in self.effects else None
         self.top = 2**detector.bits - 1
         self.scale = self.top / (detector.n_max + math.sqrt(detector.n_max))  # grey levels per photon
 
     def rows(self, intensity: np.ndarray, photons_per_unit: float,
-             stream: Callable[[str], np.random.Generator], out: np.ndarray) -> None:
-        """Grey levels of ``intensity`` rows into ``out``; ``stream(effect)`` is the block's
-        sub-stream of that effect."""
+             stream: Callable[[str], np.random.Generator], out: np.ndarray, eta: float = 0.0) -> None:
+        """Grey levels of ``intensity`` rows into ``out`` under ambient light ``eta`` (one of the
+        scene's levels); ``stream(effect)`` is the block's sub-stream of that effect."""
         photons = intensity.astype(np.float64) * photons_per_unit
         if "shot_noise" in self.effects:
             photons = poisson(stream("shot_noise"), photons)
-        if self.ambient is not None:
-            photons += self.ambient.draw(stream("ambient_light"), photons.shape)
-        elif self.ambient_mean:
-            photons += self.ambient_mean
+        if eta in self.ambient:
+            photons += self.ambient[eta].draw(stream("ambient_light"), photons.shape)
+        elif self.ambient_means.get(eta, 0.0):
+            photons += self.ambient_means[eta]
         if self.dark is not None:
             photons += self.dark.draw(stream("dark_current"), photons.shape)
         grey = photons

@@ -175,8 +175,38 @@ class PhaseNoise(StrictModel):
                              "with step σ_noise, like the process phase")
 
 
+class AmbientStep(StrictModel):
+    """From ``frame`` on, the ambient light is ``eta`` (a lamp or daylight switched on or off)."""
+
+    frame: int = Field(ge=0, le=100_000_000, description="first frame with this ambient light")
+    eta: float = Field(ge=0, le=100, description="η from this frame on: N_al = η·N_max photons per pixel")
+
+
 class AmbientLight(StrictModel):
     eta: float = Field(ge=0, le=100, description="η: ambient photons per pixel N_al = η·N_max")
+    steps: list[AmbientStep] = Field(default_factory=list, max_length=10_000,
+                                     description="changes of η over the run, by frame (the latest one holds)")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> AmbientLight:
+        frames = [step.frame for step in self.steps]
+        if frames != sorted(set(frames)):
+            raise ValueError("ambient_light.steps must be in increasing order of frame, each frame once")
+        return self
+
+    def eta_at(self, frame: int) -> float:
+        """η at ``frame``: the latest step's at or before it, else the scene's ``eta``."""
+        eta = self.eta
+        for step in self.steps:
+            if step.frame > frame:
+                break
+            eta = step.eta
+        return eta
+
+    @property
+    def levels(self) -> list[float]:
+        """Every η the run takes, in order of first use."""
+        return list(dict.fromkeys([self.eta, *(step.eta for step in self.steps)]))
 
 
 class Detector(StrictModel):
@@ -237,7 +267,7 @@ class Scene(StrictModel):
             effects.append("detector")
             if self.detector.shot_noise:
                 effects.append("shot_noise")
-            if self.ambient_light is not None and self.ambient_light.eta > 0:
+            if self.ambient_light is not None and max(self.ambient_light.levels) > 0:
                 effects.append("ambient_light")
             if self.detector.dark_current > 0:
                 effects.append("dark_current")

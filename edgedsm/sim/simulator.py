@@ -193,6 +193,7 @@ class Simulator:
         self._noise_started = False
         self._gain: float | None = None
         self._level = self.scene.light_level(0)  # darkening and exposure steps at this frame
+        self._eta = self._ambient_eta(0)
 
     # -- threading ----------------------------------------------------------------------
     def _parallel(self, task: Callable[[int, int], None], count: int) -> None:
@@ -400,7 +401,11 @@ class Simulator:
         block's sub-streams."""
         assert self._detector is not None and self._gain is not None
         self._detector.rows(intensity, self._gain * self._level if laser_on else 0.0,
-                            lambda effect: self._streams[effect][block], out)
+                            lambda effect: self._streams[effect][block], out, self._eta)
+
+    def _ambient_eta(self, frame: int) -> float:
+        ambient = self.scene.ambient_light
+        return 0.0 if ambient is None else ambient.eta_at(frame)
 
     def _camera_rows(self, height: int) -> int:
         """Camera rows per detector block for an image of ``height`` rows."""
@@ -457,6 +462,7 @@ class Simulator:
     def next_frame(self, laser_on: bool = True) -> np.ndarray:
         """Advance one frame and return what the camera delivers."""
         self._level = self.scene.light_level(self.frame_index)
+        self._eta = self._ambient_eta(self.frame_index)
         if self.scene.detector is None or self._gain is None:
             return self.detect(self.next_intensity(), laser_on)
         # gain known: detect each block while its intensity is still in cache (same draws as

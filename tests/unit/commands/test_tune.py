@@ -126,6 +126,28 @@ def test_a_light_step_after_drying_keeps_s1_from_being_chosen(tmp_path, capsys):
         assert s1["delay_s"] < s2["delay_s"] - 2.0, (s1["delay_s"], s2["delay_s"])
 
 
+def test_a_lamp_switched_on_while_wet_moves_the_choice_from_s2_to_s3_or_tau_c(tmp_path, capsys):
+    # ambient light from 5 s on (η 0.05 -> 0.3, a lamp or daylight): S2's denominator grows with
+    # the offset, so S2 falls as if drying while the film is still wet; S3 divides by σ, which
+    # an offset leaves alone (paper §2, Fig. 7). Without the lamp, S2 times this scene best.
+    _scene(tmp_path, "")
+    text = (tmp_path / "scene.toml").read_text()
+    lamp = "[ambient_light]\neta = 0.05\nsteps = [{frame = 100, eta = 0.3}]\n"
+    (tmp_path / "scene.toml").write_text(text.replace("[ambient_light]\neta = 0.05\n", lamp))
+    code, result, _ = _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50")
+    assert code == 0
+    assert result["recommended"]["estimator"] in ("s3", "tau_c"), result["reason"]
+
+    def best(estimator: str) -> float:
+        errors = [c["timing_error_s"] for c in result["candidates"]
+                  if c["estimator"] == estimator and c["timing_error_s"] is not None]
+        return min(errors, default=float("inf"))
+
+    assert min(best("s3"), best("tau_c")) < best("s2"), result["candidates"]
+    s2_d = max(c["d_prime"] for c in result["candidates"] if c["estimator"] == "s2" and not c["noise_floor"])
+    assert s2_d < 30.0  # plain S2 separates wet from dry far less than without the lamp (d' about 100)
+
+
 def test_on_a_darkening_film_the_activity_above_the_noise_is_more_timely_than_the_plain_one(tmp_path, capsys):
     scene = (REPO / "config" / "scenes" / "darkening_film.toml").read_text().replace("size = 128", "size = 48")
     (tmp_path / "scene.toml").write_text(scene)

@@ -1,4 +1,4 @@
-"""Darkening, exposure steps and dark current: simulated only when a scene asks, from their own stream."""
+"""Darkening, exposure steps, ambient-light steps and dark current: simulated only when a scene asks, from their own stream."""
 
 from __future__ import annotations
 
@@ -61,7 +61,28 @@ def test_darkening_and_exposure_steps_scale_the_light():
     assert np.allclose(levels, [noiseless.light_level(i) for i in range(12)], atol=0.01)
 
 
+def test_ambient_light_steps_add_their_photons_from_the_frame_on_with_their_poisson_noise():
+    steps = {"eta": 0.0, "steps": [{"frame": 4, "eta": 0.05}, {"frame": 8, "eta": 0.02}]}
+    scene = make(ambient_light=steps)
+    assert "ambient_light" in scene.active_effects
+    assert [scene.ambient_light.eta_at(i) for i in (0, 3, 4, 7, 8, 11)] == [0.0, 0.0, 0.05, 0.05, 0.02, 0.02]
+    plain, lit = Simulator(make()), Simulator(scene)
+    a, b = np.stack(list(plain.frames())).astype(float), np.stack(list(lit.frames())).astype(float)
+    scale = 4095 / (4000 + math.sqrt(4000))  # grey levels per photon
+    unclipped = b < 4095  # a saturated pixel loses part of what was added
+    added = [(b - a)[i][unclipped[i]] for i in range(12)]
+    assert all(np.all(frame == 0.0) for frame in added[:4])  # η = 0 draws nothing: the plain scene's frames
+    for frames, eta in ((added[4:8], 0.05), (added[8:], 0.02)):
+        values = np.concatenate(frames)
+        assert values.mean() == pytest.approx(eta * 4000 * scale, rel=0.02)
+        assert values.var() == pytest.approx(eta * 4000 * scale**2 + 1 / 6, rel=0.1)  # Poisson(η·N_max)
+    # the process's own streams are untouched by the ambient light's
+    assert lit.rngs["shot_noise"].bit_generator.state == plain.rngs["shot_noise"].bit_generator.state
+
+
 @pytest.mark.parametrize("tables, message", [
+    ({"ambient_light": {"eta": 0.1, "steps": [{"frame": 5, "eta": 0.2}, {"frame": 5, "eta": 0.3}]}},
+     "increasing order"),
     ({"exposure_steps": [{"frame": 5, "factor": 2.0}, {"frame": 3, "factor": 1.0}]}, "increasing order"),
     ({"darkening": {"duration": 10, "final_factor": 1.5}}, "final_factor"),
     ({"darkening": {"duration": 10, "final_factor": 0.5}, "detector": None}, "need a \\[detector\\]"),
