@@ -148,6 +148,19 @@ def test_a_lamp_switched_on_while_wet_moves_the_choice_from_s2_to_s3_or_tau_c(tm
     assert s2_d < 30.0  # plain S2 separates wet from dry far less than without the lamp (d' about 100)
 
 
+def test_under_a_gaussian_beam_s2_beats_s1(tmp_path, capsys):
+    # the bright centre weighs in S1's region mean as it does not in S2's (paper Eq. 2's
+    # normalisation by I_k + I_{k+m}): S2 separates wet from dry better and is chosen
+    _scene(tmp_path, '\n[illumination]\nkind = "gaussian"\nomega = 20.0\n')
+    code, result, _ = _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50")
+    assert code == 0
+    assert result["recommended"]["estimator"] == "s2", result["reason"]
+    by_label = {c["label"]: c for c in result["candidates"]}
+    for lag in (5, 10):
+        s1, s2 = by_label[f"S1, N=100 m={lag} sliding"], by_label[f"S2, N=100 m={lag} sliding"]
+        assert s2["d_prime"] > 1.2 * s1["d_prime"] and s2["timing_error_s"] <= s1["timing_error_s"], (s1, s2)
+
+
 def test_on_a_darkening_film_the_activity_above_the_noise_is_more_timely_than_the_plain_one(tmp_path, capsys):
     scene = (REPO / "config" / "scenes" / "darkening_film.toml").read_text().replace("size = 128", "size = 48")
     (tmp_path / "scene.toml").write_text(scene)
