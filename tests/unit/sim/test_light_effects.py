@@ -1,4 +1,5 @@
-"""Darkening, exposure steps, ambient-light steps and dark current: simulated only when a scene asks, from their own stream."""
+"""Darkening, exposure steps, ambient-light steps and dark current: simulated only when a scene
+asks, each from its own stream."""
 
 from __future__ import annotations
 
