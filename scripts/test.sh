@@ -14,4 +14,15 @@ cd "$ROOT"
 # In parallel (pytest-xdist): most integration tests wait on brokers, daemons and cameras, so more
 # workers than cores pay. loadgroup hands out test by test, except that each xdist_group runs on
 # one worker (tests/conftest.py). Later arguments win: `./scripts/test.sh -n 0` runs serially.
-"$VENV/bin/python" -m pytest -n "${EDGEDSM_TEST_WORKERS:-4}" --dist loadgroup "$@"
+parallel=("$VENV/bin/python" -m pytest -n "${EDGEDSM_TEST_WORKERS:-4}" --dist loadgroup)
+if [ $# -gt 0 ]; then
+    exec "${parallel[@]}" "$@"
+fi
+# The whole suite in two phases. The tests marked `alone` bound wall-clock times that tests beside
+# them would push over: first they run one after the other with nothing beside them, then the rest
+# in parallel. (Under xdist an `alone` test waits for every running test to end while the other
+# workers wait for it: the suite's cores sat idle for minutes.)
+status=0
+"$VENV/bin/python" -m pytest -n 0 -m alone || status=$?
+"${parallel[@]}" -m "not alone" || status=$?
+exit "$status"
