@@ -23,6 +23,7 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
+from edgedsm.estimators.activity import flags_of
 from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags, tau_mode_problem
 from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.lag_products import LagProducts
@@ -34,7 +35,10 @@ KernelName = Literal["auto", "numba", "numpy"]
 
 MODES: tuple[str, ...] = ("sliding", "exponential", "tumbling")
 KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
-ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c")
+#: Names of the maps the engine can keep: the paper's S1-S3 and τc, and the field's descriptors that
+#: stream at O(1) per pixel from the same sums (issue 24, docs/descriptors.md): the temporal
+#: contrast σ/⟨I⟩, Fujii (200·S2 at q = 0) and the inertia moment mean (ΔI)² at lag m.
+ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im")
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
@@ -73,8 +77,9 @@ class SlidingWindow:
         q: the constant of Eq. 2 (grey levels, >= 0) that keeps 0/0 away.
         bits: bit depth of the data (1..16); None infers it from the first frame's dtype
             (uint8 -> 8, uint16 -> 16). Values above 2^bits - 1 are refused.
-        estimators: which of "s1", "s2", "s3", "tau_c" ``maps()`` returns (default: the first
-            three); only their sums are kept.
+        estimators: which of "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im" ``maps()``
+            returns (default: the first three); only their sums are kept. "fujii" (200·S2 at
+            q = 0, BSLTL's fujii.m) needs q = 0.
         mode: "sliding" (default), "exponential" or "tumbling" (docs/engine.md); the engine
             constructed is that mode's subclass.
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
@@ -126,6 +131,9 @@ class SlidingWindow:
             raise EstimatorError(f"q must be a finite number >= 0, got {q}")
         self.q = float(q)
         self.estimators = self._check_estimators(estimators)
+        if "fujii" in self.estimators and self.q != 0.0:
+            raise EstimatorError(f"estimator 'fujii' is 200·S2 at q = 0 (BSLTL's fujii.m): construct the engine "
+                                 f"with q=0, got q={self.q}")
         if kernel not in KERNELS:
             raise EstimatorError(f"kernel must be one of {', '.join(KERNELS)}; got {kernel!r}")
         self._kernels = load_kernels(kernel)
@@ -410,13 +418,15 @@ class SlidingWindow:
         wanted = self.estimators if estimators is None else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
-        flags = ("s1" in wanted or "s3" in wanted, "s2" in wanted, "s3" in wanted)
-        needed = {"abs": flags[0], "ratio": flags[1], "total": flags[2], "total_sq": flags[2], "m2": flags[2]}
+        flags = flags_of(wanted)
+        spread = flags[2] or flags[3]  # S3 and the contrast need σ
+        needed = {"abs": flags[0], "ratio": flags[1], "total": spread, "total_sq": spread, "m2": spread,
+                  "mean": flags[3], "sq": flags[5]}
         source_sums, old = self._sums(), into.sums if into is not None else {}
         sums = {}
         for name in self._moments.snapshot_names:
-            source = source_sums[name]
-            if not needed[name]:
+            source = source_sums.get(name)
+            if not needed[name] or source is None:
                 sums[name] = np.zeros(0, np.int64)
             elif how == "live":
                 sums[name] = source
