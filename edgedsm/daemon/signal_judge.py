@@ -27,6 +27,7 @@ from edgedsm.config import DaemonConfig
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import noise, signal_quality
 from edgedsm.estimators.noise import NoiseModel
+from edgedsm.estimators.noise_summary import ESTIMATORS as FLOORED
 from edgedsm.estimators.noise_summary import RegionFloor, above_of, region_floor, region_noise
 from edgedsm.messages import RegionSignal
 from edgedsm.noise_patches import PatchWindow
@@ -153,7 +154,8 @@ class SignalJudge:
 
     def floor_estimator(self, region: str) -> str:
         """The estimator whose floor a region is judged against: the activity; S3 (for its signal
-        share) for a region judged on τc."""
+        share) for a region judged on τc. The contrast has none (noise_summary.ESTIMATORS): a
+        region judged on it gets its light judged, its activity not lowered by a floor."""
         return "s3" if self.on_tau(region) else self.config.estimator.activity
 
     def assess(self, patches: Mapping[str, PatchWindow], estimates: Mapping[str, Mapping[str, float]]
@@ -168,7 +170,9 @@ class SignalJudge:
             values = estimates.get(name, {})
             floor_estimator = self.floor_estimator(name)
             above = floor = None
-            if self.model is not None and all(key in values for key in (floor_estimator, "s1")):
+            # an activity without a noise floor (the temporal contrast) is judged as it is
+            if self.model is not None and floor_estimator in FLOORED \
+                    and all(key in values for key in (floor_estimator, "s1")):
                 floor = region_floor(patch.frames, floor_estimator, est.lag, self.model, q=est.q, mask=patch.mask,
                                      top=patch.top, previous=self._reusable(name, patch, floor_estimator))
                 above = above_of(floor, values)
