@@ -249,7 +249,7 @@ def warm_up() -> None:
     rng = np.random.default_rng(0)
     speckle = rng.exponential(60.0, (16, 16))
     frames = np.clip(rng.poisson(speckle * rng.uniform(0.8, 1.2, (32, 1, 1))), 0, 255).astype(np.uint8)
-    for estimator in ("s1", "s2", "s3"):  # the daemon's (its engine has no other maps yet)
+    for estimator in ("s1", "s2", "s3"):  # SciPy and numpy's caches: the other floors share their paths
         for model in (None, noise.from_datasheet(0.5, 2.0)):
             region_noise(frames, None, estimator, 1, model=model, bits=8,
                          estimates={"s1": 5.0, "s2": 0.05, "s3": 1.0})

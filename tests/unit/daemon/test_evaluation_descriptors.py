@@ -13,7 +13,7 @@ from edgedsm.daemon.tau import engine_estimators
 from edgedsm.errors import ConfigError
 from edgedsm.publish.ha_discovery import Discovery
 from edgedsm.publish.prometheus import _stats_families
-from edgedsm.publish.sparkplug.metrics import declared_readings, stats_readings
+from edgedsm.publish.sparkplug.metrics import declared_readings, map_reading, stats_readings
 from edgedsm.publish.topics import Topics
 from edgedsm.validation import validate
 from tests.unit.daemon.test_evaluation_tau import _config, _run
@@ -80,6 +80,7 @@ def test_drying_judged_on_the_temporal_contrast_without_a_floor(repo):
 def test_the_config_takes_the_descriptors_and_refuses_fujii_with_a_q(repo):
     inertia = _config(repo, {"activity": "im"}, [{**PLATE, "wet_above": 400.0, "dry_below": 50.0}])
     assert engine_estimators(inertia) == ("s1", "s2", "s3", "im") and inertia.estimator.engine_q == 1.0
+    assert map_reading("plate", "im", 120.0)[1].unit == "grey levels²"  # Sparkplug's engineering unit
     assert _config(repo, {"activity": "fujii", "q": 0}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
     with pytest.raises(ConfigError, match=r"estimator.q: Value error, q = 2.0 with estimator.activity = .fujii."):
         _config(repo, {"activity": "fujii", "q": 2.0}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
