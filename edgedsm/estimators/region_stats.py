@@ -287,15 +287,28 @@ if numba is not None:
 
     @numba.njit(inline="always", nogil=True, cache=True)
     def _row_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, size, abs_sum, ratio_sum,
-                    second, fourth, sq_sum, out, start, pairs, ratio_unit, n, weight):  # pragma: no cover - compiled
-        """One run of a row (sum views starting at index 0): the values into columns ``start``… of
-        ``out``, each pixel's values as the maps kernel forms them
-        (:func:`edgedsm.estimators.activity.pixel_values`)."""
+                    second, fourth, sq_sum, out1, out2, out3, out4, out5, out6, pairs, ratio_unit, n,
+                    weight):  # pragma: no cover - compiled
+        """One run of a row (views starting at index 0): the values into out1..6 (MAPS order),
+        each pixel's values as the maps kernel forms them
+        (:func:`edgedsm.estimators.activity.pixel_values`). One 1-D array per map: the loop
+        vectorises (rows of one 2-D buffer made the region statistics 1.8x slower)."""
         for j in range(size):
             v1, v2, v3, _, vc, vf, vi = pixel_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im,
                                                      j, abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit,
                                                      n, weight)
-            _store(out, start + j, v1, v2, v3, vc, vf, vi, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im)
+            if do_abs:
+                out1[j] = v1
+            if do_s2:
+                out2[j] = v2
+            if do_s3:
+                out3[j] = v3
+            if do_contrast:
+                out4[j] = vc
+            if do_fujii:
+                out5[j] = vf
+            if do_im:
+                out6[j] = vi
 
     @numba.njit(nogil=True, fastmath={"reassoc", "nsz"}, cache=True)
     def _run_moments(values, shift):  # pragma: no cover - compiled
@@ -346,7 +359,12 @@ if numba is not None:
         *args, which numba cannot inline)."""
         exponential = kind == "exponential"
         width, row0, col0, cols, block_rows = geometry
-        buffer = np.empty((len(MAPS), cols))
+        buffer1 = np.empty(cols if do_abs else 0)
+        buffer2 = np.empty(cols if do_s2 else 0)
+        buffer3 = np.empty(cols if do_s3 else 0)
+        buffer4 = np.empty(cols if do_contrast else 0)
+        buffer5 = np.empty(cols if do_fujii else 0)
+        buffer6 = np.empty(cols if do_im else 0)
         rows = cover_ptr.size - 1
         for i in range(block * block_rows, min((block + 1) * block_rows, rows)):
             base = (row0 + i) * width + col0
@@ -357,7 +375,11 @@ if numba is not None:
                             abs_sum[first:last] if do_abs else abs_sum, ratio_sum[first:last] if do_s2 else ratio_sum,
                             second[first:last] if do_s3 or do_contrast else second,
                             fourth[first:last] if do_s3 or do_contrast else fourth,
-                            sq_sum[first:last] if do_im else sq_sum, buffer, start, pairs, ratio_unit, n, weight)
+                            sq_sum[first:last] if do_im else sq_sum, buffer1[start:stop] if do_abs else buffer1,
+                            buffer2[start:stop] if do_s2 else buffer2, buffer3[start:stop] if do_s3 else buffer3,
+                            buffer4[start:stop] if do_contrast else buffer4,
+                            buffer5[start:stop] if do_fujii else buffer5, buffer6[start:stop] if do_im else buffer6,
+                            pairs, ratio_unit, n, weight)
             for r in range(run_ptr.shape[0]):
                 if spread:
                     for q in range(sample_ptr[r, i], sample_ptr[r, i + 1]):
@@ -366,17 +388,17 @@ if numba is not None:
                                                                  second, fourth, sq_sum, pairs, ratio_unit, n, weight)
                         _store(samples, q, v1, v2, v3, vc, vf, vi, True, True, True, True, True, True)
                 if want_s1:
-                    _region_row(buffer[0], 0, r, i, run_ptr, runs, shift, partials, block)
+                    _region_row(buffer1, 0, r, i, run_ptr, runs, shift, partials, block)
                 if do_s2:
-                    _region_row(buffer[1], 1, r, i, run_ptr, runs, shift, partials, block)
+                    _region_row(buffer2, 1, r, i, run_ptr, runs, shift, partials, block)
                 if do_s3:
-                    _region_row(buffer[2], 2, r, i, run_ptr, runs, shift, partials, block)
+                    _region_row(buffer3, 2, r, i, run_ptr, runs, shift, partials, block)
                 if do_contrast:
-                    _region_row(buffer[3], 3, r, i, run_ptr, runs, shift, partials, block)
+                    _region_row(buffer4, 3, r, i, run_ptr, runs, shift, partials, block)
                 if do_fujii:
-                    _region_row(buffer[4], 4, r, i, run_ptr, runs, shift, partials, block)
+                    _region_row(buffer5, 4, r, i, run_ptr, runs, shift, partials, block)
                 if do_im:
-                    _region_row(buffer[5], 5, r, i, run_ptr, runs, shift, partials, block)
+                    _region_row(buffer6, 5, r, i, run_ptr, runs, shift, partials, block)
 
 
 @functools.cache
