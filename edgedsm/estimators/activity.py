@@ -226,6 +226,12 @@ def values_numpy(exponential: bool, flags: tuple[bool, ...], abs_sum: np.ndarray
             np.divide(sq_sum.astype(np.float64), pairs, out=out["im"])
 
 
+def gd_values(gd_sum: np.ndarray, n: int) -> np.ndarray:
+    """Generalized differences, BSLTL ``gendiff.m``: Σ_{i<j} |I_i - I_j| / C(N, 2) over N = ``n``
+    frames, grey levels: the exact integer sum divided once (as ``descriptors.gd``). New array."""
+    return gd_sum.astype(np.float64) / (n * (n - 1) / 2)
+
+
 #: The per-pixel values :func:`pixel_values` forms, in its order (and the maps arrays' names).
 VALUES = ("s1", "s2", "s3", "sigma", "contrast", "fujii", "im")
 

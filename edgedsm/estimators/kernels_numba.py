@@ -380,3 +380,42 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
                     b += 1
 
     return kernel
+
+
+@functools.cache
+def gd_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
+    """Generalized differences, sliding window (BSLTL's gendiff.m): Σ_{i<j} |I_i - I_j| over
+    the window, exact int64, O(N) per pixel per push (every frame of the window is read).
+
+    ``kernel(new, ring, old_slot, count, gd_sum)``: ring rows 0..``count``-1 hold the window's
+    other frames; frame i (``new``) joins, so Σ_k |I_i - I_k| is added over them; with
+    ``remove`` frame i-N (ring row ``old_slot``, skipped) leaves, and Σ_k |I_{i-N} - I_k| over
+    the same rows is subtracted. Reads the ring only: the window kernel writes frame i after.
+    Pixels go in blocks, rows along contiguous slices (the inner loop vectorises).
+    """
+
+    @kernel_variant(parallel)
+    def kernel(new, ring, old_slot, count, gd_sum):  # pragma: no cover - compiled
+        size = new.size
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            width = stop - start
+            acc = np.zeros(width, np.int64)
+            x = new[start:stop]
+            old = ring[old_slot, start:stop]
+            for k in range(count):
+                if remove and k == old_slot:
+                    continue
+                row = ring[k, start:stop]
+                for j in range(width):
+                    v = np.int64(row[j])
+                    if remove:
+                        acc[j] += abs(np.int64(x[j]) - v) - abs(np.int64(old[j]) - v)
+                    else:
+                        acc[j] += abs(np.int64(x[j]) - v)
+            for j in range(width):
+                gd_sum[start + j] += acc[j]
+
+    return kernel

@@ -21,8 +21,9 @@ from edgedsm.estimators.activity import values_numpy
 from edgedsm.estimators.activity import window_sigmas as sigma_from_sums
 
 KERNEL = "numpy"
-__all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "exponential_kernel", "maps_kernel",
-           "max_threads", "pairs_kernel", "products_kernel", "set_threads", "sigma_from_sums", "window_kernel"]
+__all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "exponential_kernel", "gd_kernel",
+           "maps_kernel", "max_threads", "pairs_kernel", "products_kernel", "set_threads", "sigma_from_sums",
+           "window_kernel"]
 CHUNK = 1 << 15  # pixels per chunk: the int64/float64 temporaries (256 KiB each) stay in L2
 
 
@@ -221,5 +222,27 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
                     value -= retired[old_slots[b], part].astype(np.int64) * source[leave_slots[b, k], part]
                     value += ring[new_slots[b], part].astype(np.int64) * ring[lag_slots[b, k], part]
                 products[k, part] = value
+
+    return kernel
+
+
+@functools.cache
+def gd_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
+    """See kernels_numba.gd_kernel."""
+
+    def kernel(new, ring, old_slot, count, gd_sum) -> None:
+        for start in range(0, new.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            x = new[part].astype(np.int64)
+            old = ring[old_slot, part].astype(np.int64)
+            acc = np.zeros(x.size, np.int64)
+            for k in range(count):
+                if remove and k == old_slot:
+                    continue
+                row = ring[k, part].astype(np.int64)
+                acc += np.abs(x - row)
+                if remove:
+                    acc -= np.abs(old - row)
+            gd_sum[part] += acc
 
     return kernel

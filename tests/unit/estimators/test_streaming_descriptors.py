@@ -202,3 +202,38 @@ def test_fujii_needs_q_zero():
     with pytest.raises(EstimatorError, match=r"fujii.*q=0"):
         SlidingWindow(SHAPE, 10, 2, q=1.0, estimators=("fujii",))
     SlidingWindow(SHAPE, 10, 2, q=1.0, estimators=("contrast", "im"))  # the others take any q
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("kind", ["random", "adversarial"])
+def test_sliding_gd_equals_the_batch_reference_bit_for_bit(kernel, bits, kind):
+    n = 11
+    frames = stream(kind, bits, 60, seed=7)
+    engine = SlidingWindow(SHAPE, n, 2, bits=bits, estimators=("s1", "gd"), kernel=kernel)
+    for i, frame in enumerate(frames, 1):
+        engine.push(frame)
+        if i >= n:  # every window, filling and sliding: the int64 sum never drifts
+            gd = engine.maps(["gd"])["gd"]
+            np.testing.assert_array_equal(gd, descriptors.gd(frames[i - n:i]))
+    assert np.isfinite(gd).all()
+    if kind == "adversarial":
+        top = (1 << bits) - 1
+        assert (gd[:3] == 0).all()  # dark, saturated, constant
+        assert (gd[3] == top * 6 * 5 / (n * (n - 1) / 2)).all()  # 0/top alternating: 6·5 pairs differ by top
+    before = engine._snapshot()["gd"]
+    engine.resync()  # rebuilt from the ring by the sorted-values identity: the same integers
+    np.testing.assert_array_equal(engine._snapshot()["gd"], before)
+
+
+def test_gd_streams_in_sliding_mode_only_and_not_in_snapshots():
+    for mode in ("tumbling", "exponential"):
+        with pytest.raises(EstimatorError, match="'gd' needs mode='sliding'"):
+            SlidingWindow(SHAPE, 10, 2, estimators=("gd",), mode=mode)
+    engine = SlidingWindow(SHAPE, 4, 1, bits=8, estimators=("s2", "gd"))
+    for frame in stream("random", 8, 5):
+        engine.push(frame)
+    assert set(maps_from(engine.snapshot())) == {"s2"}  # the default snapshot leaves gd out
+    with pytest.raises(EstimatorError, match="does not carry 'gd'"):
+        engine.snapshot(["gd"])
+    assert engine.array_bytes()["gd"] == 8 * SHAPE[0] * SHAPE[1]
