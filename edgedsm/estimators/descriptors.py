@@ -25,6 +25,7 @@ import numpy as np
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import bands
 from edgedsm.estimators.batch import check_frames, check_stack, s1, s2, s3, temporal_sigma
+from edgedsm.estimators.value_set import gd_of_sum
 
 #: Octave's eps (2^-52), which BSLTL's fujii.m adds to I_k + I_{k+m}: with it each term is
 #: BSLTL's; q = 0 would differ where I_k + I_{k+m} = 1, by 1 ulp. (The map still differs from
@@ -70,7 +71,7 @@ def gd(frames: np.ndarray) -> np.ndarray:
         total = np.zeros(stack.shape[1:], np.int64)
         for k in range(n):
             total += (2 * k - n + 1) * ordered[k].astype(np.int64)
-        return total.astype(np.float64) / pairs
+        return gd_of_sum(total, n)  # the sliding engine's map from its own sum, the same division
     # the weights sum to 0, so the smallest value can be taken off first: every term is then a
     # spread, not an intensity (no cancellation of large offsets in float data)
     lowest = ordered[0].astype(np.float64)

@@ -23,12 +23,12 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.activity import flags_of, gd_values
 from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags, tau_mode_problem
 from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import Layout, Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
+from edgedsm.estimators.value_set import flags_of, gd_of_sum
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
@@ -346,7 +346,7 @@ class SlidingWindow:
         only_tau = set(wanted) <= {"tau_c", "gd"}
         flat = {} if only_tau else self._moments.maps(self._sums(), self.shape[0] * self.shape[1])
         if "gd" in wanted:
-            flat["gd"] = gd_values(self._arrays["gd"], self.window)
+            flat["gd"] = gd_of_sum(self._arrays["gd"], self.window)
         return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
                 for name in wanted}
 

@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from edgedsm.estimators.activity import flags_of, value_sizes
 from edgedsm.estimators.fixed_point import _NO_LUT, ratio_lut
+from edgedsm.estimators.value_set import flags_of, value_sizes
 
 _INT32_MAX = 2**31 - 1
 

@@ -44,9 +44,10 @@ import numpy as np
 
 from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, percentiles
 from edgedsm.analysis_kernels import masked_moments
-from edgedsm.estimators.activity import flags_of, pixel_values
+from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
+from edgedsm.estimators.value_set import flags_of
 
 try:
     import numba

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.activity import VALUES, flags_of, value_sizes
 from edgedsm.estimators.correlation_time import tau_lags
+from edgedsm.estimators.value_set import VALUES, flags_of, value_sizes
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ import pytest
 
 from edgedsm.estimators import activity
 from edgedsm.estimators.kernels_numpy import maps_kernel as numpy_maps_kernel
+from edgedsm.estimators.value_set import VALUES
 
 HAS_NUMBA = importlib.util.find_spec("numba") is not None
 
@@ -39,7 +40,7 @@ ALL = (True,) * 6
 
 
 def numpy_values(exponential, abs_sum, ratio_sum, second, fourth, pairs, unit, n, weight):
-    out = {name: np.empty(abs_sum.size) for name in activity.VALUES}
+    out = {name: np.empty(abs_sum.size) for name in VALUES}
     sq_sum = np.sqrt(np.abs(abs_sum)) * 3.0 if exponential else sq_sums(abs_sum)
     activity.values_numpy(exponential, ALL, abs_sum, ratio_sum, second, fourth, sq_sum, pairs, unit, n, weight, out)
     return list(out.values())
