@@ -198,7 +198,7 @@ def values_numpy(exponential: bool, flags: tuple[bool, ...], abs_sum: np.ndarray
                  second: np.ndarray, fourth: np.ndarray, sq_sum: np.ndarray, pairs: int, ratio_unit: float, n: int,
                  weight: float, out: dict[str, np.ndarray]) -> None:
     """:func:`pixel_values` of every pixel, into the arrays ``out`` (s1, s2, s3, sigma, contrast,
-    fujii, im) of the values ``flags`` (as :func:`flags_of`) asks for."""
+    fujii, im) of the values ``flags`` (as :func:`edgedsm.estimators.value_set.flags_of`) asks for."""
     do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
     if do_abs:
         if exponential:

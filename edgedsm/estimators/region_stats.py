@@ -5,7 +5,8 @@ percentiles (:func:`edgedsm.analysis.region_stats`), and for the drying states o
 map's mean. Computing whole float maps first (:func:`edgedsm.estimators.snapshot.maps_from`)
 writes 32 bytes per pixel and reads them back per region and map. Here one pass over the rows
 the regions cover (:class:`RegionLayout`) reads the engine's sums once: each pixel of the
-regions' union gets its S1, S2 and S3 (Eq. 1-4) computed once into a row buffer, whatever the
+regions' union gets its S1, S2 and S3 (Eq. 1-4), and the contrast, Fujii and IM asked for
+(:data:`MAPS`), computed once into a row buffer, whatever the
 regions holding it, and each region sums its column runs of that buffer. It runs on the
 pipeline thread between two pushes, from the live sums (the pushes are on that thread too).
 
@@ -23,7 +24,7 @@ Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 re
   Blocks are fixed by the layout (not by the thread count), so the result is the same whatever
   the threads.
 
-Every pixel's S1, S2, S3 (row buffers and samples alike) is formed by the one definition the
+Every pixel's values (row buffers and samples alike) is formed by the one definition the
 engine's maps use, :func:`edgedsm.estimators.activity.pixel_values`: bit for bit the map's value.
 
 The kernels are module-level functions, or closures over plain constants only, so numba's disk

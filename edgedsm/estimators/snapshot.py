@@ -88,7 +88,7 @@ def _unshared(arrays: dict[str, np.ndarray]) -> bool:
 
 def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
     """Pixels of each array the maps kernel writes for this snapshot (0: not computed), in the
-    order of :data:`edgedsm.estimators.activity.VALUES`."""
+    order of :data:`edgedsm.estimators.value_set.VALUES`."""
     return value_sizes(flags_of(snapshot.estimators), snapshot.shape[0] * snapshot.shape[1])
 
 
