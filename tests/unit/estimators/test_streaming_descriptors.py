@@ -237,3 +237,25 @@ def test_gd_streams_in_sliding_mode_only_and_not_in_snapshots():
     with pytest.raises(EstimatorError, match="does not carry 'gd'"):
         engine.snapshot(["gd"])
     assert engine.array_bytes()["gd"] == 8 * SHAPE[0] * SHAPE[1]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("bits", [8, 16])
+def test_a_long_adversarial_run_leaves_no_drift(bits):
+    """The last 200 000 frames of the long-run patterns (alternation, dark, saturated, flickers,
+    constant, saw-tooth): the descriptors of the last window are still the batch references
+    (int32 and int64 sums that add and remove for ever)."""
+    from test_streaming_long import COUNT, adversarial_stream
+
+    frames = adversarial_stream(COUNT, bits)[-200_000:]
+    n, m = 200, 10
+    engine = SlidingWindow((2, 4), n, m, q=0, bits=bits, estimators=(*NEW, "gd"))
+    tumbling = SlidingWindow((2, 4), n, m, q=0, bits=bits, estimators=NEW, mode="tumbling")
+    for frame in frames:
+        engine.push(frame)
+        tumbling.push(frame)
+    window = frames[-n:]
+    check_window_maps(engine.maps(NEW), window, m, bits)
+    check_window_maps(tumbling.maps(), window, m, bits)  # 200 000 is a whole number of blocks
+    np.testing.assert_array_equal(engine.maps(["gd"])["gd"], descriptors.gd(window))
+    assert engine.maps(["contrast"])["contrast"][1, 2] == 0.0  # constant pixel: σ = 0
