@@ -63,3 +63,27 @@ def test_analyze_timeline_follows_the_estimator_named(tmp_path: Path, capsys: py
     assert main(["analyze", str(scene), "--frames", "60", "--timeline", str(out), "--window", "50",
                  "--estimator", "gd"]) == 1
     assert "gd is a batch map only" in capsys.readouterr().err
+
+
+def test_the_configs_activity_adds_its_column(tmp_path: Path) -> None:
+    frames = np.random.default_rng(1).integers(0, 256, (30, 16, 16), dtype=np.uint8)
+    frames[:, :, 8:] //= 4  # the right half: differences 4x smaller, IM about 16x
+    np.save(tmp_path / "frames.npy", frames)
+    config = tmp_path / "edgedsm.toml"
+    region = '[[regions]]\nname = "{}"\nshape = "rect"\nx = {}\ny = 0\nwidth = 8\nheight = 16\n' \
+             'wet_above = 400.0\ndry_below = 50.0\n\n'
+    config.write_text('[camera]\nuri = "sim:default"\n\n[estimator]\nactivity = "im"\n\n'
+                      + region.format("left", 0) + region.format("right", 8))
+    out = tmp_path / "out"
+    assert main(["analyze", str(tmp_path / "frames.npy"), "--timeline", str(out), "-c", str(config), "--window",
+                 "10", "--lag", "1", "--every", "10", "--no-tau-c", "--no-noise-floor"]) == 0
+    with (out / "timeline.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert list(rows[0])[-1] == "im" and len(rows) == 2 * 3  # frames 9, 19, 29
+    for row in rows:
+        index, x = int(row["frame"]), 0 if row["region"] == "left" else 8
+        expected = descriptors.im(frames[index - 9:index + 1, :, x:x + 8], 1).mean()
+        assert float(row["im"]) == pytest.approx(expected, rel=1e-5)  # the CSV keeps 6 digits
+    left = [float(r["im"]) for r in rows if r["region"] == "left"]
+    right = [float(r["im"]) for r in rows if r["region"] == "right"]
+    assert min(left) > 10 * max(right)
