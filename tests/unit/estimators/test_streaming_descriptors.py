@@ -259,3 +259,19 @@ def test_a_long_adversarial_run_leaves_no_drift(bits):
     check_window_maps(tumbling.maps(), window, m, bits)  # 200 000 is a whole number of blocks
     np.testing.assert_array_equal(engine.maps(["gd"])["gd"], descriptors.gd(window))
     assert engine.maps(["contrast"])["contrast"][1, 2] == 0.0  # constant pixel: σ = 0
+
+
+def test_the_region_statistics_without_numba_give_the_same_descriptors():
+    from edgedsm.estimators.region_stats import _moments_from_maps
+
+    engine = SlidingWindow(SHAPE, 8, 2, q=0, bits=8, estimators=("s1", *NEW), kernel="numpy")
+    for frame in stream("adversarial", 8, 12, seed=4):
+        engine.push(frame)
+    mask = np.zeros(SHAPE, bool)
+    mask[:, 3:] = True
+    plans = {"r": RegionPlan.of(RegionBox.of(mask), SHAPE)}
+    fallback = _moments_from_maps(engine.snapshot(), plans, NEW, True)["r"]
+    fused = region_moments(engine.snapshot(live=True), plans, NEW)["r"]
+    for name in NEW:
+        assert fallback[name].mean == pytest.approx(fused[name].mean, rel=1e-12, abs=1e-12)
+        assert fallback[name].stats().median == fused[name].stats().median
