@@ -1,10 +1,14 @@
-"""Time histories: per-region activity (S1, S2, S3, τc) and a map histogram against time.
+"""Time histories: per-region activity (S1, S2, S3, τc, and the field's streaming descriptors when
+asked for) and a map histogram against time.
 
 The paper (§3) reads drying from activity against time and from how the histogram of a map
 moves. :func:`timeline` streams frames through a sliding window (:class:`SlidingWindow`, the
 daemon's engine) and, every ``every`` frames once the window is full, records for each region
 the mean of S1, S2 and S3 and the region's τc (from region-averaged correlations), plus the
-histogram of one estimator's map over the whole frame. Pure: frames in, arrays out.
+histogram of one estimator's map over the whole frame. ``descriptors`` adds the region means of
+the temporal contrast, Fujii and the inertia moment (docs/descriptors.md) as columns after the
+others (the engine keeps their sums only then; Fujii is 200·S2 at q = 0, the timeline's q).
+Pure: frames in, arrays out.
 
 When the samples fall on disjoint sets of N frames (``every`` a multiple of N, the paper's
 Figs. 10–11 processing: sets of 200 frames), the engine runs in tumbling mode: the same maps at
@@ -37,6 +41,8 @@ COLUMNS = ("frame", "time_s", "region", "s1", "s2", "s3", "tau_c_frames", "tau_c
            "mean_intensity", "signal", "s1_above_noise", "s2_above_noise", "s3_above_noise")
 #: the columns of the light and the activity above the camera's noise (docs/noise.md)
 NOISE_COLUMNS = COLUMNS[9:]
+#: the field's descriptors the engine streams, which ``descriptors`` may add as columns
+DESCRIPTORS = ("contrast", "fujii", "im")
 
 
 PATCH_SIDE = 64  # the daemon's default estimator.noise_patch
@@ -79,10 +85,16 @@ class Timeline:
     histograms: list[np.ndarray] = field(default_factory=list)  # density per sample
     sample_frames: list[int] = field(default_factory=list)
     sample_times: list[float] = field(default_factory=list)  # seconds, one per sample
+    descriptors: tuple[str, ...] = ()  # the descriptors' columns after COLUMNS
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The rows' columns: COLUMNS, then one per descriptor."""
+        return COLUMNS + self.descriptors
 
     def series(self, region: str, column: str) -> np.ndarray:
         """One column of one region against the samples, as float64."""
-        index = COLUMNS.index(column)
+        index = self.columns.index(column)
         return np.array([row[index] for row in self.rows if row[2] == region], np.float64)
 
     def histogram_image(self) -> np.ndarray:
@@ -94,7 +106,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
              every: int, dt: float = 1.0, max_lag: int = 20, bins: int = 64, histogram_estimator: str = "s2",
              histogram_range: tuple[float, float] | None = None, bits: int | None = None,
              times_s: Sequence[float] | None = None, mode: str | None = None, with_tau: bool = True,
-             with_noise: bool = True, noise_model: NoiseModel | None = None) -> Timeline:
+             with_noise: bool = True, noise_model: NoiseModel | None = None,
+             descriptors: Sequence[str] = ()) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
     The first sample is at the frame that fills the window (index window-1), time = frame · dt,
@@ -110,15 +123,20 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     (docs/noise.md) are judged on a patch at its centre, as the daemon judges them
     (:mod:`edgedsm.noise_patches`): ``noise_model`` (a datasheet's), else the last model the
     frames gave; the above-noise columns read NaN while there is none, the signal column
-    "off" without ``with_noise``.
+    "off" without ``with_noise``. ``descriptors``: some of :data:`DESCRIPTORS`, whose region
+    means follow as columns (the histogram may be of one of them).
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
     if not regions:
         raise EstimatorError("no region to follow")
-    if histogram_estimator not in ("s1", "s2", "s3"):
-        raise EstimatorError(f"histogram estimator must be s1, s2 or s3, got {histogram_estimator!r}")
-    result = Timeline(dt=dt, max_lag=max_lag, histogram_estimator=histogram_estimator)
+    if unknown := [name for name in descriptors if name not in DESCRIPTORS]:
+        raise EstimatorError(f"the timeline streams the descriptors {', '.join(DESCRIPTORS)}, not {unknown}")
+    extra = tuple(name for name in DESCRIPTORS if name in descriptors)
+    if histogram_estimator not in ("s1", "s2", "s3", *extra):
+        raise EstimatorError(f"histogram estimator must be one of {', '.join(('s1', 's2', 's3', *extra))}, "
+                             f"got {histogram_estimator!r}")
+    result = Timeline(dt=dt, max_lag=max_lag, histogram_estimator=histogram_estimator, descriptors=extra)
     if mode is None:
         mode = "tumbling" if every % window == 0 else "sliding"
     engine: SlidingWindow | None = None
@@ -134,7 +152,7 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
                                          f"the frames {frame.shape[1]}x{frame.shape[0]}")
             depth = bits or 8 * frame.dtype.itemsize
             in_engine = with_tau and (mode != "tumbling" or int64_problem(frame.shape, window, depth) is not None)
-            estimators = ("s1", "s2", "s3", "tau_c") if in_engine else ("s1", "s2", "s3")
+            estimators = ("s1", "s2", "s3", *extra, *(("tau_c",) if in_engine else ()))
             engine = SlidingWindow(frame.shape, window, lag, bits=bits, mode=mode, estimators=estimators,
                                    max_lag=max_lag if in_engine else None)
             if with_tau and not in_engine:
@@ -150,7 +168,7 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         count = index + 1
         if not engine.ready or (index - (window - 1)) % every:
             continue
-        maps = engine.maps(("s1", "s2", "s3"))  # τc per region below: the per-pixel τc map is not needed
+        maps = engine.maps(("s1", "s2", "s3", *extra))  # τc per region below: not the per-pixel τc map
         time = index * dt if times_s is None else float(times_s[index])
         windows = patches.take() if patches is not None else {}
         for name, mask in regions.items():
@@ -162,7 +180,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
                 taus = (float("nan"), float("nan"), "off")
             judged = light.judge(windows[name], dict(zip(ESTIMATORS, means, strict=True)), lag,
                                  histogram_estimator) if name in windows else _NO_NOISE
-            result.rows.append((index, time, name, *means, *taus, *judged))
+            result.rows.append((index, time, name, *means, *taus, *judged,
+                                *(float(maps[key][mask].mean()) for key in extra)))
         values = maps[histogram_estimator]
         if histogram_range is None:
             top = 1.25 * float(np.percentile(values, 99.5))

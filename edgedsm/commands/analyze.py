@@ -24,8 +24,9 @@ summary (docs/noise.md) is printed for those with a known floor: s1, s2, s3, fuj
 With --timeline OUT_DIR it follows the activity against time instead (the paper's §3 reads
 drying this way): a sliding window of N frames is sampled every --every frames, and
 OUT_DIR/timeline.csv gets, per region and sample, the mean S1, S2, S3 and the region's τc
-(frames and seconds); OUT_DIR/timeline.png plots them and OUT_DIR/histogram.png shows the
-histogram of the S2 map (--histogram) against time. FRAMES may then also be a scene file
+(frames and seconds), and the region mean of the streaming descriptor --estimator names or
+the config's estimator.activity is (contrast, fujii or im); OUT_DIR/timeline.png plots them and
+OUT_DIR/histogram.png shows the histogram of the S2 map (--histogram) against time. FRAMES may then also be a scene file
 (or 'default'), simulated on the fly (--frames of them). Regions come from a daemon config
 (-c), else the whole frame is one region named 'frame'.
 
@@ -38,6 +39,7 @@ Examples:
   edgedsm analyze recording.npy --timeline out/ -c edgedsm.toml --dt 0.05
   edgedsm analyze drying/ --channel red --start 200 --window 200 --lag 5 --estimator s2 -o s2.npy
   edgedsm analyze run-12.tif --timeline out/ --window 200 --lag 5 --every 200
+  edgedsm analyze run-12.tif --timeline out/ --window 200 --lag 1 --estimator fujii
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ from edgedsm.estimators.noise import from_datasheet
 from edgedsm.estimators.noise_summary import RegionNoise, region_noise
 from edgedsm.frameio import CHANNELS, FrameReader
 from edgedsm.imageio import save_map_png
+from edgedsm.timeline import DESCRIPTORS as TIMELINE_DESCRIPTORS
 
 NAME = "analyze"
 HELP = "compute an S1/S2/S3 activity map from frames"
@@ -100,9 +103,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.timeline is not None:
-        if args.estimator not in ESTIMATORS:
-            raise EstimatorError(f"--timeline follows s1, s2, s3 and τc; {args.estimator} is a batch map only "
-                                 "(its streaming version is issue 24's engine work)")
+        if args.estimator not in (*ESTIMATORS, *TIMELINE_DESCRIPTORS):
+            raise EstimatorError(f"--timeline follows s1, s2, s3, τc and the streaming descriptors "
+                                 f"{', '.join(TIMELINE_DESCRIPTORS)}; {args.estimator} is a batch map only")
         return run_timeline(args)
     if args.output is None:
         raise EstimatorError("give -o MAP.npy (or --timeline OUT_DIR)")

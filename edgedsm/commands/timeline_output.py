@@ -18,7 +18,7 @@ import numpy as np
 from edgedsm.commands.common import progress
 from edgedsm.errors import EstimatorError
 from edgedsm.frameio import FrameReader, open_frames
-from edgedsm.timeline import COLUMNS, Timeline, timeline
+from edgedsm.timeline import DESCRIPTORS, Timeline, timeline
 
 SCENE_SUFFIXES = (".toml",)
 
@@ -42,8 +42,9 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
                        help="frame interval (default: the scene's, the config's camera.frame_interval_s, else 1)")
     group.add_argument("--frames", dest="frame_count", type=int, metavar="COUNT",
                        help="frames to simulate when FRAMES is a scene (default: the scene's)")
-    group.add_argument("--histogram", choices=("s1", "s2", "s3"), default="s2",
-                       help="estimator whose map histogram is drawn against time (default s2)")
+    group.add_argument("--histogram", choices=("s1", "s2", "s3", *DESCRIPTORS), default="s2",
+                       help="estimator whose map histogram is drawn against time (default s2; a descriptor "
+                            "needs its column: --estimator or the config's estimator.activity)")
 
 
 def open_reader(args: argparse.Namespace) -> FrameReader:
@@ -82,15 +83,20 @@ def _frames(args: argparse.Namespace, stack: contextlib.ExitStack
     return reader.frames(args.start, stop), reader.bits, reader.dt, count, times
 
 
-def _regions(args: argparse.Namespace, shape: tuple[int, int]) -> tuple[dict[str, np.ndarray], float | None]:
+def _regions(args: argparse.Namespace, shape: tuple[int, int]
+             ) -> tuple[dict[str, np.ndarray], float | None, tuple[str, ...]]:
+    """The regions, the config's frame interval and the descriptor columns: analyze's --estimator
+    and the config's estimator.activity when they are streaming descriptors."""
+    wanted = {getattr(args, "estimator", None)}
     if args.config is None:
-        return {"frame": np.ones(shape, bool)}, None
+        return {"frame": np.ones(shape, bool)}, None, tuple(name for name in DESCRIPTORS if name in wanted)
     from edgedsm.config import check_regions, load_config
 
     config = load_config(args.config)
     check_regions(config, shape)
+    wanted.add(config.estimator.activity)
     return ({region.name: region.mask(shape, config.base_dir) for region in config.regions},
-            config.camera.frame_interval_s)
+            config.camera.frame_interval_s, tuple(name for name in DESCRIPTORS if name in wanted))
 
 
 def _datasheet(args: argparse.Namespace):
@@ -115,7 +121,7 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     first = next(frames, None)
     if first is None:
         raise EstimatorError(f"{args.frames}: no frames")
-    regions, config_dt = _regions(args, first.shape)
+    regions, config_dt, descriptors = _regions(args, first.shape)
     dt = args.dt or scene_dt or config_dt or 1.0
 
     read = [0]
@@ -129,7 +135,8 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
 
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
                       max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times,
-                      with_tau=args.with_tau, with_noise=args.with_noise, noise_model=_datasheet(args))
+                      with_tau=args.with_tau, with_noise=args.with_noise, noise_model=_datasheet(args),
+                      descriptors=descriptors)
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)
@@ -144,7 +151,7 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
 def write_csv(path: Path, result: Timeline) -> None:
     with path.open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
-        writer.writerow(COLUMNS)
+        writer.writerow(result.columns)
         for row in result.rows:
             writer.writerow([f"{cell:.6g}" if isinstance(cell, float) else cell for cell in row])
 
@@ -161,8 +168,10 @@ def _pyplot():
 def plot_activity(path: Path, result: Timeline, title: str) -> None:
     plt = _pyplot()
     names = list(dict.fromkeys(row[2] for row in result.rows))
-    columns = (("s1", "S1 (grey levels)"), ("s2", "S2"), ("s3", "S3"), ("tau_c_s", "τc (s)"))
-    fig, axes = plt.subplots(len(columns), 1, figsize=(8, 9), sharex=True)
+    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)"}
+    columns = (("s1", "S1 (grey levels)"), ("s2", "S2"), ("s3", "S3"),
+               *((name, labels[name]) for name in result.descriptors), ("tau_c_s", "τc (s)"))
+    fig, axes = plt.subplots(len(columns), 1, figsize=(8, 9 + 2 * len(result.descriptors)), sharex=True)
     for ax, (column, label) in zip(axes, columns, strict=True):
         for name in names:
             ax.plot(result.series(name, "time_s"), result.series(name, column), label=name)

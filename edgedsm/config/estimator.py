@@ -5,16 +5,25 @@ from __future__ import annotations
 import os
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from edgedsm.estimators.correlation_time import default_max_lag, max_lag_problem, tau_mode_problem
 from edgedsm.validation import StrictModel
 
+#: The paper's maps, which the daemon always forms, publishes and reduces per region.
+PAPER_MAPS: tuple[str, ...] = ("s1", "s2", "s3")
+#: The field's descriptors the daemon can judge on (docs/descriptors.md): formed beside S1-S3 when
+#: the activity is one of them (each costs a little per push: docs/descriptors.md).
+DESCRIPTOR_ACTIVITIES: tuple[str, ...] = ("contrast", "fujii", "im")
+
 
 class EstimatorSection(StrictModel):
-    activity: Literal["s1", "s2", "s3", "tau_c"] = Field(
+    activity: Literal["s1", "s2", "s3", "tau_c", "contrast", "fujii", "im"] = Field(
         "s2", description="estimator the drying states are judged on (S3 saturates once τc >> N; tau_c: the "
-                          "region's correlation time in seconds, thresholds wet_below_s / dry_above_s)")
+                          "region's correlation time in seconds, thresholds wet_below_s / dry_above_s; the "
+                          "field's descriptors: contrast = temporal σ/⟨I⟩, fujii = 200·S2 at q = 0 (the engine "
+                          "then runs at q = 0: an explicit non-zero q is refused), im = mean (I_k - I_{k+m})² in "
+                          "grey levels²; docs/descriptors.md)")
     window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
     lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
     q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
@@ -65,6 +74,26 @@ class EstimatorSection(StrictModel):
         if (self.activity == "tau_c" or self.tau_c) and (problem := tau_mode_problem(self.mode)):
             raise ValueError(f"{'activity' if self.activity == 'tau_c' else 'tau_c'}: {problem}")
         return self
+
+    @field_validator("q")
+    @classmethod
+    def _fujii_has_no_q(cls, q: float, info: ValidationInfo) -> float:
+        # a q given explicitly (the default is not validated) beside activity = 'fujii'
+        if info.data.get("activity") == "fujii" and q != 0:
+            raise ValueError(f"q = {q} with estimator.activity = 'fujii': Fujii is 200·S2 at q = 0 (BSLTL's "
+                             "fujii.m), so the engine runs at q = 0; remove estimator.q or set it to 0")
+        return q
+
+    @property
+    def engine_q(self) -> float:
+        """The q the engine runs at: 0 when judged on Fujii (200·S2 at q = 0), else ``q``."""
+        return 0.0 if self.activity == "fujii" else self.q
+
+    @property
+    def maps(self) -> tuple[str, ...]:
+        """The maps the daemon forms, publishes and reduces per region: S1, S2, S3 and the activity
+        when it is one of the field's descriptors."""
+        return (*PAPER_MAPS, self.activity) if self.activity in DESCRIPTOR_ACTIVITIES else PAPER_MAPS
 
     @property
     def lags(self) -> int:

@@ -8,10 +8,11 @@ import numpy as np
 
 from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
+from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES
 from edgedsm.daemon.signal_judge import warm_up as warm_up_noise
 from edgedsm.daemon.tau import TauRegions, engine_estimators
 from edgedsm.errors import ConfigError
-from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.streaming import TAU_BATCH
@@ -60,7 +61,8 @@ def engine_bytes_per_pixel(probe: SlidingWindow) -> float:
     tau = sum(size for name, size in own.items() if name in ("products", "edges", "retired", "total", "total_sq"))
     copies = probe.snapshot_buffers().nbytes + (tau if "tau_c" in probe.estimators else 0)
     pixels = probe.shape[0] * probe.shape[1]
-    return (sum(own.values()) + copies) / pixels + MAP_BYTES_PER_PIXEL
+    descriptors = sum(name in DESCRIPTOR_ACTIVITIES for name in probe.estimators)  # one more map each
+    return (sum(own.values()) + copies) / pixels + MAP_BYTES_PER_PIXEL + 2 * 8 * descriptors
 
 
 def check_engine_memory(frame: Frame, bytes_per_pixel: float, pixels: int | None = None) -> None:
@@ -86,7 +88,7 @@ def warm_up(config: DaemonConfig) -> None:
     window = est.lag + 2
     if tau.on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
         window = max(window, est.lags + TAU_BATCH + 2)
-    engine = SlidingWindow((side, side), window=window, lag=est.lag, q=est.q, bits=16 if deep else 8,
+    engine = SlidingWindow((side, side), window=window, lag=est.lag, q=est.engine_q, bits=16 if deep else 8,
                            estimators=engine_estimators(config), mode=est.mode, threads=est.threads,
                            max_lag=est.lags if tau.on else None)
     frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
@@ -96,11 +98,12 @@ def warm_up(config: DaemonConfig) -> None:
     mask[1:-1, 1:-1] = True
     layout = RegionLayout.of({name: RegionPlan.of(RegionBox.of(region), (side, side))
                               for name, region in (("all", np.ones_like(mask)), ("inner", mask))})
-    maps_from(engine.snapshot(ESTIMATORS))
-    wanted = [ESTIMATORS] + ([[est.activity]] if est.activity in ESTIMATORS else [])
+    maps = est.maps
+    maps_from(engine.snapshot(maps))
+    wanted = [maps] + ([(est.activity,)] if est.activity in maps else [])
     for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
         for names in wanted:
-            region_moments(engine.snapshot(names, live=True), layout, names, spread=names is ESTIMATORS,
+            region_moments(engine.snapshot(names, live=True), layout, names, spread=names is maps,
                            parallel=parallel)
     if tau.on:  # the pooled-covariance kernels of the regions and the block map
         sums = engine.tau_snapshot()

@@ -30,7 +30,7 @@ from edgedsm.daemon.handover import Snapshot, Status
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.tau import TauRegions, engine_estimators
 from edgedsm.errors import FrameError
-from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
@@ -114,7 +114,7 @@ class Measurement:
             shape = (rows.stop - rows.start, cols.stop - cols.start)
 
         def engine(shape: tuple[int, int]) -> SlidingWindow:
-            return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.q, bits=frame.bits,
+            return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.engine_q, bits=frame.bits,
                                  estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
                                  max_lag=est.lags if self.tau.on else None)
 
@@ -124,7 +124,7 @@ class Measurement:
         self.engine = engine(shape)
         # the arrays of the maps evaluation (a copy of the sums, the float maps) written once now,
         # before frames flow: their fresh pages would otherwise stall both threads at the first maps
-        self._buffers = self.engine.snapshot_buffers(ESTIMATORS)
+        self._buffers = self.engine.snapshot_buffers(est.maps)
         self._map_buffers.reserve(self._buffers)
         self.regions = regions
         self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in regions.items()})
@@ -153,7 +153,7 @@ class Measurement:
                                          spread=stats_due, parallel=self.engine.shape[0] * self.engine.shape[1]
                                          >= PARALLEL_MIN_PIXELS)
             if publish_maps:
-                engine = self._buffers = self.engine.snapshot(ESTIMATORS, into=self._buffers)
+                engine = self._buffers = self.engine.snapshot(self.config.estimator.maps, into=self._buffers)
             tau = self.tau.take(self.engine, stats_due, self._tau_buffers)
             self._tau_buffers = tau or self._tau_buffers
         origin = None if self.crop is None else (self.crop[1].start, self.crop[0].start)
@@ -167,11 +167,11 @@ class Measurement:
     def _snapshot_estimators(self, stats_due: bool) -> list[str]:
         """The S maps an evaluation needs: all for the stats; for the states alone, the judged one
         if a region is judged on it (none when every region is judged on τc)."""
-        if stats_due:
-            return list(ESTIMATORS)
         est = self.config.estimator
+        if stats_due:
+            return list(est.maps)
         judged_on_activity = any(not region.on_tau for region in self.config.regions)
-        if est.activity not in ESTIMATORS or not judged_on_activity:
+        if est.activity not in est.maps or not judged_on_activity:
             return []
         # S3 above the noise needs the region's S1 too (noise_summary.above_of)
         return ["s1", "s3"] if est.activity == "s3" and est.noise_floor else [est.activity]

@@ -27,6 +27,7 @@ from edgedsm.config import DaemonConfig
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import noise, signal_quality
 from edgedsm.estimators.noise import NoiseModel
+from edgedsm.estimators.noise_summary import ESTIMATORS as FLOORED
 from edgedsm.estimators.noise_summary import RegionFloor, above_of, region_floor, region_noise
 from edgedsm.messages import RegionSignal
 from edgedsm.noise_patches import PatchWindow
@@ -153,7 +154,8 @@ class SignalJudge:
 
     def floor_estimator(self, region: str) -> str:
         """The estimator whose floor a region is judged against: the activity; S3 (for its signal
-        share) for a region judged on τc."""
+        share) for a region judged on τc. The contrast has none (noise_summary.ESTIMATORS): a
+        region judged on it gets its light judged, its activity not lowered by a floor."""
         return "s3" if self.on_tau(region) else self.config.estimator.activity
 
     def assess(self, patches: Mapping[str, PatchWindow], estimates: Mapping[str, Mapping[str, float]]
@@ -168,7 +170,9 @@ class SignalJudge:
             values = estimates.get(name, {})
             floor_estimator = self.floor_estimator(name)
             above = floor = None
-            if self.model is not None and all(key in values for key in (floor_estimator, "s1")):
+            # an activity without a noise floor (the temporal contrast) is judged as it is
+            if self.model is not None and floor_estimator in FLOORED \
+                    and all(key in values for key in (floor_estimator, "s1")):
                 floor = region_floor(patch.frames, floor_estimator, est.lag, self.model, q=est.q, mask=patch.mask,
                                      top=patch.top, previous=self._reusable(name, patch, floor_estimator))
                 above = above_of(floor, values)
@@ -245,7 +249,7 @@ def warm_up() -> None:
     rng = np.random.default_rng(0)
     speckle = rng.exponential(60.0, (16, 16))
     frames = np.clip(rng.poisson(speckle * rng.uniform(0.8, 1.2, (32, 1, 1))), 0, 255).astype(np.uint8)
-    for estimator in ("s1", "s2", "s3"):  # the daemon's (its engine has no other maps yet)
+    for estimator in ("s1", "s2", "s3"):  # SciPy and numpy's caches: the other floors share their paths
         for model in (None, noise.from_datasheet(0.5, 2.0)):
             region_noise(frames, None, estimator, 1, model=model, bits=8,
                          estimates={"s1": 5.0, "s2": 0.05, "s3": 1.0})

@@ -30,7 +30,7 @@ import numpy as np
 
 from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
-from edgedsm.estimators import ESTIMATORS, SlidingWindow
+from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.correlation_time import (
     ABOVE,
     BELOW,
@@ -64,8 +64,10 @@ def map_block(shape: tuple[int, int], configured: int | None) -> int:
 
 
 def engine_estimators(config: DaemonConfig) -> tuple[str, ...]:
-    """What the daemon's engine keeps sums for: S1, S2, S3, and τc when configured or needed."""
-    return (*ESTIMATORS, "tau_c") if config.tau_c_on else ESTIMATORS
+    """What the daemon's engine keeps sums for: S1, S2, S3, the activity when it is one of the
+    field's descriptors (``estimator.maps``), and τc when configured or needed."""
+    maps = config.estimator.maps
+    return (*maps, "tau_c") if config.tau_c_on else maps
 
 
 class FrameInterval:

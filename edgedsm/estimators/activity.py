@@ -1,4 +1,6 @@
-"""S1, S2, σ and S3 (paper Eq. 1-4) of one pixel from a window's sums: the arithmetic written once.
+"""S1, S2, σ and S3 (paper Eq. 1-4), and the temporal contrast, Fujii and inertia moment
+(issue 24, BSLTL's stdcont, fujii, graphim) of one pixel from a window's sums: the arithmetic
+written once.
 
 Every consumer of the engine's sums turns them into values here: the engine's maps kernel, its
 snapshots (:func:`edgedsm.estimators.snapshot.maps_from`), the region statistics
@@ -7,16 +9,18 @@ exponential mode's maps. Each value is one ``@njit(inline="always")`` function o
 sums, so a kernel that calls it compiles the same float64 operations in the same order: its
 results are bit-identical wherever they are formed.
 
-Units: S1 and σ in grey levels, S2 and S3 dimensionless; N (``n``) and N - m (``pairs``) in
-frames. Inputs:
+Units: S1 and σ in grey levels, S2, S3, contrast and Fujii dimensionless, IM in grey levels²;
+N (``n``) and N - m (``pairs``) in frames. Inputs:
 
 - window modes (sliding, tumbling): the integer sums Σ|I_j - I_{j+m}| (``abs_sum``), the
   fixed-point Σ S2 term in units of ``ratio_unit`` = 2^-K (:mod:`edgedsm.estimators.fixed_point`),
-  ΣI (``total``) and ΣI² (``total_sq``) over N frames;
-- exponential mode: the weighted means of |ΔI| and of the S2 term (already the values) and the
-  weighted M2 with the frames' total weight Σλ^k (``weight``), σ² = M2/Σλ^k.
+  ΣI (``total``) and ΣI² (``total_sq``) over N frames, and Σ(I_j - I_{j+m})² (``sq_sum``);
+- exponential mode: the weighted means of |ΔI|, of the S2 term and of (ΔI)² (already the
+  values) and the weighted mean and M2 with the frames' total weight Σλ^k (``weight``),
+  σ² = M2/Σλ^k.
 
-Degenerate pixels: S3 = 0 where σ = 0 (constant or saturated pixel); nothing is NaN or inf.
+Degenerate pixels: S3 = 0 where σ = 0 (constant or saturated pixel), contrast = 0 where ⟨I⟩ = 0
+(dark pixel); nothing is NaN or inf.
 
 Like scikit-image's compiled kernels beside their numeric twins, the NumPy functions at the end
 (``*_values``, ``window_sigmas``) compute the same maps for whole arrays where numba is absent
@@ -93,23 +97,60 @@ def s3_value(s1, sigma):  # pragma: no cover - compiled
 
 
 @_inline
-def pixel_values(exponential, do_abs, do_s2, do_s3, p, abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
-                 weight):  # pragma: no cover - compiled
-    """(S1, S2, S3, σ) of flat pixel ``p``; the maps not asked for (``do_*``, compile-time
-    constants in the callers) are 0. ``second``/``fourth``: ΣI and ΣI² (window modes) or M2
-    twice (``exponential``)."""
+def contrast_value(sigma, mean):  # pragma: no cover - compiled
+    """Temporal contrast σ/⟨I⟩ (BSLTL ``stdcont.m``, population σ of Eq. 4), 0 where ⟨I⟩ = 0
+    (a dark pixel, where σ is 0 too). Dimensionless."""
+    return sigma / mean if mean > 0.0 else 0.0
+
+
+@_inline
+def window_mean(total, n):  # pragma: no cover - compiled
+    """⟨I⟩ = ΣI/N over N = ``n`` frames from the exact integer sum (as descriptors._mean), grey levels."""
+    return np.float64(total) / n
+
+
+@_inline
+def fujii_value(s2):  # pragma: no cover - compiled
+    """Fujii's map, BSLTL ``fujii.m``: 200·S2 with S2 at q = 0 (Eq. 2); dimensionless, 0..200."""
+    return 200.0 * s2
+
+
+@_inline
+def im_value(sq_sum, pairs):  # pragma: no cover - compiled
+    """Inertia moment, BSLTL ``graphim.m``: Σ(I_k - I_{k+m})²/(N-m), grey levels² (the exact
+    integer sum divided once, as ``descriptors.im``)."""
+    return np.float64(sq_sum) / pairs
+
+
+@_inline
+def pixel_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, p, abs_sum, ratio_sum, second,
+                 fourth, sq_sum, pairs, ratio_unit, n, weight):  # pragma: no cover - compiled
+    """(S1, S2, S3, σ, contrast, Fujii, IM) of flat pixel ``p``; the values not asked for
+    (``do_*``, compile-time constants in the callers) are 0. ``do_s2``: S2 is formed (S2 or Fujii
+    asked for). ``second``/``fourth``: ΣI and ΣI² (window modes) or the weighted mean and M2
+    (``exponential``); ``sq_sum``: Σ(ΔI)² (window modes) or its weighted mean."""
     s1 = 0.0
     s2 = 0.0
     s3 = 0.0
     sigma = 0.0
+    contrast = 0.0
+    fujii = 0.0
+    inertia = 0.0
     if do_abs:
         s1 = abs_sum[p] if exponential else s1_value(abs_sum[p], pairs)
     if do_s2:
         s2 = ratio_sum[p] if exponential else s2_value(ratio_sum[p], ratio_unit, pairs)
-    if do_s3:
-        sigma = weighted_sigma(second[p], weight) if exponential else window_sigma(second[p], fourth[p], n)
-        s3 = s3_value(s1, sigma)
-    return s1, s2, s3, sigma
+        if do_fujii:
+            fujii = fujii_value(s2)
+    if do_s3 or do_contrast:
+        sigma = weighted_sigma(fourth[p], weight) if exponential else window_sigma(second[p], fourth[p], n)
+        if do_s3:
+            s3 = s3_value(s1, sigma)
+        if do_contrast:
+            contrast = contrast_value(sigma, second[p] if exponential else window_mean(second[p], n))
+    if do_im:
+        inertia = sq_sum[p] if exponential else im_value(sq_sum[p], pairs)
+    return s1, s2, s3, sigma, contrast, fujii, inertia
 
 
 # -- NumPy twins (whole arrays; used where numba is absent) ------------------------------------
@@ -147,20 +188,39 @@ def s3_values(s1: np.ndarray, sigma: np.ndarray, out: np.ndarray) -> None:
     np.divide(s1, sigma, out=out, where=sigma > 0.0)
 
 
-def values_numpy(exponential: bool, do_abs: bool, do_s2: bool, do_s3: bool, abs_sum: np.ndarray,
-                 ratio_sum: np.ndarray, second: np.ndarray, fourth: np.ndarray, pairs: int, ratio_unit: float,
-                 n: int, weight: float, s1: np.ndarray, s2: np.ndarray, s3: np.ndarray, sigma: np.ndarray) -> None:
-    """:func:`pixel_values` of every pixel, into ``s1``, ``s2``, ``s3``, ``sigma`` (those asked for)."""
+def contrast_values(sigma: np.ndarray, mean: np.ndarray, out: np.ndarray) -> None:
+    """:func:`contrast_value` of every pixel, into ``out``."""
+    out[:] = 0.0
+    np.divide(sigma, mean, out=out, where=mean > 0.0)
+
+
+def values_numpy(exponential: bool, flags: tuple[bool, ...], abs_sum: np.ndarray, ratio_sum: np.ndarray,
+                 second: np.ndarray, fourth: np.ndarray, sq_sum: np.ndarray, pairs: int, ratio_unit: float, n: int,
+                 weight: float, out: dict[str, np.ndarray]) -> None:
+    """:func:`pixel_values` of every pixel, into the arrays ``out`` (s1, s2, s3, sigma, contrast,
+    fujii, im) of the values ``flags`` (as :func:`edgedsm.estimators.value_set.flags_of`) asks for."""
+    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
     if do_abs:
         if exponential:
-            s1[:] = abs_sum
+            out["s1"][:] = abs_sum
         else:
-            s1_values(abs_sum, pairs, s1)
+            s1_values(abs_sum, pairs, out["s1"])
     if do_s2:
         if exponential:
-            s2[:] = ratio_sum
+            out["s2"][:] = ratio_sum
         else:
-            s2_values(ratio_sum, ratio_unit, pairs, s2)
-    if do_s3:
-        sigma[:] = np.sqrt(second / weight) if exponential else window_sigmas(second, fourth, n)
-        s3_values(s1, sigma, s3)
+            s2_values(ratio_sum, ratio_unit, pairs, out["s2"])
+        if do_fujii:
+            np.multiply(200.0, out["s2"], out=out["fujii"])
+    if do_s3 or do_contrast:
+        sigma = out["sigma"]
+        sigma[:] = np.sqrt(fourth / weight) if exponential else window_sigmas(second, fourth, n)
+        if do_s3:
+            s3_values(out["s1"], sigma, out["s3"])
+        if do_contrast:
+            contrast_values(sigma, second if exponential else second.astype(np.float64) / n, out["contrast"])
+    if do_im:
+        if exponential:
+            out["im"][:] = sq_sum
+        else:
+            np.divide(sq_sum.astype(np.float64), pairs, out=out["im"])

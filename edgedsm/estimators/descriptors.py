@@ -25,6 +25,7 @@ import numpy as np
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import bands
 from edgedsm.estimators.batch import check_frames, check_stack, s1, s2, s3, temporal_sigma
+from edgedsm.estimators.value_set import gd_of_sum
 
 #: Octave's eps (2^-52), which BSLTL's fujii.m adds to I_k + I_{k+m}: with it each term is
 #: BSLTL's; q = 0 would differ where I_k + I_{k+m} = 1, by 1 ulp. (The map still differs from
@@ -70,7 +71,7 @@ def gd(frames: np.ndarray) -> np.ndarray:
         total = np.zeros(stack.shape[1:], np.int64)
         for k in range(n):
             total += (2 * k - n + 1) * ordered[k].astype(np.int64)
-        return total.astype(np.float64) / pairs
+        return gd_of_sum(total, n)  # the sliding engine's map from its own sum, the same division
     # the weights sum to 0, so the smallest value can be taken off first: every term is then a
     # spread, not an intensity (no cancellation of large offsets in float data)
     lowest = ordered[0].astype(np.float64)
@@ -193,13 +194,15 @@ DESCRIPTORS: dict[str, Descriptor] = {
                      "Eq. 2: mean |I_k - I_{k+m}|/(I_k + I_{k+m} + q)"),
     "s3": Descriptor(lambda f, *, lag, **_: s3(f, lag), "1", True, None,
                      "O(1) per pixel per frame (SlidingWindow)", True, "Eq. 3-4: S1/σ"),
-    "fujii": Descriptor(lambda f, *, lag, **_: fujii(f, lag), "1 (0..200)", True, "fujii", _BATCH_ONLY, True,
-                        "200 S2(q = eps)"),
-    "gd": Descriptor(lambda f, **_: gd(f), "grey levels", False, "gendiff", _BATCH_ONLY, True,
+    "fujii": Descriptor(lambda f, *, lag, **_: fujii(f, lag), "1 (0..200)", True, "fujii",
+                        "O(1) per pixel per frame (SlidingWindow, q = 0: 200 S2)", True, "200 S2(q = eps)"),
+    "gd": Descriptor(lambda f, **_: gd(f), "grey levels", False, "gendiff",
+                     "O(N) per pixel per frame (SlidingWindow, sliding mode only)", True,
                      "Σ_{i<j} |I_i - I_j| / C(N, 2)"),
-    "im": Descriptor(lambda f, *, lag, **_: im(f, lag), "grey levels²", True, "graphim (m = 1)", _BATCH_ONLY,
-                     True, "mean (I_k - I_{k+m})²"),
-    "contrast": Descriptor(lambda f, **_: contrast(f), "1", False, "stdcont", _BATCH_ONLY, False, "σ/⟨I⟩"),
+    "im": Descriptor(lambda f, *, lag, **_: im(f, lag), "grey levels²", True, "graphim (m = 1)",
+                     "O(1) per pixel per frame (SlidingWindow, one more sum)", True, "mean (I_k - I_{k+m})²"),
+    "contrast": Descriptor(lambda f, **_: contrast(f), "1", False, "stdcont",
+                           "O(1) per pixel per frame (SlidingWindow, S3's sums)", False, "σ/⟨I⟩"),
     "skewness": Descriptor(lambda f, **_: skewness(f), "1", False, "graphskew", _BATCH_ONLY, False,
                            "mean ((I - ⟨I⟩)/σ)³"),
     "kurtosis": Descriptor(lambda f, **_: kurtosis(f), "1", False, "graphkurt", _BATCH_ONLY, False,

@@ -28,13 +28,18 @@ from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_erro
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import Layout, Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
+from edgedsm.estimators.value_set import flags_of, gd_of_sum
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
 
 MODES: tuple[str, ...] = ("sliding", "exponential", "tumbling")
 KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
-ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c")
+#: Names of the maps the engine can keep: the paper's S1-S3 and τc, and the field's descriptors that
+#: stream at O(1) per pixel from the same sums (issue 24, docs/descriptors.md): the temporal
+#: contrast σ/⟨I⟩, Fujii (200·S2 at q = 0) and the inertia moment mean (ΔI)² at lag m; and the
+#: generalized differences (GD), sliding mode only, O(N) per pixel per push.
+ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd")
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
@@ -73,8 +78,10 @@ class SlidingWindow:
         q: the constant of Eq. 2 (grey levels, >= 0) that keeps 0/0 away.
         bits: bit depth of the data (1..16); None infers it from the first frame's dtype
             (uint8 -> 8, uint16 -> 16). Values above 2^bits - 1 are refused.
-        estimators: which of "s1", "s2", "s3", "tau_c" ``maps()`` returns (default: the first
-            three); only their sums are kept.
+        estimators: which of "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im" ``maps()``
+            returns (default: the first three), or "gd"; only their sums are kept. "fujii"
+            (200·S2 at q = 0, BSLTL's fujii.m) needs q = 0; "gd" (BSLTL's gendiff.m) needs mode
+            "sliding" and costs O(N) per pixel per push (it reads the whole ring).
         mode: "sliding" (default), "exponential" or "tumbling" (docs/engine.md); the engine
             constructed is that mode's subclass.
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
@@ -126,6 +133,15 @@ class SlidingWindow:
             raise EstimatorError(f"q must be a finite number >= 0, got {q}")
         self.q = float(q)
         self.estimators = self._check_estimators(estimators)
+        self._do_gd = "gd" in self.estimators
+        if self._do_gd and self.mode != "sliding":
+            raise EstimatorError(f"estimator 'gd' needs mode='sliding' (its update reads the window's frames), "
+                                 f"got {self.mode!r}")
+        if self._do_gd and self.window * (self.window - 1) // 2 * 65535 > 2**63 - 1:
+            raise EstimatorError(f"estimator 'gd': a window of {self.window} frames overflows its int64 sum")
+        if "fujii" in self.estimators and self.q != 0.0:
+            raise EstimatorError(f"estimator 'fujii' is 200·S2 at q = 0 (BSLTL's fujii.m): construct the engine "
+                                 f"with q=0, got q={self.q}")
         if kernel not in KERNELS:
             raise EstimatorError(f"kernel must be one of {', '.join(KERNELS)}; got {kernel!r}")
         self._kernels = load_kernels(kernel)
@@ -327,8 +343,10 @@ class SlidingWindow:
         if unknown := sorted(set(wanted) - set(self.estimators)):
             raise EstimatorError(f"maps {unknown} were not requested from this engine (it has {self.estimators})")
         self._check_ready()
-        only_tau = set(wanted) <= {"tau_c"}
+        only_tau = set(wanted) <= {"tau_c", "gd"}
         flat = {} if only_tau else self._moments.maps(self._sums(), self.shape[0] * self.shape[1])
+        if "gd" in wanted:
+            flat["gd"] = gd_of_sum(self._arrays["gd"], self.window)
         return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
                 for name in wanted}
 
@@ -407,16 +425,21 @@ class SlidingWindow:
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
                      how: str) -> EngineSnapshot:
-        wanted = self.estimators if estimators is None else self._check_estimators(estimators)
+        if estimators is not None and "gd" in estimators:
+            raise EstimatorError("a snapshot does not carry 'gd' (its map comes from maps())")
+        wanted = tuple(name for name in self.estimators if name != "gd") if estimators is None \
+            else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
-        flags = ("s1" in wanted or "s3" in wanted, "s2" in wanted, "s3" in wanted)
-        needed = {"abs": flags[0], "ratio": flags[1], "total": flags[2], "total_sq": flags[2], "m2": flags[2]}
+        flags = flags_of(wanted)
+        spread = flags[2] or flags[3]  # S3 and the contrast need σ
+        needed = {"abs": flags[0], "ratio": flags[1], "total": spread, "total_sq": spread, "m2": spread,
+                  "mean": flags[3], "sq": flags[5]}
         source_sums, old = self._sums(), into.sums if into is not None else {}
         sums = {}
         for name in self._moments.snapshot_names:
-            source = source_sums[name]
-            if not needed[name]:
+            source = source_sums.get(name)
+            if not needed[name] or source is None:
                 sums[name] = np.zeros(0, np.int64)
             elif how == "live":
                 sums[name] = source

@@ -5,7 +5,9 @@ The window is the last N frames i-N+1..i; its N-m pairs are (j, j+m). Each push 
 sums (:class:`edgedsm.estimators.moment_sums.WindowMoments`) and τc's lag products
 (:class:`edgedsm.estimators.lag_products.SlidingLagProducts`). The ring holds N frames, not
 N+1: slot j % N holds frame j, and the slot of frame i-N is read and overwritten by frame i in
-the same pass. Bounds and memory: docs/engine.md.
+the same pass. With "gd" (generalized differences) Σ_{i<j} |I_i - I_j| over the window is kept
+exactly: frame i adds its distance to the window's other frames and frame i-N takes its own
+away, O(N) per pixel per push (``kernels.gd_kernel``). Bounds and memory: docs/engine.md.
 """
 
 from __future__ import annotations
@@ -33,16 +35,20 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
     def _layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
         return {"ring": ((self.window, pixels), np.uint8 if bits <= 8 else np.uint16),
-                **self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits)}
+                **self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits),
+                **({"gd": ((pixels,), np.int64)} if self._do_gd else {})}
 
     def _bind(self, bits: int, parallel: bool) -> None:
         self._moments.bind(self._kernels, self.ratio_kind, self.scale_bits, parallel, slide=True)
         self._tau.bind(self._kernels, parallel, bits)
+        if self._do_gd:
+            self._gd_steps = (self._kernels.gd_kernel(False, parallel), self._kernels.gd_kernel(True, parallel))
 
     def _frame_reads(self) -> int:
         # the new frame and frame i-m read, a ring slot written, frames i-N (from the slot it
-        # overwrites) and i-N+m read; with τc frames i-k and i-N+k for each lag k
-        return 5 + (2 * self.tau_lags.size if self._do_tau else 0)
+        # overwrites) and i-N+m read; with τc frames i-k and i-N+k for each lag k; with GD the
+        # window's N frames
+        return 5 + (2 * self.tau_lags.size if self._do_tau else 0) + (self.window if self._do_gd else 0)
 
     def _push(self, new: np.ndarray) -> None:
         i, n, m = self.frames_seen, self.window, self.lag
@@ -52,6 +58,9 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
         # no pair before frame m: pairing the frame with itself adds |x-x| = 0 exactly
         lagged = ring[(i - m) % n] if i >= m else new
         self._tau.push(arrays, new, i)  # reads the ring only: before frame i is written
+        if self._do_gd:  # frames 0..i-1 in slots 0..i-1 while the window fills, then all but slot i % N
+            grow, slide = self._gd_steps
+            (slide if i >= n else grow)(new, ring, i % n, min(i, n), arrays["gd"])
         if i >= n:  # slot holds frame i-N: the kernel reads it, then writes frame i there
             self._moments.slide(arrays, new, slot, lagged, ring[(i - n + m) % n])
         else:
@@ -85,6 +94,10 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
         frames = [ring[j % n] for j in range(max(0, self.frames_seen - n), self.frames_seen)]
         fresh = {name: np.zeros_like(array) for name, array in self._arrays.items() if name != "ring"}
         self._moments.rebuild(fresh, frames, self.lag)
+        if self._do_gd:  # Σ_{i<j} |x_i - x_j| = Σ_k (2k - n + 1) x_(k) for the sorted values
+            ordered = np.sort(np.stack(frames), axis=0)
+            for k, values in enumerate(ordered):
+                fresh["gd"] += (2 * k - len(frames) + 1) * values.astype(np.int64)
         if self._do_tau:
             fresh["products"][:] = self._tau.rebuild(frames)
             fresh["retired"][:] = self._arrays["retired"]

@@ -74,20 +74,21 @@ def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - co
 
 @functools.cache
 def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
-                  remove: bool, parallel: bool = True) -> Callable[..., None]:
+                  remove: bool, parallel: bool = True, do_sq: bool = False) -> Callable[..., None]:
     """Kernel of the integer engine (sliding: ``remove``; tumbling: not), all pixels.
 
-    ``kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq, lut, scale,
-    q)``: per pixel it reads I_i (``new``), frame i-m (``lagged``) and, with ``remove``,
+    ``kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq, sq_sum, lut,
+    scale, q)``: per pixel it reads I_i (``new``), frame i-m (``lagged``) and, with ``remove``,
     frame i-N (``slot``) and frame i-N+m (``leaving``); writes I_i into ``slot``; adds the
     pair (i-m, i) and frame i and, with ``remove``, subtracts the pair (i-N, i-N+m) and
-    frame i-N, to and from Σ|ΔI| (Eq. 1), Σ fixed-point S2 term (Eq. 2), ΣI and ΣI² (Eq. 4).
+    frame i-N, to and from Σ|ΔI| (Eq. 1), Σ fixed-point S2 term (Eq. 2), ΣI and ΣI² (Eq. 4)
+    and, with ``do_sq``, Σ(ΔI)² (the inertia moment's sum).
     ``slot`` must not share memory with another argument: numba may reorder accesses to
     distinct arguments (read-only arguments may alias each other).
     """
 
     @kernel_variant(parallel)
-    def kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq,
+    def kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq, sq_sum,
                lut, scale, q):  # pragma: no cover - compiled
         one = np.int64(scale)  # 2^K, exact
         q_int = np.int64(q) if ratio_kind == "exact" else np.int64(0)
@@ -110,6 +111,13 @@ def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
                 if remove:  # remove first: the running value stays within the window's range
                     s -= abs(b - o)
                 abs_sum[p] = s + abs(x - a)
+            if do_sq:
+                d = x - a
+                u = np.int64(sq_sum[p])
+                if remove:
+                    e = b - o
+                    u -= e * e
+                sq_sum[p] = u + d * d
             if do_ratio:
                 r = ratio_sum[p]
                 if remove:
@@ -121,12 +129,13 @@ def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
 
 @functools.cache
 def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
-                 parallel: bool = True) -> Callable[..., None]:
-    """``kernel(first, second, abs_sum, ratio_sum, lut, scale, q)``: add one pair's terms to
-    Σ|ΔI| and Σ S2 term, all pixels (rebuilds the sums from the ring in ``resync``)."""
+                 parallel: bool = True, do_sq: bool = False) -> Callable[..., None]:
+    """``kernel(first, second, abs_sum, ratio_sum, sq_sum, lut, scale, q)``: add one pair's terms
+    to Σ|ΔI|, Σ S2 term and (``do_sq``) Σ(ΔI)², all pixels (rebuilds the sums from the ring in
+    ``resync``)."""
 
     @kernel_variant(parallel)
-    def kernel(first, second, abs_sum, ratio_sum, lut, scale, q):  # pragma: no cover
+    def kernel(first, second, abs_sum, ratio_sum, sq_sum, lut, scale, q):  # pragma: no cover
         one = np.int64(scale)
         q_int = np.int64(q) if ratio_kind == "exact" else np.int64(0)
         for p in numba.prange(first.size):
@@ -134,6 +143,8 @@ def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
             b = np.int64(second[p])
             if do_abs:
                 abs_sum[p] = np.int64(abs_sum[p]) + abs(b - a)
+            if do_sq:
+                sq_sum[p] = np.int64(sq_sum[p]) + (b - a) * (b - a)
             if do_ratio:
                 ratio_sum[p] += _ratio_term(ratio_kind, a, b, lut, scale, q, one, q_int)
 
@@ -142,18 +153,19 @@ def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
 
 @functools.cache
 def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
-                       parallel: bool = True) -> Callable[..., None]:
+                       parallel: bool = True, do_sq: bool = False) -> Callable[..., None]:
     """Kernel of the exponential engine (float64), all pixels.
 
-    ``kernel(new, slot, mean, m2, abs_mean, ratio_mean, decay, w_frame, w_pair, q)``:
+    ``kernel(new, slot, mean, m2, abs_mean, ratio_mean, sq_mean, decay, w_frame, w_pair, q)``:
     ``slot`` holds frame i-m and receives I_i after it was read. Weighted mean and variance
     follow West's update with old weights decayed by λ = ``decay`` and the new sample
     weighing 1: μ += w·(x-μ), M2 = λ·M2 + (x-μ_old)(x-μ_new), w = 1/Σweights. The pair means
     move by ``w_pair``·(term - mean); ``w_pair`` = 0 leaves them unchanged (no pair yet).
+    ``do_sq``: the weighted mean of (ΔI)² (the inertia moment) as well.
     """
 
     @kernel_variant(parallel)
-    def kernel(new, slot, mean, m2, abs_mean, ratio_mean, decay, w_frame, w_pair,
+    def kernel(new, slot, mean, m2, abs_mean, ratio_mean, sq_mean, decay, w_frame, w_pair,
                q):  # pragma: no cover - compiled
         for p in numba.prange(new.size):
             x = np.float64(new[p])
@@ -169,6 +181,9 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
             if do_abs:
                 y = abs_mean[p]
                 abs_mean[p] = y + w_pair * (diff - y)
+            if do_sq:
+                v = sq_mean[p]
+                sq_mean[p] = v + w_pair * (diff * diff - v)
             if do_ratio:
                 # >= 1 unless x = a = 0, where diff = 0 and the term is 0 anyway
                 ratio = diff / max(x + a + q, 1.0)
@@ -179,30 +194,40 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
 
 
 @functools.cache
-def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, parallel: bool = True,
-                exponential: bool = False) -> Callable[..., None]:
+def maps_kernel(do_abs: bool, do_ratio: bool, do_s3: bool, parallel: bool = True, exponential: bool = False,
+                do_contrast: bool = False, do_fujii: bool = False, do_im: bool = False) -> Callable[..., None]:
     """Kernel turning a window's sums into float64 maps, all pixels, one pass.
 
-    ``kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma,
-    weight=1.0)`` writes S1, S2, S3 and σ (Eq. 1-4) of every pixel as
-    :func:`edgedsm.estimators.activity.pixel_values` forms them (window modes: the integer sums;
-    ``exponential``: the weighted means, M2 as ``total`` and ``total_sq``, Σλ^k as ``weight``).
+    ``kernel(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, s1, s2, s3,
+    sigma, contrast, fujii, im, weight)`` writes the values :func:`edgedsm.estimators.activity.pixel_values`
+    forms of every pixel (``do_ratio``: S2, which Fujii is formed from; σ with S3 or contrast;
+    window modes: the integer sums, ΣI and ΣI² as ``second`` and ``fourth``; ``exponential``: the
+    weighted means, mean and M2 as ``second`` and ``fourth``, Σλ^k as ``weight``). Arrays of
+    values not formed may be empty.
     """
 
     @kernel_variant(parallel)
-    def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma,
-               weight=1.0):  # pragma: no cover - compiled
-        size = s1.size if do_abs else s2.size
+    def kernel(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, s1, s2, s3, sigma, contrast,
+               fujii, im, weight):  # pragma: no cover - compiled
+        size = max(s1.size, s2.size, sigma.size, im.size)
         for p in numba.prange(size):
-            v1, v2, v3, deviation = pixel_values(exponential, do_abs, do_ratio, do_sigma, p, abs_sum, ratio_sum,
-                                                 total, total_sq, pairs, ratio_unit, n, weight)
+            v1, v2, v3, deviation, vc, vf, vi = pixel_values(exponential, do_abs, do_ratio, do_s3, do_contrast,
+                                                             do_fujii, do_im, p, abs_sum, ratio_sum, second,
+                                                             fourth, sq_sum, pairs, ratio_unit, n, weight)
             if do_abs:
                 s1[p] = v1
             if do_ratio:
                 s2[p] = v2
-            if do_sigma:
+            if do_s3 or do_contrast:
                 sigma[p] = deviation
+            if do_s3:
                 s3[p] = v3
+            if do_contrast:
+                contrast[p] = vc
+            if do_fujii:
+                fujii[p] = vf
+            if do_im:
+                im[p] = vi
 
     return kernel
 
@@ -353,5 +378,44 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
                     _slide_rows(wide, row, retired[old_slots[b], start:stop], source[leave_slots[b, k], start:stop],
                                ring[new_slots[b], start:stop], ring[lag_slots[b, k], start:stop])
                     b += 1
+
+    return kernel
+
+
+@functools.cache
+def gd_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
+    """Generalized differences, sliding window (BSLTL's gendiff.m): Σ_{i<j} |I_i - I_j| over
+    the window, exact int64, O(N) per pixel per push (every frame of the window is read).
+
+    ``kernel(new, ring, old_slot, count, gd_sum)``: ring rows 0..``count``-1 hold the window's
+    other frames; frame i (``new``) joins, so Σ_k |I_i - I_k| is added over them; with
+    ``remove`` frame i-N (ring row ``old_slot``, skipped) leaves, and Σ_k |I_{i-N} - I_k| over
+    the same rows is subtracted. Reads the ring only: the window kernel writes frame i after.
+    Pixels go in blocks, rows along contiguous slices (the inner loop vectorises).
+    """
+
+    @kernel_variant(parallel)
+    def kernel(new, ring, old_slot, count, gd_sum):  # pragma: no cover - compiled
+        size = new.size
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            width = stop - start
+            acc = np.zeros(width, np.int64)
+            x = new[start:stop]
+            old = ring[old_slot, start:stop]
+            for k in range(count):
+                if remove and k == old_slot:
+                    continue
+                row = ring[k, start:stop]
+                for j in range(width):
+                    v = np.int64(row[j])
+                    if remove:
+                        acc[j] += abs(np.int64(x[j]) - v) - abs(np.int64(old[j]) - v)
+                    else:
+                        acc[j] += abs(np.int64(x[j]) - v)
+            for j in range(width):
+                gd_sum[start + j] += acc[j]
 
     return kernel

@@ -21,8 +21,9 @@ from edgedsm.estimators.activity import values_numpy
 from edgedsm.estimators.activity import window_sigmas as sigma_from_sums
 
 KERNEL = "numpy"
-__all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "exponential_kernel", "maps_kernel",
-           "max_threads", "pairs_kernel", "products_kernel", "set_threads", "sigma_from_sums", "window_kernel"]
+__all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "exponential_kernel", "gd_kernel",
+           "maps_kernel", "max_threads", "pairs_kernel", "products_kernel", "set_threads", "sigma_from_sums",
+           "window_kernel"]
 CHUNK = 1 << 15  # pixels per chunk: the int64/float64 temporaries (256 KiB each) stay in L2
 
 
@@ -59,10 +60,10 @@ def _ratio_terms(kind: str, a: np.ndarray, b: np.ndarray, lut: np.ndarray, scale
 
 @functools.cache
 def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
-                  remove: bool, parallel: bool = True) -> Callable[..., None]:
+                  remove: bool, parallel: bool = True, do_sq: bool = False) -> Callable[..., None]:
     """See kernels_numba.window_kernel."""
 
-    def kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq,
+    def kernel(new, slot, lagged, leaving, abs_sum, ratio_sum, total, total_sq, sq_sum,
                lut, scale, q) -> None:
         for start in range(0, new.size, CHUNK):
             part = slice(start, start + CHUNK)
@@ -88,6 +89,12 @@ def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
                     s -= np.abs(b - o)
                 s += np.abs(x - a)
                 abs_sum[part] = s
+            if do_sq:
+                u = sq_sum[part].astype(np.int64)
+                if o is not None and b is not None:
+                    u -= (b - o) * (b - o)
+                u += (x - a) * (x - a)
+                sq_sum[part] = u
             if do_ratio:
                 r = ratio_sum[part]  # a view: updated in place
                 if o is not None and b is not None:
@@ -99,16 +106,18 @@ def window_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, ratio_kind: str,
 
 @functools.cache
 def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
-                 parallel: bool = True) -> Callable[..., None]:
+                 parallel: bool = True, do_sq: bool = False) -> Callable[..., None]:
     """See kernels_numba.pairs_kernel."""
 
-    def kernel(first, second, abs_sum, ratio_sum, lut, scale, q) -> None:
+    def kernel(first, second, abs_sum, ratio_sum, sq_sum, lut, scale, q) -> None:
         for start in range(0, first.size, CHUNK):
             part = slice(start, start + CHUNK)
             a = first[part].astype(np.int64)
             b = second[part].astype(np.int64)
             if do_abs:
                 abs_sum[part] = abs_sum[part].astype(np.int64) + np.abs(b - a)
+            if do_sq:
+                sq_sum[part] = sq_sum[part].astype(np.int64) + (b - a) * (b - a)
             if do_ratio:
                 ratio_sum[part] += _ratio_terms(ratio_kind, a, b, lut, scale, q)
 
@@ -117,10 +126,10 @@ def pairs_kernel(do_abs: bool, do_ratio: bool, ratio_kind: str,
 
 @functools.cache
 def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
-                       parallel: bool = True) -> Callable[..., None]:
+                       parallel: bool = True, do_sq: bool = False) -> Callable[..., None]:
     """See kernels_numba.exponential_kernel."""
 
-    def kernel(new, slot, mean, m2, abs_mean, ratio_mean, decay, w_frame, w_pair, q) -> None:
+    def kernel(new, slot, mean, m2, abs_mean, ratio_mean, sq_mean, decay, w_frame, w_pair, q) -> None:
         for start in range(0, new.size, CHUNK):
             part = slice(start, start + CHUNK)
             x = new[part].astype(np.float64)
@@ -136,6 +145,9 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
             if do_abs:
                 y = abs_mean[part]
                 abs_mean[part] = y + w_pair * (diff - y)
+            if do_sq:
+                v = sq_mean[part]
+                sq_mean[part] = v + w_pair * (diff * diff - v)
             if do_ratio:
                 ratio = diff / np.maximum(x + a + q, 1.0)
                 z = ratio_mean[part]
@@ -145,14 +157,16 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
 
 
 @functools.cache
-def maps_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool, parallel: bool = True,
-                exponential: bool = False) -> Callable[..., None]:
+def maps_kernel(do_abs: bool, do_ratio: bool, do_s3: bool, parallel: bool = True, exponential: bool = False,
+                do_contrast: bool = False, do_fujii: bool = False, do_im: bool = False) -> Callable[..., None]:
     """See kernels_numba.maps_kernel (the NumPy twins of edgedsm.estimators.activity)."""
+    flags = (do_abs, do_ratio, do_s3, do_contrast, do_fujii, do_im)
 
-    def kernel(abs_sum, ratio_sum, total, total_sq, pairs, ratio_unit, n, s1, s2, s3, sigma,
-               weight=1.0) -> None:
-        values_numpy(exponential, do_abs, do_ratio, do_sigma, abs_sum, ratio_sum, total, total_sq, pairs,
-                     ratio_unit, n, weight, s1, s2, s3, sigma)
+    def kernel(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, s1, s2, s3, sigma, contrast, fujii,
+               im, weight) -> None:
+        out = {"s1": s1, "s2": s2, "s3": s3, "sigma": sigma, "contrast": contrast, "fujii": fujii, "im": im}
+        values_numpy(exponential, flags, abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, weight,
+                     out)
 
     return kernel
 
@@ -208,5 +222,27 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
                     value -= retired[old_slots[b], part].astype(np.int64) * source[leave_slots[b, k], part]
                     value += ring[new_slots[b], part].astype(np.int64) * ring[lag_slots[b, k], part]
                 products[k, part] = value
+
+    return kernel
+
+
+@functools.cache
+def gd_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
+    """See kernels_numba.gd_kernel."""
+
+    def kernel(new, ring, old_slot, count, gd_sum) -> None:
+        for start in range(0, new.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            x = new[part].astype(np.int64)
+            old = ring[old_slot, part].astype(np.int64)
+            acc = np.zeros(x.size, np.int64)
+            for k in range(count):
+                if remove and k == old_slot:
+                    continue
+                row = ring[k, part].astype(np.int64)
+                acc += np.abs(x - row)
+                if remove:
+                    acc -= np.abs(old - row)
+            gd_sum[part] += acc
 
     return kernel

@@ -1,4 +1,5 @@
-"""The S1/S2/S3 accumulators of the streaming engine (paper Eq. 1-4): their sums, push kernels, maps.
+"""The S1/S2/S3 accumulators of the streaming engine (paper Eq. 1-4), with the temporal contrast,
+Fujii and inertia moment (issue 24) formed from the same sums: their sums, push kernels, maps.
 
 One accumulator keeps, per pixel, what S1, S2 and S3 are formed from (only the sums of the maps
 asked for), pushes each frame into them with the kernel module's fused pass, and turns them into
@@ -6,12 +7,16 @@ maps with :func:`edgedsm.estimators.activity.pixel_values` (the per-pixel arithm
 once; region statistics read the same sums through :mod:`edgedsm.estimators.region_stats`).
 
 - :class:`WindowMoments` (sliding and tumbling windows): Σ|I_j - I_{j+m}| (Eq. 1), the S2 terms
-  in fixed point (Eq. 2, :mod:`edgedsm.estimators.fixed_point`), ΣI and ΣI² (Eq. 4), exact
-  integers: what a push adds it subtracts when the frame leaves, so nothing drifts.
-- :class:`ExponentialMoments`: the weighted means of |ΔI| and of the S2 term and the weighted
-  mean and M2 of the intensity, weights λ^k with λ = 1 - 1/N, float64 (docs/engine.md).
+  in fixed point (Eq. 2, :mod:`edgedsm.estimators.fixed_point`), ΣI and ΣI² (Eq. 4) and, only
+  when "im" is asked for, Σ(I_j - I_{j+m})², exact integers: what a push adds it subtracts when
+  the frame leaves, so nothing drifts.
+- :class:`ExponentialMoments`: the weighted means of |ΔI|, of the S2 term and ("im") of (ΔI)²
+  and the weighted mean and M2 of the intensity, weights λ^k with λ = 1 - 1/N, float64
+  (docs/engine.md).
 
-Units: grey levels (S1, ΣI), grey levels² (ΣI², M2), dimensionless (S2 terms); N and m in frames.
+Which sums a map needs: S1 Σ|ΔI|; S2 and Fujii (200·S2 at q = 0) the S2 terms; S3 Σ|ΔI| and
+ΣI, ΣI²; contrast (σ/⟨I⟩) ΣI, ΣI²; IM Σ(ΔI)². Units: grey levels (S1, ΣI), grey levels² (ΣI²,
+M2, Σ(ΔI)²), dimensionless (S2 terms); N and m in frames.
 The accumulators know nothing of rings and modes: the engines (engine_sliding, engine_tumbling,
 engine_exponential) hand them the frames and the sums to update.
 """
@@ -25,10 +30,15 @@ from typing import Any
 import numpy as np
 
 from edgedsm.estimators.fixed_point import _NO_LUT, ratio_lut
+from edgedsm.estimators.value_set import flags_of, value_sizes
 
 _INT32_MAX = 2**31 - 1
 
 Layout = dict[str, tuple[tuple[int, ...], Any]]
+
+#: The inertia moment's sum where "im" was not asked for: no array in the state (existing layouts
+#: unchanged), an empty one for the kernels, whose compiled branch never reads it.
+_NO_SQ = {False: np.zeros(0, np.int64), True: np.zeros(0, np.float64)}
 
 
 def sum_dtype(largest: int) -> type[np.signedinteger[Any]]:
@@ -42,16 +52,18 @@ class Moments:
     exponential = False
     #: The sums a snapshot copies (names of the engine's arrays).
     snapshot_names: tuple[str, ...] = ()
-    #: The sums activity.pixel_values reads, in its argument order (abs, ratio, second, fourth).
-    value_names: tuple[str, str, str, str] = ("abs", "ratio", "total", "total_sq")
+    #: The sums activity.pixel_values reads, in its argument order (abs, ratio, second, fourth, sq).
+    value_names: tuple[str, ...] = ("abs", "ratio", "total", "total_sq", "sq")
 
     def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float) -> None:
         self.window = window
         self.pairs = window - lag  # N - m pairs per window (Eq. 1-3)
         self.q = q
-        self.do_abs = "s1" in estimators or "s3" in estimators
-        self.do_ratio = "s2" in estimators
-        self.do_sigma = "s3" in estimators
+        #: activity.pixel_values' flags of the maps asked for (see activity.flags_of)
+        self.map_flags = flags_of(estimators)
+        self.do_abs, self.do_ratio = self.map_flags[:2]
+        self.do_sigma = self.map_flags[2] or self.map_flags[3]  # σ's sums serve S3 and the contrast
+        self.do_sq = self.map_flags[5]
         self.ratio_unit = 1.0  # 2^-K, the S2 fixed-point unit (window modes)
         self.weights = (0.0, 0.0)  # exponential mode: Σλ^k over the frames and over the pairs
         self._maps: Callable[..., None] | None = None
@@ -70,26 +82,30 @@ class Moments:
 
 
     def maps(self, sums: Mapping[str, np.ndarray], pixels: int) -> dict[str, np.ndarray]:
-        """S1, S2, S3 and σ (flat float64, the maps asked for; others empty) from ``sums``, one
-        fused pass of the maps kernel."""
+        """S1, S2, S3, σ, contrast, Fujii, IM (flat float64, those formed for the maps asked for;
+        others empty) from ``sums``, one fused pass of the maps kernel."""
         assert self._maps is not None, "bind() first"
-        out = {name: np.empty(pixels if wanted else 0) for name, wanted in
-               (("s1", self.do_abs), ("s2", self.do_ratio), ("s3", self.do_sigma), ("sigma", self.do_sigma))}
-        inputs = (sums[name] for name in self.value_names)
-        self._maps(*inputs, self.pairs, self.ratio_unit, self.window, out["s1"], out["s2"], out["s3"], out["sigma"],
-                   self.weight_frames)
+        out = {name: np.empty(size) for name, size in value_sizes(self.map_flags, pixels).items()}
+        inputs = (sums[name] if name != "sq" else _sq(sums, self.exponential) for name in self.value_names)
+        self._maps(*inputs, self.pairs, self.ratio_unit, self.window, *out.values(), self.weight_frames)
         return out
 
-    def maps_step(self, kernels: ModuleType, flags: tuple[bool, bool, bool]) -> Callable[..., None]:
+    def maps_kernel(self, kernels: ModuleType, flags: tuple[bool, ...], parallel: bool) -> Callable[..., None]:
+        """The maps kernel of ``flags`` (activity.flags_of), all pixels."""
+        do_abs, do_ratio, do_s3, do_contrast, do_fujii, do_im = flags
+        return kernels.maps_kernel(do_abs, do_ratio, do_s3, parallel, self.exponential, do_contrast, do_fujii, do_im)
+
+    def maps_step(self, kernels: ModuleType, flags: tuple[bool, ...]) -> Callable[..., None]:
         """The maps kernel of ``flags`` for one thread (snapshots: maps on another thread)."""
-        return kernels.maps_kernel(*flags, False, self.exponential)
+        return self.maps_kernel(kernels, flags, False)
 
 
 class WindowMoments(Moments):
     """Exact integer sums of the window modes: Σ|ΔI| (``abs``), Σ S2 term·2^K (``ratio``), ΣI
-    (``total``) and ΣI² (``total_sq``). ``keep_totals``: ΣI and ΣI² are kept for τc as well."""
+    (``total``), ΣI² (``total_sq``) and Σ(ΔI)² (``sq``). ``keep_totals``: ΣI and ΣI² are kept for
+    τc as well."""
 
-    snapshot_names = ("abs", "ratio", "total", "total_sq")
+    snapshot_names = ("abs", "ratio", "total", "total_sq", "sq")
 
     def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float, keep_totals: bool) -> None:
         super().__init__(estimators, window, lag, q)
@@ -109,6 +125,7 @@ class WindowMoments(Moments):
             "ratio": ((pixels if self.do_ratio else 0,), np.int64),
             "total": ((pixels if self.do_totals else 0,), sum_dtype(n * top)),
             "total_sq": ((pixels if self.do_totals else 0,), sum_dtype(n * top * top)),
+            **({"sq": ((pixels,), sum_dtype(self.pairs * top * top))} if self.do_sq else {}),
         }
 
     def bind(self, kernels: ModuleType, kind: str, scale_bits: int, parallel: bool, slide: bool) -> None:
@@ -119,18 +136,18 @@ class WindowMoments(Moments):
         self.lut = ratio_lut(self.q, scale_bits) if kind == "lut" and self.do_ratio else _NO_LUT
         sum_flags = (self.do_abs, self.do_ratio, self.do_totals)
         # "grow": add only (tumbling, and sliding until N frames are in); "slide": add and remove
-        self._grow = kernels.window_kernel(*sum_flags, kind, False, parallel)
+        self._grow = kernels.window_kernel(*sum_flags, kind, False, parallel, self.do_sq)
         if slide:
-            self._slide = kernels.window_kernel(*sum_flags, kind, True, parallel)
-            self._pairs = kernels.pairs_kernel(self.do_abs, self.do_ratio, kind, parallel)
-        self._maps = kernels.maps_kernel(*self.flags, parallel)
+            self._slide = kernels.window_kernel(*sum_flags, kind, True, parallel, self.do_sq)
+            self._pairs = kernels.pairs_kernel(self.do_abs, self.do_ratio, kind, parallel, self.do_sq)
+        self._maps = self.maps_kernel(kernels, self.map_flags, parallel)
 
     def add(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, lagged: np.ndarray) -> None:
         """Frame i (``new``, then written into ``slot``) and the pair (i-m, i) join the sums;
         frame i-m is ``lagged`` (no pair yet: ``new`` itself, which adds |x-x| = 0 exactly)."""
         assert self._grow is not None
         self._grow(new, slot, lagged, lagged, sums["abs"], sums["ratio"], sums["total"], sums["total_sq"],
-                   self.lut, self.scale, self.q)
+                   _sq(sums), self.lut, self.scale, self.q)
 
     def slide(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, lagged: np.ndarray,
               leaving: np.ndarray) -> None:
@@ -138,12 +155,12 @@ class WindowMoments(Moments):
         the pair (i-N, i-N+m) (frame i-N+m: ``leaving``) leave the sums."""
         assert self._slide is not None
         self._slide(new, slot, lagged, leaving, sums["abs"], sums["ratio"], sums["total"], sums["total_sq"],
-                    self.lut, self.scale, self.q)
+                    _sq(sums), self.lut, self.scale, self.q)
 
     def add_pair(self, sums: Mapping[str, np.ndarray], first: np.ndarray, second: np.ndarray) -> None:
-        """The pair (first, second) joins Σ|ΔI| and the S2 sum (rebuilding the sums)."""
+        """The pair (first, second) joins Σ|ΔI|, the S2 sum and Σ(ΔI)² (rebuilding the sums)."""
         assert self._pairs is not None
-        self._pairs(first, second, sums["abs"], sums["ratio"], self.lut, self.scale, self.q)
+        self._pairs(first, second, sums["abs"], sums["ratio"], _sq(sums), self.lut, self.scale, self.q)
 
     def rebuild(self, sums: Mapping[str, np.ndarray], frames: list[np.ndarray], lag: int) -> None:
         """Recompute ``sums`` (zeroed) from the window's ``frames`` in time order, O(N) per pixel."""
@@ -161,12 +178,12 @@ class WindowMoments(Moments):
 
 
 class ExponentialMoments(Moments):
-    """Exponentially weighted means (float64): |ΔI| (``abs``), the S2 term (``ratio``), the
-    intensity (``mean``) and its M2 (``m2``), with normalised (bias-free) weights."""
+    """Exponentially weighted means (float64): |ΔI| (``abs``), the S2 term (``ratio``), (ΔI)²
+    (``sq``), the intensity (``mean``) and its M2 (``m2``), with normalised (bias-free) weights."""
 
     exponential = True
-    snapshot_names = ("abs", "ratio", "m2")
-    value_names = ("abs", "ratio", "m2", "m2")  # σ² = M2/Σλ^k: M2 in both places of ΣI and ΣI²
+    snapshot_names = ("abs", "ratio", "mean", "m2", "sq")
+    value_names = ("abs", "ratio", "mean", "m2", "sq")  # σ² = M2/Σλ^k; the mean serves the contrast
 
     def __init__(self, estimators: tuple[str, ...], window: int, lag: int, q: float) -> None:
         super().__init__(estimators, window, lag, q)
@@ -178,13 +195,14 @@ class ExponentialMoments(Moments):
         self.weights = (0.0, 0.0)
 
     def layout(self, pixels: int, bits: int) -> Layout:
-        sigma, abs_, ratio = (pixels if on else 0 for on in (self.do_sigma, self.do_abs, self.do_ratio))
+        sigma, abs_, ratio, sq = (pixels if on else 0 for on in (self.do_sigma, self.do_abs, self.do_ratio,
+                                                                 self.do_sq))
         return {"mean": ((sigma,), np.float64), "m2": ((sigma,), np.float64), "abs": ((abs_,), np.float64),
-                "ratio": ((ratio,), np.float64)}
+                "ratio": ((ratio,), np.float64), **({"sq": ((sq,), np.float64)} if self.do_sq else {})}
 
     def bind(self, kernels: ModuleType, parallel: bool) -> None:
-        self._step = kernels.exponential_kernel(*self.flags, parallel)
-        self._maps = kernels.maps_kernel(*self.flags, parallel, True)
+        self._step = kernels.exponential_kernel(*self.flags, parallel, self.do_sq)
+        self._maps = self.maps_kernel(kernels, self.map_flags, parallel)
 
     def push(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, has_pair: bool) -> None:
         """Frame i (``new``) joins the weighted means, and the pair (i-m, i) with frame i-m read
@@ -196,5 +214,11 @@ class ExponentialMoments(Moments):
             pairs = self.decay * pairs + 1.0
         self.weights = (frames, pairs)
         # before frame m there is no pair: weight 0 leaves the pair means unchanged
-        self._step(new, slot, sums["mean"], sums["m2"], sums["abs"], sums["ratio"], self.decay, 1.0 / frames,
+        self._step(new, slot, sums["mean"], sums["m2"], sums["abs"], sums["ratio"], _sq(sums, True), self.decay,
+                   1.0 / frames,
                    1.0 / pairs if has_pair else 0.0, self.q)
+
+
+def _sq(sums: Mapping[str, np.ndarray], exponential: bool = False) -> np.ndarray:
+    """The Σ(ΔI)² sums (or weighted mean), or an empty array where "im" is not kept."""
+    return sums["sq"] if "sq" in sums else _NO_SQ[exponential]

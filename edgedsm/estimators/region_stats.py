@@ -5,7 +5,8 @@ percentiles (:func:`edgedsm.analysis.region_stats`), and for the drying states o
 map's mean. Computing whole float maps first (:func:`edgedsm.estimators.snapshot.maps_from`)
 writes 32 bytes per pixel and reads them back per region and map. Here one pass over the rows
 the regions cover (:class:`RegionLayout`) reads the engine's sums once: each pixel of the
-regions' union gets its S1, S2 and S3 (Eq. 1-4) computed once into a row buffer, whatever the
+regions' union gets its S1, S2 and S3 (Eq. 1-4), and the contrast, Fujii and IM asked for
+(:data:`MAPS`), computed once into a row buffer, whatever the
 regions holding it, and each region sums its column runs of that buffer. It runs on the
 pipeline thread between two pushes, from the live sums (the pushes are on that thread too).
 
@@ -23,7 +24,7 @@ Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 re
   Blocks are fixed by the layout (not by the thread count), so the result is the same whatever
   the threads.
 
-Every pixel's S1, S2, S3 (row buffers and samples alike) is formed by the one definition the
+Every pixel's values (row buffers and samples alike) is formed by the one definition the
 engine's maps use, :func:`edgedsm.estimators.activity.pixel_values`: bit for bit the map's value.
 
 The kernels are module-level functions, or closures over plain constants only, so numba's disk
@@ -47,6 +48,7 @@ from edgedsm.analysis_kernels import masked_moments
 from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
+from edgedsm.estimators.value_set import flags_of
 
 try:
     import numba
@@ -54,7 +56,7 @@ except ImportError:  # numba is the optional 'fast' extra
     numba = None
 
 #: Map names in the order of the kernels' outputs.
-MAPS = ("s1", "s2", "s3")
+MAPS = ("s1", "s2", "s3", "contrast", "fujii", "im")
 #: Pixels per block of rows: one task of the parallel pass, and one compensated partial sum.
 BLOCK_PIXELS = 1 << 16
 #: The shift c of the one-pass sums is the mean of every SHIFT_STRIDE-th pixel of the sample.
@@ -188,7 +190,7 @@ class Moments:
 
 def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | RegionLayout, maps: Sequence[str],
                    spread: bool = True, parallel: bool = True) -> dict[str, dict[str, Moments]]:
-    """Moments of ``maps`` (among s1, s2, s3) over each region, from a window's sums.
+    """Moments of ``maps`` (among :data:`MAPS`) over each region, from a window's sums.
 
     ``sums``: an engine snapshot, or the live sums (``SlidingWindow.snapshot(live=True)``; then on
     the thread that pushes, before the next push). ``regions``: plans by name, or their
@@ -200,7 +202,8 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
     layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
     kind = "exponential" if sums.mode == "exponential" else "window"
-    kernels = _kernels(*(name in wanted for name in MAPS), kind, parallel)
+    want = [name in wanted for name in MAPS]
+    kernels = _kernels(*want[:3], kind, parallel, *want[3:])
     if kernels is None:
         return _moments_from_maps(sums, layout.plans, wanted, spread)
     block_sums, sample_values = kernels
@@ -268,19 +271,46 @@ def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], 
 if numba is not None:
 
     @numba.njit(inline="always", nogil=True, cache=True)
-    def _row_values(exponential, do_abs, do_s2, do_s3, size, abs_sum, ratio_sum, second, fourth, out1, out2, out3,
-                    pairs, ratio_unit, n, weight):  # pragma: no cover - compiled
-        """One run of a row (views starting at index 0): S1, S2, S3 into out1..3, each pixel's
-        values as the maps kernel forms them (:func:`edgedsm.estimators.activity.pixel_values`)."""
+    def _store(out, j, v1, v2, v3, vc, vf, vi, want_s1, do_s2, do_s3, do_contrast, do_fujii,
+               do_im):  # pragma: no cover - compiled
+        """A pixel's values into column ``j`` of ``out`` (rows in the order of MAPS)."""
+        if want_s1:
+            out[0, j] = v1
+        if do_s2:
+            out[1, j] = v2
+        if do_s3:
+            out[2, j] = v3
+        if do_contrast:
+            out[3, j] = vc
+        if do_fujii:
+            out[4, j] = vf
+        if do_im:
+            out[5, j] = vi
+
+    @numba.njit(inline="always", nogil=True, cache=True)
+    def _row_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, size, abs_sum, ratio_sum,
+                    second, fourth, sq_sum, out1, out2, out3, out4, out5, out6, pairs, ratio_unit, n,
+                    weight):  # pragma: no cover - compiled
+        """One run of a row (views starting at index 0): the values into out1..6 (MAPS order),
+        each pixel's values as the maps kernel forms them
+        (:func:`edgedsm.estimators.activity.pixel_values`). One 1-D array per map: the loop
+        vectorises (rows of one 2-D buffer made the region statistics 1.8x slower)."""
         for j in range(size):
-            v1, v2, v3, _ = pixel_values(exponential, do_abs, do_s2, do_s3, j, abs_sum, ratio_sum, second, fourth,
-                                         pairs, ratio_unit, n, weight)
+            v1, v2, v3, _, vc, vf, vi = pixel_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im,
+                                                     j, abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit,
+                                                     n, weight)
             if do_abs:
                 out1[j] = v1
             if do_s2:
                 out2[j] = v2
             if do_s3:
                 out3[j] = v3
+            if do_contrast:
+                out4[j] = vc
+            if do_fujii:
+                out5[j] = vf
+            if do_im:
+                out6[j] = vi
 
     @numba.njit(nogil=True, fastmath={"reassoc", "nsz"}, cache=True)
     def _run_moments(values, shift):  # pragma: no cover - compiled
@@ -319,71 +349,91 @@ if numba is not None:
         _neumaier(partials, block, r, k, 2, squares)
 
     @numba.njit(inline="always", nogil=True, cache=True)
-    def _block(kind, do_abs, do_s2, do_s3, want_s1, block, abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
-               weight, width, row0, col0, cols, block_rows, cover_ptr, cover, run_ptr, runs, shift,
-               partials, spread, sample_ptr, sample_index, samples):  # pragma: no cover - compiled
+    def _block(kind, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, want_s1, block, abs_sum, ratio_sum,
+               second, fourth, sq_sum, pairs, ratio_unit, n,
+               weight, geometry, cover_ptr, cover, run_ptr, runs, shift, partials, spread, sample_ptr, sample_index,
+               samples):  # pragma: no cover - compiled
         """One block of rows: the union's values into row buffers, each region's runs summed, and
-        with ``spread`` the exact values of the sample pixels on these rows (in cache now)."""
+        with ``spread`` the exact values of the sample pixels on these rows (in cache now).
+        ``do_*``: activity.pixel_values' flags; S2 is summed with ``do_s2`` (Fujii's maps alone
+        sum S2 too, unread), S1 with ``want_s1``. ``geometry``: (width, row0, col0, cols,
+        block_rows) of the layout (one argument: CPython passes a call of 30 arguments or more as
+        *args, which numba cannot inline)."""
         exponential = kind == "exponential"
+        width, row0, col0, cols, block_rows = geometry
         buffer1 = np.empty(cols if do_abs else 0)
         buffer2 = np.empty(cols if do_s2 else 0)
         buffer3 = np.empty(cols if do_s3 else 0)
+        buffer4 = np.empty(cols if do_contrast else 0)
+        buffer5 = np.empty(cols if do_fujii else 0)
+        buffer6 = np.empty(cols if do_im else 0)
         rows = cover_ptr.size - 1
         for i in range(block * block_rows, min((block + 1) * block_rows, rows)):
             base = (row0 + i) * width + col0
             for c in range(cover_ptr[i], cover_ptr[i + 1]):
                 start, stop = cover[c, 0], cover[c, 1]
                 first, last = base + start, base + stop
-                _row_values(exponential, do_abs, do_s2, do_s3, stop - start, abs_sum[first:last] if do_abs else abs_sum,
-                            ratio_sum[first:last] if do_s2 else ratio_sum,
-                            second[first:last] if do_s3 else second, fourth[first:last] if do_s3 else fourth,
-                            buffer1[start:stop] if do_abs else buffer1, buffer2[start:stop] if do_s2 else buffer2,
-                            buffer3[start:stop] if do_s3 else buffer3, pairs, ratio_unit, n, weight)
+                _row_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, stop - start,
+                            abs_sum[first:last] if do_abs else abs_sum, ratio_sum[first:last] if do_s2 else ratio_sum,
+                            second[first:last] if do_s3 or do_contrast else second,
+                            fourth[first:last] if do_s3 or do_contrast else fourth,
+                            sq_sum[first:last] if do_im else sq_sum, buffer1[start:stop] if do_abs else buffer1,
+                            buffer2[start:stop] if do_s2 else buffer2, buffer3[start:stop] if do_s3 else buffer3,
+                            buffer4[start:stop] if do_contrast else buffer4,
+                            buffer5[start:stop] if do_fujii else buffer5, buffer6[start:stop] if do_im else buffer6,
+                            pairs, ratio_unit, n, weight)
             for r in range(run_ptr.shape[0]):
                 if spread:
                     for q in range(sample_ptr[r, i], sample_ptr[r, i + 1]):
-                        v1, v2, v3, _ = pixel_values(exponential, do_abs, do_s2, do_s3, sample_index[q],
-                                                     abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n,
-                                                     weight)
-                        samples[0, q] = v1
-                        samples[1, q] = v2
-                        samples[2, q] = v3
+                        v1, v2, v3, _, vc, vf, vi = pixel_values(exponential, do_abs, do_s2, do_s3, do_contrast,
+                                                                 do_fujii, do_im, sample_index[q], abs_sum, ratio_sum,
+                                                                 second, fourth, sq_sum, pairs, ratio_unit, n, weight)
+                        _store(samples, q, v1, v2, v3, vc, vf, vi, True, True, True, True, True, True)
                 if want_s1:
                     _region_row(buffer1, 0, r, i, run_ptr, runs, shift, partials, block)
                 if do_s2:
                     _region_row(buffer2, 1, r, i, run_ptr, runs, shift, partials, block)
                 if do_s3:
                     _region_row(buffer3, 2, r, i, run_ptr, runs, shift, partials, block)
+                if do_contrast:
+                    _region_row(buffer4, 3, r, i, run_ptr, runs, shift, partials, block)
+                if do_fujii:
+                    _region_row(buffer5, 4, r, i, run_ptr, runs, shift, partials, block)
+                if do_im:
+                    _region_row(buffer6, 5, r, i, run_ptr, runs, shift, partials, block)
 
 
 @functools.cache
-def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str,
-             parallel: bool) -> tuple[Callable[..., None], Callable[..., None]] | None:
-    """The compiled (block sums, sample values) pair for one set of maps and one ``kind`` of
-    sums ("window": integer sums; "exponential": weighted means), or None without numba. The choices are
-    compile-time constants (closure over plain values only, so the disk cache finds it)."""
+def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str, parallel: bool, want_contrast: bool = False,
+             want_fujii: bool = False, want_im: bool = False) -> tuple[Callable[..., None], Callable[..., None]] | None:
+    """The compiled (block sums, sample values) pair for one set of maps (MAPS order) and one
+    ``kind`` of sums ("window": integer sums; "exponential": weighted means), or None without
+    numba. The choices are compile-time constants (closure over plain values only, so the disk
+    cache finds it)."""
     if numba is None:
         return None
-    do_abs = want_s1 or want_s3
+    want = (want_s1, want_s2, want_s3, want_contrast, want_fujii, want_im)
+    flags = flags_of([name for name, on in zip(MAPS, want, strict=True) if on])
+    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
     exponential = kind == "exponential"
 
     @kernel_variant(parallel)
-    def sample_values(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, index,
+    def sample_values(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, weight, index,
                       out):  # pragma: no cover - compiled
         for i in numba.prange(index.size):
-            v1, v2, v3, _ = pixel_values(exponential, do_abs, want_s2, want_s3, index[i], abs_sum, ratio_sum, second,
-                                         fourth, pairs, ratio_unit, n, weight)
-            out[0, i] = v1
-            out[1, i] = v2
-            out[2, i] = v3
+            v1, v2, v3, _, vc, vf, vi = pixel_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im,
+                                                     index[i], abs_sum, ratio_sum, second, fourth, sq_sum, pairs,
+                                                     ratio_unit, n, weight)
+            _store(out, i, v1, v2, v3, vc, vf, vi, True, True, True, True, True, True)
 
     @kernel_variant(parallel)
-    def block_sums(abs_sum, ratio_sum, second, fourth, pairs, ratio_unit, n, weight, width, row0, col0, cols,
+    def block_sums(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, weight, width, row0, col0, cols,
                    block_rows, cover_ptr, cover, run_ptr, runs, shift, partials, spread, sample_ptr, sample_index,
                    samples):  # pragma: no cover - compiled
         for block in numba.prange(partials.shape[0]):
-            _block(kind, do_abs, want_s2, want_s3, want_s1, block, abs_sum, ratio_sum, second, fourth, pairs,
-                   ratio_unit, n, weight, width, row0, col0, cols, block_rows, cover_ptr, cover, run_ptr, runs,
-                   shift, partials, spread, sample_ptr, sample_index, samples)
+            _block(kind, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, want_s1, block, abs_sum, ratio_sum,
+                   second, fourth, sq_sum, pairs, ratio_unit, n,
+                   weight, (width, row0, col0, cols, block_rows), cover_ptr, cover, run_ptr, runs, shift, partials,
+                   spread, sample_ptr, sample_index, samples)
 
     return block_sums, sample_values

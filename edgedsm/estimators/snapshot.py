@@ -19,6 +19,7 @@ import numpy as np
 
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import tau_lags
+from edgedsm.estimators.value_set import VALUES, flags_of, value_sizes
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,7 @@ class EngineSnapshot:
     pairs: int
     ratio_unit: float  # 2^-K, the S2 fixed-point unit (window modes)
     frames_seen: int
-    sums: dict[str, np.ndarray]  # window modes: abs, ratio, total, total_sq; exponential: abs, ratio, m2
+    sums: dict[str, np.ndarray]  # window modes: abs, ratio, total, total_sq, sq; exponential: abs, ratio, mean, m2, sq
     weight_frames: float  # exponential mode: Σλ^k over the frames
     maps_step: Callable[..., None]  # the engine's maps kernel for one thread
     value_names: tuple[str, ...]  # the sums activity.pixel_values reads, in its order (moment_sums)
@@ -86,12 +87,9 @@ def _unshared(arrays: dict[str, np.ndarray]) -> bool:
 
 
 def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
-    """Pixels of each array the maps kernel writes for this snapshot (0: not computed)."""
-    wanted = set(snapshot.estimators)
-    pixels = snapshot.shape[0] * snapshot.shape[1]
-    do_abs, do_ratio, do_sigma = "s1" in wanted or "s3" in wanted, "s2" in wanted, "s3" in wanted
-    return {name: pixels if on else 0
-            for name, on in (("s1", do_abs), ("s2", do_ratio), ("s3", do_sigma), ("sigma", do_sigma))}
+    """Pixels of each array the maps kernel writes for this snapshot (0: not computed), in the
+    order of :data:`edgedsm.estimators.value_set.VALUES`."""
+    return value_sizes(flags_of(snapshot.estimators), snapshot.shape[0] * snapshot.shape[1])
 
 
 def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> dict[str, np.ndarray]:
@@ -99,8 +97,8 @@ def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> di
     or with ``buffers`` arrays of that pool that nobody holds any more."""
     sizes = map_sizes(snapshot)
     flat = buffers.take(sizes) if buffers is not None else {name: np.empty(size) for name, size in sizes.items()}
-    snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window, flat["s1"],
-                       flat["s2"], flat["s3"], flat["sigma"], snapshot.weight_frames)
+    snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window,
+                       *(flat[name] for name in VALUES), snapshot.weight_frames)
     return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}
 
 

@@ -1,4 +1,5 @@
-"""Streaming estimator engine: S1, S2, S3 (paper Eq. 1-4) and τc at O(1) cost per pixel per frame.
+"""Streaming estimator engine: S1, S2, S3 (paper Eq. 1-4), τc, and the field's temporal contrast,
+Fujii and inertia moment (docs/descriptors.md) at O(1) cost per pixel per frame.
 
 :class:`SlidingWindow` takes frames one at a time (``push``) and returns the activity maps of
 its window on demand (``maps``). Intensities are grey levels (integers, ``bits`` per pixel);

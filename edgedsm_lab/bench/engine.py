@@ -168,18 +168,23 @@ def exact_s2(samples: np.ndarray, lag: int) -> np.ndarray:
     return out
 
 
+#: The field's streaming descriptors (docs/descriptors.md), each timed beside S1+S2+S3.
+DESCRIPTOR_SETS = tuple(("s1", "s2", "s3", name) for name in ("contrast", "fujii", "im", "gd"))
+
+
 def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, threads: int | None,
               pool: list[np.ndarray], log: Callable[[str], None]) -> list[dict[str, Any]]:
-    """Sliding pushes with τc (K = 2m), alone and beside S1, S2, S3: ms/frame and maps() ms."""
+    """Sliding pushes with τc (K = 2m), alone and beside S1, S2, S3, and with each streaming
+    descriptor beside S1, S2, S3 (q = 0: Fujii's): ms/frame and maps() ms."""
     lags = max(1, min(2 * lag, longest_lag(window)))  # K = 2m, as the tables before the N/2 default
     out = []
-    for estimators in (("s1", "s2", "s3"), ("tau_c",), ("s1", "s2", "s3", "tau_c")):
+    for estimators in (("s1", "s2", "s3"), ("tau_c",), ("s1", "s2", "s3", "tau_c"), *DESCRIPTOR_SETS):
         engine = SlidingWindow(shape, window, lag, bits=8, kernel=kernel, threads=threads,
                                estimators=estimators, max_lag=lags)
         for j in range(window):
             engine.push(pool[j % POOL])
         times = timed_pushes(engine, pool, window, window)
-        maps_ms = time_maps(engine, 1) * 1e3
+        maps_ms = time_maps(engine, 1 if "tau_c" in estimators else 3) * 1e3  # the first loads the kernel
         out.append({"shape": shape, "estimators": "+".join(estimators), "K": lags,
                     "ms": min(times) * 1e3, "median_ms": statistics.median(times) * 1e3,
                     "maps_ms": maps_ms, "state": engine.bytes_per_pixel})
@@ -189,12 +194,18 @@ def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, thread
     return out
 
 
-def tau_table(rows: list[dict[str, Any]]) -> list[str]:
-    lines = ["| frame | estimators (sliding, K) | ms/frame best (median) | x S1+S2+S3 | state B/px | maps() ms |",
+def tau_table(rows: list[dict[str, Any]], descriptors: bool = False) -> list[str]:
+    """The τc rows (with S1+S2+S3 alone), or with ``descriptors`` the descriptors' rows."""
+    lines = [f"| frame | estimators (sliding{'' if descriptors else ', K'}) | ms/frame best (median) | x S1+S2+S3 | "
+             "state B/px | maps() ms |",
              "|---|---|---:|---:|---:|---:|"]
+    named = {"+".join(names) for names in DESCRIPTOR_SETS}
     for row in rows:
+        if (row["estimators"] in named) != descriptors:
+            continue
         base = next(r for r in rows if r["shape"] == row["shape"] and r["estimators"] == "s1+s2+s3")
-        lines.append(f"| {row['shape'][1]}x{row['shape'][0]} | {row['estimators']} (K = {row['K']}) | "
+        lags = "" if descriptors else f" (K = {row['K']})"
+        lines.append(f"| {row['shape'][1]}x{row['shape'][0]} | {row['estimators']}{lags} | "
                      f"{row['ms']:.2f} ({row['median_ms']:.2f}) | {row['ms'] / base['ms']:.2f} | "
                      f"{row['state']:.0f} | {row['maps_ms']:.0f} |")
     return lines
@@ -408,6 +419,15 @@ def run(args: argparse.Namespace) -> int:
              f"includes the per-pixel fit of τc.")
         emit()
         for line in tau_table(tau_rows):
+            emit(line)
+        emit()
+        emit("## The field's streaming descriptors")
+        emit()
+        emit(f"Sliding window, {kernels[0]} kernel, each descriptor beside S1+S2+S3 (docs/descriptors.md; K "
+             f"does not apply): contrast and Fujii reuse S3's and S2's sums, IM keeps one more sum, GD's "
+             f"update reads the whole ring (O(N) per pixel per push).")
+        emit()
+        for line in tau_table(tau_rows, descriptors=True):
             emit(line)
     emit()
     emit("## Map noise at constant activity")

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edgedsm.estimators import s1
+from edgedsm.estimators import SlidingWindow, s1
 from edgedsm.estimators.descriptors import contrast, fujii, gd, im, kurtosis, mhi, skewness
 from edgedsm.estimators.thsp import avd, coom, inertia_moment, thsp
 from edgedsm.frameio import open_frames
@@ -135,6 +135,17 @@ def test_edgedsm_matches_bsltl(case: str, tmp_path: Path) -> None:
         np.testing.assert_array_equal(np.isnan(theirs), undefined, err_msg=name)
         assert (ours[undefined] == 0).all(), name
         np.testing.assert_allclose(ours[~undefined], theirs[~undefined], rtol=RTOL, atol=RTOL, err_msg=name)
+    # the streaming engine's descriptors (issue 24) over the same N frames, one sliding window
+    engine = SlidingWindow((H, W), N, 1, q=0, estimators=("s1", "contrast", "fujii", "im", "gd"))
+    for frame in stack:
+        engine.push(np.ascontiguousarray(frame))
+    streamed = engine.maps()
+    for name, theirs in (("s1", "graphavd"), ("im", "graphim"), ("gd", "gendiff")):
+        np.testing.assert_array_equal(streamed[name], bsltl[theirs], err_msg=f"streaming {name}")
+    assert _relative_error(streamed["fujii"], bsltl["fujii"]) <= RTOL
+    dark = stack.mean(axis=0) == 0
+    assert (streamed["contrast"][dark] == 0).all()
+    np.testing.assert_allclose(streamed["contrast"][~dark], bsltl["stdcont"][~dark], rtol=RTOL, atol=RTOL)
     if stack.dtype == np.uint8:  # coom.m's 256 x 256 matrix is for 8-bit values
         com = coom(thsp(stack, row=ROW))
         np.testing.assert_array_equal(com, bsltl["coom"])

@@ -28,6 +28,9 @@ def test_bench_engine_writes_tables_and_plot(tmp_path, capsys):
     assert "## Map noise at constant activity" in text and "| 25 |" in text
     assert "## Correlation time τc" in text and "| 64x64 | tau_c (K = 6) |" in text
     assert "| 64x64 | s1+s2+s3+tau_c (K = 6) |" in text
+    assert "## The field's streaming descriptors" in text
+    for name in ("contrast", "fujii", "im", "gd"):
+        assert f"| 64x64 | s1+s2+s3+{name} |" in text
     if importlib.util.find_spec("matplotlib"):
         assert (tmp_path / "bench-engine.png").stat().st_size > 10_000
     assert "Measured memory bandwidth" in capsys.readouterr().out

@@ -27,11 +27,11 @@ VARIANTS = r"""
 import numpy as np
 from edgedsm.estimators.kernels_numba import maps_kernel
 n = 64
-sums = [np.ones(n, np.int32)] * 4
-out = [np.empty(n) for _ in range(4)]
+sums = [np.ones(n, np.int32)] * 5
+out = [np.empty(n) for _ in range(7)]
 for parallel in (False, True):  # the serial variant compiled (and cached) first, as the warm-up does
     kernel = maps_kernel(True, True, True, parallel)
-    kernel(*sums, 3, 0.5, 4, *out)
+    kernel(*sums, 3, 0.5, 4, *out, 1.0)
     print(kernel.stats.cache_hits.total(), kernel.targetoptions.get("parallel", False))
 """
 

@@ -208,7 +208,7 @@ def test_exact_terms_equal_the_rational_table(kernel, q):
     first, second = a.ravel().astype(np.uint8), b.ravel().astype(np.uint8)
     module = importlib.import_module(f"edgedsm.estimators.kernels_{kernel}")
     abs_sum, ratio = np.zeros(65536, np.int64), np.zeros(65536, np.int64)
-    module.pairs_kernel(True, True, "exact", True)(first, second, abs_sum, ratio,
+    module.pairs_kernel(True, True, "exact", True)(first, second, abs_sum, ratio, np.zeros(0, np.int64),
                                                    np.zeros(0, np.int64), float(2**k), q)
     np.testing.assert_array_equal(ratio, ratio_lut(q, k))
     np.testing.assert_array_equal(abs_sum, np.abs(a - b).ravel())
@@ -314,9 +314,9 @@ def test_sigma_beyond_int64_uses_a_cancellation_free_float(kernel):
     module = importlib.import_module(f"edgedsm.estimators.kernels_{kernel}")
     s1, sigma, s3 = np.empty(3), np.empty(3), np.empty(3)
     abs_sum = np.array([7, 0, 9], np.int64)
-    module.maps_kernel(True, False, True, False)(abs_sum, np.zeros(0, np.int64), total,
-                                                 total_sq, 5, 1.0, n, s1, np.empty(0), s3,
-                                                 sigma)
+    module.maps_kernel(True, False, True, False)(abs_sum, np.zeros(0, np.int64), total, total_sq,
+                                                 np.zeros(0, np.int64), 5, 1.0, n, s1, np.empty(0), s3,
+                                                 sigma, np.empty(0), np.empty(0), np.empty(0), 1.0)
     for value, s, s2 in zip(sigma, total.tolist(), total_sq.tolist(), strict=True):
         exact = math.sqrt(Fraction(n * s2 - s * s, n * n))
         assert abs(value - exact) <= 2**-50 * exact

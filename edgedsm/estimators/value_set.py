@@ -1,0 +1,38 @@
+"""Which per-pixel values a set of maps needs, and GD from its exact sum: the light part of the
+engine's map arithmetic (numpy only, no numba: the engine's modules import it at start, the
+compiled formulas of :mod:`edgedsm.estimators.activity` load with the kernels).
+
+- :func:`flags_of`: the flags of :func:`edgedsm.estimators.activity.pixel_values` for a set of
+  map names (S3 needs S1's sum, Fujii is formed from S2); :data:`VALUES` and
+  :func:`value_sizes`: the arrays the maps kernel writes.
+- :func:`gd_of_sum`: the generalized differences (BSLTL's ``gendiff.m``) from their exact integer
+  sum, written once for the batch reference (``descriptors.gd``) and the sliding engine.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The per-pixel values ``activity.pixel_values`` forms, in its order (and the maps arrays' names).
+VALUES = ("s1", "s2", "s3", "sigma", "contrast", "fujii", "im")
+
+
+def flags_of(names: tuple[str, ...] | list[str] | set[str]) -> tuple[bool, bool, bool, bool, bool, bool]:
+    """(do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im) of ``activity.pixel_values`` for the maps
+    ``names``: S3 needs S1's sum, Fujii is formed from S2."""
+    wanted = set(names)
+    return ("s1" in wanted or "s3" in wanted, "s2" in wanted or "fujii" in wanted, "s3" in wanted,
+            "contrast" in wanted, "fujii" in wanted, "im" in wanted)
+
+
+def value_sizes(flags: tuple[bool, ...], pixels: int) -> dict[str, int]:
+    """Pixels of each array of :data:`VALUES` the maps kernel writes for ``flags`` (0: not formed)."""
+    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
+    formed = (do_abs, do_s2, do_s3, do_s3 or do_contrast, do_contrast, do_fujii, do_im)
+    return {name: pixels if on else 0 for name, on in zip(VALUES, formed, strict=True)}
+
+
+def gd_of_sum(gd_sum: np.ndarray, n: int) -> np.ndarray:
+    """Generalized differences, BSLTL ``gendiff.m``: Σ_{i<j} |I_i - I_j| / C(N, 2) over N = ``n``
+    frames, grey levels: the exact integer sum Σ_{i<j} |I_i - I_j| divided once. New array."""
+    return gd_sum.astype(np.float64) / (n * (n - 1) / 2)

@@ -1,0 +1,89 @@
+"""The field's descriptors through the daemon (issue 24): the drying states judged on Fujii (above its
+noise floor) and on the temporal contrast (no floor: as it is), their region statistics, maps and
+metrics in every sink, and the config's rules for them (Fujii runs the engine at q = 0)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from edgedsm.config import DaemonConfig
+from edgedsm.daemon.tau import engine_estimators
+from edgedsm.errors import ConfigError
+from edgedsm.publish.ha_discovery import Discovery
+from edgedsm.publish.prometheus import _stats_families
+from edgedsm.publish.sparkplug.metrics import declared_readings, map_reading, stats_readings
+from edgedsm.publish.topics import Topics
+from edgedsm.validation import validate
+from tests.unit.daemon.test_evaluation_tau import _config, _run
+
+PLATE = {"name": "plate", "min_dwell_s": 3}
+
+
+def _moves(sink) -> list[tuple[str, str]]:
+    return [(a.from_state, a.to_state) for a in sink.alerts if a.kind != "warning"]
+
+
+def test_drying_judged_on_fujii_above_its_noise_floor(repo):
+    # the demo scene at 64²: Fujii ~58 while wet, ~13 (4 above its floor of ~9) once dry
+    config = _config(repo, {"activity": "fujii"}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
+    assert config.estimator.engine_q == 0.0 and config.estimator.q == 1.0  # q left out: the engine runs at 0
+    assert engine_estimators(config) == ("s1", "s2", "s3", "fujii")
+    sink, pipeline = _run(config, repo, 1300)
+    assert pipeline.counters["dropped_queue"] == 0
+    assert _moves(sink) == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")], sink.alerts
+    ready = [s for s in sink.stats if s.ready]
+    assert all(s.estimator == "fujii" and set(s.regions["plate"]) == {"s1", "s2", "s3", "fujii"} for s in ready)
+    for stats in ready:  # 200·S2 of the same q = 0 sums, region by region (means of a map scaled by 200)
+        plate = stats.regions["plate"]
+        assert plate["fujii"].mean == pytest.approx(200 * plate["s2"].mean, rel=1e-12)
+        assert plate["fujii"].p95 == pytest.approx(200 * plate["s2"].p95, rel=1e-12)
+    first, last = ready[0].regions["plate"]["fujii"], ready[-1].regions["plate"]["fujii"]
+    assert 50 < first.mean < 70 and 10 < last.mean < 16, (first, last)
+    signal = ready[-1].signal["plate"]
+    assert signal.noise_floor is not None and signal.above_noise == pytest.approx(last.mean - signal.noise_floor)
+    report = sink.states[-1]
+    assert report.estimator == "fujii" and report.regions["plate"].state == "dry"
+    assert report.regions["plate"].activity == pytest.approx(signal.above_noise, rel=0.05)
+    maps = [m for m in sink.maps if m.name == "fujii"]
+    assert maps and {m.name for m in sink.maps} == {"s1", "s2", "s3", "fujii"}
+    assert math.isfinite(maps[-1].values.max()) and maps[-1].values.min() >= 0 and maps[-1].values.max() <= 200
+    # every sink that enumerates metrics carries it
+    readings = stats_readings(ready[-1])
+    assert readings["regions/plate/fujii/mean"].value == last.mean
+    assert "regions/plate/fujii/mean" in declared_readings(["plate"], engine_estimators(config))
+    families = {family.name: family for family in _stats_families(ready[-1])}
+    samples = {s.labels["estimator"]: s.value for s in families["edgedsm_region_activity"].samples}
+    assert samples == {name: ready[-1].regions["plate"][name].mean for name in ("s1", "s2", "s3", "fujii")}
+    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").activity_entity("plate", "fujii")
+    assert "'fujii'" in entity.config["value_template"] and entity.config["state_topic"] == "edgedsm/test/stats"
+
+
+def test_drying_judged_on_the_temporal_contrast_without_a_floor(repo):
+    # σ/⟨I⟩ of the demo scene: ~0.65 while wet, ~0.21 once dry
+    config = _config(repo, {"activity": "contrast"}, [{**PLATE, "wet_above": 0.55, "dry_below": 0.3}])
+    assert config.estimator.engine_q == 1.0 and engine_estimators(config) == ("s1", "s2", "s3", "contrast")
+    sink, _ = _run(config, repo, 1300)
+    assert _moves(sink) == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")], sink.alerts
+    ready = [s for s in sink.stats if s.ready]
+    last = ready[-1].regions["plate"]["contrast"]
+    assert 0.6 < ready[0].regions["plate"]["contrast"].mean < 0.7 and 0.15 < last.mean < 0.3
+    signal = ready[-1].signal["plate"]
+    assert signal.signal in ("ok", "low") and signal.noise_floor is None and signal.above_noise is None
+    report = sink.states[-1]
+    same = [s for s in ready if s.t == report.t]  # the stats evaluated with that report
+    assert same and report.regions["plate"].activity == same[0].regions["plate"]["contrast"].mean  # as it is
+    assert "contrast" in {m.name for m in sink.maps}
+
+
+def test_the_config_takes_the_descriptors_and_refuses_fujii_with_a_q(repo):
+    inertia = _config(repo, {"activity": "im"}, [{**PLATE, "wet_above": 400.0, "dry_below": 50.0}])
+    assert engine_estimators(inertia) == ("s1", "s2", "s3", "im") and inertia.estimator.engine_q == 1.0
+    assert map_reading("plate", "im", 120.0)[1].unit == "grey levels²"  # Sparkplug's engineering unit
+    assert _config(repo, {"activity": "fujii", "q": 0}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
+    with pytest.raises(ConfigError, match=r"estimator.q: Value error, q = 2.0 with estimator.activity = .fujii."):
+        _config(repo, {"activity": "fujii", "q": 2.0}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
+    with pytest.raises(ConfigError, match="activity"):
+        validate(DaemonConfig, {"camera": {"uri": "sim:x"}, "estimator": {"activity": "gd"},
+                                "regions": [{**PLATE, "wet_above": 1.0, "dry_below": 0.5}]}, "<gd>")
