@@ -207,11 +207,13 @@ def test_alerts_mode_writes_a_clip_around_each_transition(
     transitions = [a for a in _no_alert_lost(plant, daemon) if a.get("type") == "transition"]
     clips = [path for path in _recordings(directory) if path.name.endswith("-alerts.tif")]
     assert len(transitions) == 3 and len(clips) == 3, (transitions, clips)
+    # the frame rate the daemon measured (100 frames/s asked; less when the cores are busy)
+    rates = [s["fps"] for s in plant.stats() if s.get("ready") and s.get("fps")]
     for clip in clips:
         seq = _read(clip)
         assert seq == list(range(seq[0], seq[0] + len(seq)))  # consecutive: the ring, then what followed
-        # 0.5 s of ring + 1 s after the alert at 100 frames/s; the alert reaches the recorder a few
-        # frames after the frame that caused it
-        assert 120 <= len(seq) <= 160, (clip.name, len(seq))
+        # 0.5 s of ring + 1 s after the alert; the alert reaches the recorder a few frames after
+        # the frame that caused it
+        assert 1.5 * 0.8 * min(rates) <= len(seq) <= 1.5 * 1.1 * max(rates) + 10, (clip.name, len(seq), rates)
     stats = _recording_stats(plant)
     assert stats["mode"] == "alerts" and stats["frames_dropped"] == 0

@@ -20,8 +20,10 @@ def _round_trip(values: np.ndarray, **kwargs) -> tuple[np.ndarray, dict]:
 
 
 def _tolerance(values: np.ndarray, meta: dict) -> float:
-    # Half a step, plus float64 rounding of offset + q * scale.
-    return meta["scale"] / 2 + 4 * np.finfo(np.float64).eps * float(np.max(np.abs(values)))
+    # Half a step, plus float64 rounding of offset + q * scale; a subnormal scale is rounded to a
+    # multiple of the smallest subnormal, an error that q (up to 65535) multiplies.
+    tiny = 65535 * np.finfo(np.float64).smallest_subnormal
+    return meta["scale"] / 2 + 4 * np.finfo(np.float64).eps * float(np.max(np.abs(values))) + tiny
 
 
 def test_round_trip_within_half_a_step():
