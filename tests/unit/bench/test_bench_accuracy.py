@@ -10,7 +10,7 @@ from scipy import special
 
 from edgedsm.commands import bench
 from edgedsm_lab.bench.accuracy import QUICK, cnr, edge_width, measure, smoothed
-from edgedsm_lab.bench.accuracy_report import write_report
+from edgedsm_lab.bench.accuracy_report import kept_from, write_report
 from edgedsm_lab.bench.report import Report
 
 
@@ -34,6 +34,16 @@ def test_cnr_and_smoothing_on_known_maps() -> None:
     assert cnr(smoothed(values, "box", 5), left, right) == pytest.approx(10.0, rel=0.2)
 
 
+def test_a_regeneration_keeps_the_light_section_and_its_row(tmp_path, repo) -> None:
+    section, rows = kept_from(repo / "docs" / "accuracy.md")
+    assert section[0].startswith("## 5. What if the light changes")
+    assert "## How to choose" not in section and any("bench light" in line for line in section)
+    assert len(rows) == 1 and rows[0].startswith("| light that changes during the run")
+    assert kept_from(tmp_path / "absent.md") == ([], [])
+    (tmp_path / "other.md").write_text("# x\n\n## How to choose\n\n| a | b | (table 5) |\n")
+    assert kept_from(tmp_path / "other.md") == ([], [])
+
+
 def test_bench_lists_the_accuracy_suite() -> None:
     parser = argparse.ArgumentParser()
     bench.add_arguments(parser)
@@ -48,11 +58,12 @@ QUICK_RUN = pytest.mark.xdist_group("cpu_bound")
 
 
 @pytest.fixture(scope="module")
-def quick(tmp_path_factory: pytest.TempPathFactory):
+def quick(tmp_path_factory: pytest.TempPathFactory, repo):
     results = measure(QUICK)
     folder = tmp_path_factory.mktemp("accuracy")
     report = Report("Accuracy against time", echo=lambda _line: None)
-    write_report(report, results, None, "edgedsm bench accuracy --quick", folder / "accuracy")
+    write_report(report, results, None, "edgedsm bench accuracy --quick", folder / "accuracy",
+                 kept_from(repo / "docs" / "accuracy.md"))
     path = report.save(folder / "accuracy.md")
     return results, path
 
@@ -68,8 +79,10 @@ def test_quick_run_tables_and_figures(quick) -> None:
     # sliding: everything; tumbling: no GD; exponential: no τc, no GD
     assert len(results.delays) == (8 + 7 + 6) * len(QUICK.step_windows)
     assert len(results.smoothing) == 2 * len(QUICK.kernels)
-    for heading in ("## 1.", "### 1b.", "### 1c.", "## 2.", "## 3.", "## 4.", "## How to choose"):
-        assert heading in text
+    headings = ("## 1.", "### 1b.", "### 1c.", "## 2.", "## 3.", "## 4.", "## 5.", "## How to choose")
+    assert [text.index(heading) for heading in headings] == sorted(text.index(heading) for heading in headings)
+    assert text.index("| uneven laser light") < text.index("| light that changes during the run") \
+        < text.index("| `fujii`")
     for label in ("| Fujii |", "| GD |", "| IM |", "| σ/⟨I⟩ |", "| `fujii`", "| `gd`", "| `im`", "| `contrast`"):
         assert label in text  # the cases table's rows and the how-to-choose rows
     for name in ("contrast-vs-window", "descriptors-vs-window", "contrast-vs-lag", "step-response", "smoothing"):
