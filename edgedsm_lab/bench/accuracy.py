@@ -87,7 +87,7 @@ class Results:
     cost: dict[tuple[str, str, int], float] = field(default_factory=dict)  # (mode, est, N) -> ms/frame
     delays: list[tuple[str, int, str, float, float]] = field(default_factory=list)  # mode, N, est, d50, d90
     levels: list[tuple[str, int, str, float, float]] = field(default_factory=list)  # mode, N, est, before, after
-    cases: list[tuple[str, str, float, float]] = field(default_factory=list)  # case, est, β, AUC (N for lags)
+    cases: list[tuple[str, str, float, float]] = field(default_factory=list)  # case, est, β, AUC at window_for_lags
     traces: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)  # (mode, N) -> S1 progress
     smoothing: list[tuple[str, int, float, float, float, float]] = field(default_factory=list)
     # filter, k, CNR, AUC, edge width px, ms/map
@@ -221,7 +221,7 @@ def measure_contrast(plan: Plan, results: Results) -> None:
                     results.cases.append((noise, name, *measured))
         stack = frames[: plan.window_for_lags]
         for m in plan.lags:
-            maps = all_maps(stack, m) | descriptor_maps(stack, m, ("fujii", "im"))
+            maps = all_maps(stack, m) | descriptor_maps(stack, m, tuple(set(LAGGED) & set(DESCRIPTORS)))
             for name, values in maps.items():
                 results.contrast_m.append((noise, name, m, *beta_auc(values, *areas)))
         if noise == "clean":
