@@ -221,7 +221,7 @@ def measure_contrast(plan: Plan, results: Results) -> None:
                     results.cases.append((noise, name, *measured))
         stack = frames[: plan.window_for_lags]
         for m in plan.lags:
-            maps = all_maps(stack, m) | descriptor_maps(stack, m, tuple(n for n in LAGGED if n in DESCRIPTORS))
+            maps = all_maps(stack, m) | descriptor_maps(stack, m, tuple(e for e in LAGGED if e in DESCRIPTORS))
             for name, values in maps.items():
                 results.contrast_m.append((noise, name, m, *beta_auc(values, *areas)))
         if noise == "clean":
