@@ -399,17 +399,18 @@ def descriptor_choices(results: Results) -> list[str]:
     steps = " / ".join(_f(levels["sliding", n, "contrast"]) for n in plan.step_windows)
     return [
         f"| report what papers report (Fujii) | `fujii` (engine: q = 0; all modes) | 200·S2: S2's β and AUC "
-        f"(AUC {auc_of('fujii')} / {auc_of('s2')} at N = {big} clean, {auc_of('fujii', 'noisy')} / "
-        f"{auc_of('s2', 'noisy')} noisy) and S2's cost ({ms('fujii', mid)} / {ms('s2', mid)} ms/frame at "
-        f"N = {mid}) (tables 1, 1b) |",
+        f"(AUC {auc_of('fujii')} (S2 {auc_of('s2')}) at N = {big} clean, {auc_of('fujii', 'noisy')} "
+        f"(S2 {auc_of('s2', 'noisy')}) noisy) and S2's sums: {ms('fujii', mid)} ms/frame (S2 {ms('s2', mid)}) at "
+        f"N = {mid} (tables 1, 1b) |",
         f"| GD, the field's most cited descriptor | `gd`, N of a few τc; sliding only | every pair of the window: "
         f"once N ≫ τc both levels decorrelate inside it and GD reads the intensity spread, so its AUC falls "
         f"with N ({auc_of('gd', n=small)} → {auc_of('gd')} at N = {small} → {big}; S2 {auc_of('s2', n=small)} → "
-        f"{auc_of('s2')}); its push is O(N): {ms('gd', small)} → {ms('gd', big)} ms/frame, {gd_times:.0f}× S1 "
+        f"{auc_of('s2')}); β {beta_of('gd', n=small)} → {beta_of('gd')}; "
+        f"its push is O(N): {ms('gd', small)} → {ms('gd', big)} ms/frame, {gd_times:.0f}× S1 "
         f"at N = {big} (table 1b) |",
         f"| weigh large jumps more than small ones | `im` (all modes) | squared differences: β {beta_of('im')} "
-        f"against S1's {beta_of('s1')}, AUC {auc_of('im')} / {auc_of('s1')} clean, {auc_of('im', 'noisy')} / "
-        f"{auc_of('s1', 'noisy')} noisy at N = {big}; phase noise alone AUC {_f(case['clean', 'im'][1])} → "
+        f"(S1 {beta_of('s1')}), AUC {auc_of('im')} (S1 {auc_of('s1')}) clean, {auc_of('im', 'noisy')} "
+        f"(S1 {auc_of('s1', 'noisy')}) noisy at N = {big}; phase noise alone AUC {_f(case['clean', 'im'][1])} → "
         f"{_f(case['phase noise', 'im'][1])} at N = {mid}; one more sum: {ms('im', mid)} ms/frame "
         f"(S1 {ms('s1', mid)}) (tables 1b, 1c) |",
         f"| the temporal speckle contrast σ/⟨I⟩ of the literature | `contrast` (all modes), short N, not for "
