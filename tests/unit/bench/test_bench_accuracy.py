@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,15 +56,16 @@ def test_bench_lists_the_accuracy_suite() -> None:
 # enough to be measured once, not once per worker. (Slow unit tests share that worker anyway:
 # tests/conftest.py.)
 QUICK_RUN = pytest.mark.xdist_group("cpu_bound")
+REPO = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")
-def quick(tmp_path_factory: pytest.TempPathFactory, repo):
+def quick(tmp_path_factory: pytest.TempPathFactory):
     results = measure(QUICK)
     folder = tmp_path_factory.mktemp("accuracy")
     report = Report("Accuracy against time", echo=lambda _line: None)
     write_report(report, results, None, "edgedsm bench accuracy --quick", folder / "accuracy",
-                 kept_from(repo / "docs" / "accuracy.md"))
+                 kept_from(REPO / "docs" / "accuracy.md"))
     path = report.save(folder / "accuracy.md")
     return results, path
 
