@@ -308,7 +308,8 @@ class SlidingWindow:
         and written once (the memory-bandwidth model of ``edgedsm bench engine``)."""
         bits = self.bits if self.bits is not None else 8
         n_px = self.shape[0] * self.shape[1]
-        sums = {**self._moments.layout(n_px, bits), "products": self._tau.layout(n_px, bits)["products"]}
+        sums = {**self._moments.layout(n_px, bits), "products": self._tau.layout(n_px, bits)["products"],
+                **{name: value for name, value in self._layout(bits).items() if name == "gd"}}  # GD's own sum
         moved = sum(math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in sums.values())
         return self._frame_reads() * (1 if bits <= 8 else 2) + 2 * moved / n_px
 

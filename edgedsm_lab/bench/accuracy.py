@@ -2,14 +2,16 @@
 
 Measured on simulated frames, in one run:
 
-  1. contrast-to-noise (β and AUC of the logo pixels against the background) of S1, S2, S3 and
-     1/τc against the window N and the lag m, on the two-level logo object (τc = 10 logos on a
+  1. contrast-to-noise (β and AUC of the logo pixels against the background) of S1, S2, S3,
+     1/τc and the field's descriptors (Fujii, GD, IM, temporal contrast: docs/descriptors.md)
+     against the window N and the lag m, on the two-level logo object (τc = 10 logos on a
      τc = 50 background), without noise and with white phase noise (α = 0.3) plus ambient
-     light (η = 0.2);
+     light (η = 0.2); and at one N under each disturbance alone (the paper's §2B cases);
   2. detection delay of a τc step (4 → 16 Δt over the whole surface): frames after the step
-     until the region value has gone 50 % and 90 % of the way, per N and mode;
-  3. level portability: the settled S1, S2, S3 and τc after that step, per N and mode (a
-     threshold carries over only if the level does not move);
+     until the region value has gone 50 % and 90 % of the way, per N and mode (each
+     descriptor in the modes the streaming engine offers it: GD in sliding mode only);
+  3. level portability: the settled S1, S2, S3, τc and descriptors after that step, per N and
+     mode (a threshold carries over only if the level does not move);
   4. spatial smoothing (box or Gaussian, k = 1…9 px) against resolution on a sharp edge
      (left half τc = 10, right half τc = 50): CNR against the 10–90 % edge width;
   5. beside each, the streaming engine's ms/frame for that choice (SlidingWindow, numba
@@ -30,18 +32,26 @@ import numpy as np
 from scipy import ndimage, optimize, special
 
 from edgedsm.analysis import contrast
-from edgedsm.estimators import SlidingWindow, all_maps, tau_c
+from edgedsm.estimators import SlidingWindow, all_maps, descriptors, tau_c
 from edgedsm.sim import Scene, Simulator, region_masks, scene_from_dict
 from edgedsm_lab.report.measures import auc
 
 HELP = "accuracy against time: N, m, mode, estimator, smoothing (β, AUC, delay, levels, ms/frame)"
 
 ESTIMATORS = ("s1", "s2", "s3", "tau_c")
-LABELS = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "1/τc"}
+#: the field's streaming descriptors (docs/descriptors.md); maps from edgedsm.estimators.descriptors,
+#: costs and steps from the engine (q = 0: Fujii is 200·S2 there)
+DESCRIPTORS = ("fujii", "gd", "im", "contrast")
+LAGGED = ("s1", "s2", "s3", "fujii", "im")  # the maps that take a lag m (GD and contrast use every frame)
+LABELS = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "1/τc", "fujii": "Fujii", "gd": "GD", "im": "IM",
+          "contrast": "σ/⟨I⟩"}
 MODES = ("sliding", "tumbling", "exponential")
 TAU_FAST, TAU_SLOW = 10.0, 50.0
 STEP_FROM, STEP_TO = 4.0, 16.0  # the step stays below K = 20 lags, so τc can follow it
 NOISE = {"phase_noise": {"alpha": 0.3}, "ambient_light": {"eta": 0.2}}
+#: each disturbance of "noisy" alone, and both (the paper's §2B cases), measured at one N
+CASES = {"clean": {}, "phase noise": {"phase_noise": NOISE["phase_noise"]},
+         "ambient light": {"ambient_light": NOISE["ambient_light"]}, "noisy": NOISE}
 
 
 @dataclass(frozen=True)
@@ -77,14 +87,16 @@ class Results:
     cost: dict[tuple[str, str, int], float] = field(default_factory=dict)  # (mode, est, N) -> ms/frame
     delays: list[tuple[str, int, str, float, float]] = field(default_factory=list)  # mode, N, est, d50, d90
     levels: list[tuple[str, int, str, float, float]] = field(default_factory=list)  # mode, N, est, before, after
+    cases: list[tuple[str, str, float, float]] = field(default_factory=list)  # case, est, β, AUC at window_for_lags
     traces: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)  # (mode, N) -> S1 progress
     smoothing: list[tuple[str, int, float, float, float, float]] = field(default_factory=list)
     # filter, k, CNR, AUC, edge width px, ms/map
 
 
 # ----------------------------------------------------------------------------- scenes
-def logo_scene(size: int, noisy: bool, seed: int = 1) -> Scene:
-    """The built-in two-level logo object (edgedsm.sim.defaults) scaled to ``size``."""
+def logo_scene(size: int, noisy: bool, seed: int = 1, case: str | None = None) -> Scene:
+    """The built-in two-level logo object (edgedsm.sim.defaults) scaled to ``size``; with
+    ``noisy`` the disturbances of NOISE, or those of ``case`` (a key of CASES) when given."""
     scale = size / 256
 
     def logo(text: str, y: float) -> dict:
@@ -94,8 +106,7 @@ def logo_scene(size: int, noisy: bool, seed: int = 1) -> Scene:
     data: dict = {"scene": {"size": size, "seed": seed, "speckle_size": 2.0},
                   "activity": {"tau_c": TAU_SLOW, "regions": [logo("IOMT", 45), logo("ETRI", 150)]},
                   "detector": {"n_max": 1000, "bits": 8}}
-    if noisy:
-        data.update(NOISE)
+    data.update(CASES[case] if case is not None else NOISE if noisy else {})
     return scene_from_dict(data, "<accuracy logo scene>")
 
 
@@ -131,6 +142,11 @@ def activity_maps(frames: np.ndarray, lag: int, max_lag: int) -> dict[str, np.nd
     return maps
 
 
+def descriptor_maps(frames: np.ndarray, lag: int, names: tuple[str, ...] = DESCRIPTORS) -> dict[str, np.ndarray]:
+    """The batch maps of the field's descriptors ``names`` (edgedsm.estimators.descriptors)."""
+    return {name: descriptors.compute(name, frames, lag=lag) for name in names}
+
+
 def cnr(values: np.ndarray, active: np.ndarray, background: np.ndarray) -> float:
     """(mean active - mean background) / pooled standard deviation."""
     a, b = values[active], values[background]
@@ -156,8 +172,9 @@ def edge_width(values: np.ndarray) -> float:
 
 
 def engine_cost(frames: np.ndarray, window: int, lag: int, estimator: str, mode: str, plan: Plan) -> float:
-    """ms per push of the streaming engine (one estimator) on frames tiled to plan.cost_size
-    (S1-S3: with one map read per timed run; τc: the pushes only, its per-pixel fit is per map read)."""
+    """ms per push of the streaming engine (one estimator, q = 0) on frames tiled to plan.cost_size
+    (S1-S3 and the descriptors: with one map read per timed run; τc: the pushes only, its per-pixel
+    fit is per map read)."""
     reps = -(-plan.cost_size // frames.shape[1])
     tiled = np.tile(frames[: min(len(frames), 64)], (1, reps, reps))[:, : plan.cost_size, : plan.cost_size]
     tiled = np.ascontiguousarray(tiled)
@@ -179,25 +196,38 @@ def engine_cost(frames: np.ndarray, window: int, lag: int, estimator: str, mode:
     return best
 
 
+def beta_auc(values: np.ndarray, active: np.ndarray, background: np.ndarray) -> tuple[float, float]:
+    """β (paper §2C) and AUC of ``active`` against ``background``."""
+    return contrast(values, active, background), auc(values, active, background)
+
+
 def measure_contrast(plan: Plan, results: Results) -> None:
-    for noise in ("clean", "noisy"):
-        scene = logo_scene(plan.size, noise == "noisy")
+    for noise in CASES:
+        scene = logo_scene(plan.size, noise == "noisy", case=noise)
         masks = region_masks(scene)
-        active, background = masks["regions"], masks["background"]
+        areas = masks["regions"], masks["background"]
+        if noise not in ("clean", "noisy"):  # each disturbance alone: at one N only
+            frames = frames_of(scene, plan.window_for_lags)
+            maps = activity_maps(frames, plan.lag, plan.max_lag) | descriptor_maps(frames, plan.lag)
+            results.cases += [(noise, name, *beta_auc(values, *areas)) for name, values in maps.items()]
+            continue
         frames = frames_of(scene, max(plan.windows))
         for n in plan.windows:
-            for name, values in activity_maps(frames[:n], plan.lag, plan.max_lag).items():
-                results.contrast_n.append((noise, name, n, contrast(values, active, background),
-                                           auc(values, active, background)))
+            maps = activity_maps(frames[:n], plan.lag, plan.max_lag) | descriptor_maps(frames[:n], plan.lag)
+            for name, values in maps.items():
+                measured = beta_auc(values, *areas)
+                results.contrast_n.append((noise, name, n, *measured))
+                if n == plan.window_for_lags:
+                    results.cases.append((noise, name, *measured))
         stack = frames[: plan.window_for_lags]
         for m in plan.lags:
-            for name, values in all_maps(stack, m).items():
-                results.contrast_m.append((noise, name, m, contrast(values, active, background),
-                                           auc(values, active, background)))
+            maps = all_maps(stack, m) | descriptor_maps(stack, m, tuple(e for e in LAGGED if e in DESCRIPTORS))
+            for name, values in maps.items():
+                results.contrast_m.append((noise, name, m, *beta_auc(values, *areas)))
         if noise == "clean":
-            for estimator in ESTIMATORS:  # warm-up: every kernel compiled before anything is timed
+            for estimator in ESTIMATORS + DESCRIPTORS:  # warm-up: every kernel compiled before anything is timed
                 engine_cost(frames, min(plan.windows), plan.lag, estimator, "sliding", plan)
-            for estimator in ESTIMATORS:
+            for estimator in ESTIMATORS + DESCRIPTORS:
                 for n in plan.windows:
                     results.cost["sliding", estimator, n] = engine_cost(frames, n, plan.lag, estimator,
                                                                         "sliding", plan)
@@ -241,14 +271,16 @@ def measure_step(plan: Plan, results: Results) -> None:
                 results.levels.append((mode, n, name, float(before), after))
                 if name == "s1":
                     results.traces[mode, n] = progress[step_at - longest: step_at + 3 * longest]
-            for estimator in {"s1", "tau_c"} & set(names):
+            for estimator in {"s1", "tau_c", *DESCRIPTORS} & set(names):
                 if (mode, estimator, n) not in results.cost:
                     results.cost[mode, estimator, n] = engine_cost(frames, n, plan.lag, estimator, mode, plan)
 
 
 def mode_estimators(mode: str) -> tuple[str, ...]:
-    """τc's finite-window bias correction has no exponential counterpart: S1-S3 only there."""
-    return ESTIMATORS if mode != "exponential" else ESTIMATORS[:3]
+    """What the engine offers in ``mode``: τc's finite-window bias correction has no exponential
+    counterpart (S1-S3 only there), GD's update reads the window's frames (sliding only)."""
+    base = ESTIMATORS if mode != "exponential" else ESTIMATORS[:3]
+    return base + tuple(name for name in DESCRIPTORS if name != "gd" or mode == "sliding")
 
 
 def _forward_fill(values: np.ndarray) -> np.ndarray:

@@ -10,9 +10,12 @@ import numpy as np
 
 from edgedsm_lab.bench import accuracy
 from edgedsm_lab.bench.accuracy import (
+    CASES,
+    DESCRIPTORS,
     ESTIMATORS,
     FULL,
     LABELS,
+    LAGGED,
     MODES,
     NOISE,
     QUICK,
@@ -30,11 +33,10 @@ def _f(value: float, digits: int = 3) -> str:
     return "n/a" if not np.isfinite(value) else f"{value:.{digits}g}"
 
 
-def contrast_rows(results: Results, by: str) -> list[list[str]]:
-    """One row per (noise, N or m): β and AUC per estimator (and ms/frame for N)."""
+def contrast_rows(results: Results, by: str, names: tuple[str, ...]) -> list[list[str]]:
+    """One row per (noise, N or m): β and AUC per estimator of ``names`` (and ms/frame for N)."""
     rows_in = results.contrast_n if by == "N" else results.contrast_m
     keyed = {(noise, name, x): (beta, area) for noise, name, x, beta, area in rows_in}
-    names = ESTIMATORS if by == "N" else ESTIMATORS[:3]
     xs = sorted({x for _, _, x, _, _ in rows_in})
     rows = []
     for noise in ("clean", "noisy"):
@@ -49,17 +51,18 @@ def contrast_rows(results: Results, by: str) -> list[list[str]]:
     return rows
 
 
-def delay_rows(results: Results) -> list[list[str]]:
+def delay_rows(results: Results, names: tuple[str, ...], timed: tuple[str, ...]) -> list[list[str]]:
+    """One row per (mode, N): the step delays of ``names``, the ms/frame of ``timed``; n/a where
+    the engine does not offer the estimator in that mode."""
     rows = []
     keyed = {(mode, n, name): (d50, d90) for mode, n, name, d50, d90 in results.delays}
     for mode in MODES:
         for n in results.plan.step_windows:
             row = [mode, str(n)]
-            for name in ("s1", "s3", "tau_c"):
+            for name in names:
                 d50, d90 = keyed.get((mode, n, name), (float("nan"), float("nan")))
                 row.append(f"{_f(d50)} / {_f(d90)}")
-            row += [_f(results.cost.get((mode, "s1", n), float("nan")), 2),
-                    _f(results.cost.get((mode, "tau_c", n), float("nan")), 2)]
+            row += [_f(results.cost.get((mode, name, n), float("nan")), 2) for name in timed]
             rows.append(row)
     return rows
 
@@ -70,7 +73,7 @@ def level_rows(results: Results) -> list[list[str]]:
     for mode in MODES:
         for n in results.plan.step_windows:
             row = [mode, str(n)]
-            for name in ESTIMATORS:
+            for name in ESTIMATORS + DESCRIPTORS:
                 before, after = keyed.get((mode, n, name), (float("nan"), float("nan")))
                 row.append(f"{_f(before)} → {_f(after)}")
             rows.append(row)
@@ -80,6 +83,26 @@ def level_rows(results: Results) -> list[list[str]]:
 def smoothing_rows(results: Results) -> list[list[str]]:
     return [[kind, str(k), f"{c:.2f}", f"{a:.3f}", f"{w:.1f}", f"{ms:.2f}"]
             for kind, k, c, a, w, ms in results.smoothing]
+
+
+def case_rows(results: Results) -> list[list[str]]:
+    """One row per estimator: β / AUC in each case of CASES."""
+    keyed = {(case, name): (beta, area) for case, name, beta, area in results.cases}
+    return [[LABELS[name], *(f"{keyed[case, name][0]:.3f} / {keyed[case, name][1]:.3f}" for case in CASES)]
+            for name in ESTIMATORS + DESCRIPTORS]
+
+
+def write_cases(report: Report, results: Results) -> None:
+    """The table of each disturbance alone (paper §2B) at one N."""
+    plan = results.plan
+    report.line("### 1c. Phase noise and ambient light, each alone")
+    report.line()
+    report.line(f"Each disturbance alone (the paper's §2B cases) and both, at N = {plan.window_for_lags}, "
+                f"m = {plan.lag}: β / AUC of the logos against the background; phase noise "
+                f"α = {NOISE['phase_noise']['alpha']} (white), ambient light η = {NOISE['ambient_light']['eta']}.")
+    report.line()
+    report.table(["estimator", *CASES], case_rows(results))
+    report.line()
 
 
 def _log_ticks(ax, values: tuple[int, ...]) -> None:
@@ -97,7 +120,8 @@ def _figures(results: Results, folder: Path) -> dict[str, Path]:
 
     folder.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {}
-    colours = {"s1": "tab:blue", "s2": "tab:orange", "s3": "tab:green", "tau_c": "tab:red"}
+    colours = {"s1": "tab:blue", "s2": "tab:orange", "s3": "tab:green", "tau_c": "tab:red", "fujii": "tab:olive",
+               "gd": "tab:brown", "im": "tab:purple", "contrast": "tab:cyan"}
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for noise, style in (("clean", "-"), ("noisy", "--")):
@@ -119,9 +143,29 @@ def _figures(results: Results, folder: Path) -> dict[str, Path]:
     fig.savefig(out["contrast_n"], dpi=110)
     plt.close(fig)
 
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for noise, style in (("clean", "-"), ("noisy", "--")):
+        for name in ("s2", "gd", "im", "contrast"):  # Fujii's β and AUC are S2's (200·S2)
+            pts = sorted((n, b, a) for nz, nm, n, b, a in results.contrast_n if nz == noise and nm == name)
+            xs = [p[0] for p in pts]
+            label = f"{LABELS[name]}{' = Fujii/200' if name == 's2' else ''} {noise}"
+            axes[0].plot(xs, [p[1] for p in pts], style, marker="o", color=colours[name], label=label)
+            axes[1].plot(xs, [p[2] for p in pts], style, marker="o", color=colours[name])
+    for ax, title in zip(axes, ("contrast β", "AUC (logo vs background)"), strict=True):
+        _log_ticks(ax, results.plan.windows)
+        ax.set_xlabel("window N (frames)")
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, ncol=2)
+    fig.suptitle(f"The field's descriptors beside S2, m = {results.plan.lag}: solid without noise, dashed with noise")
+    fig.tight_layout()
+    out["descriptors_n"] = folder / "descriptors-vs-window.png"
+    fig.savefig(out["descriptors_n"], dpi=110)
+    plt.close(fig)
+
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     for noise, style in (("clean", "-"), ("noisy", "--")):
-        for name in ESTIMATORS[:3]:
+        for name in ("s1", "s2", "s3", "im"):  # Fujii's β is S2's
             pts = sorted((m, b) for nz, nm, m, b, _ in results.contrast_m if nz == noise and nm == name)
             ax.plot([p[0] for p in pts], [p[1] for p in pts], style, marker="o", color=colours[name],
                     label=f"{LABELS[name]} {noise}")
@@ -174,8 +218,26 @@ def _figures(results: Results, folder: Path) -> dict[str, Path]:
     return out
 
 
+#: the heading of docs/accuracy.md's section written from ``edgedsm bench light`` (not measured here)
+LIGHT_SECTION = "## 5. "
+
+
+def kept_from(path: Path) -> tuple[list[str], list[str]]:
+    """From an earlier report at ``path``: its section 5 (written from ``edgedsm bench light``,
+    docs/accuracy-light.md) and the how-to-choose rows that cite it, which this run does not
+    measure and a regeneration keeps; ([], []) without that file or section."""
+    lines = path.read_text(encoding="utf-8").splitlines() if path.exists() else []
+    starts = [i for i, line in enumerate(lines) if line.startswith(LIGHT_SECTION)]
+    if not starts:
+        return [], []
+    end = next((i for i in range(starts[0], len(lines)) if lines[i] == "## How to choose"), len(lines))
+    rows = [line for line in lines[end:] if line.startswith("|") and "(table 5)" in line]
+    return lines[starts[0]: end], rows
+
+
 def write_report(report: Report, results: Results, load: float | None, command: str,
-                 figures: Path | None) -> None:
+                 figures: Path | None, kept: tuple[list[str], list[str]] = ([], [])) -> None:
+    """The whole report; ``kept``: section 5 and its how-to-choose rows (``kept_from``)."""
     plan = results.plan
     report.line(report.machine(command, "numba", "scipy", load=load, load_after=load_average()))
     report.line()
@@ -200,14 +262,26 @@ def write_report(report: Report, results: Results, load: float | None, command: 
                 f"(τc = {TAU_SLOW:g}), m = {plan.lag}; then the engine's ms/frame per estimator at that N.")
     report.line()
     header = ["noise", "N", *(f"{LABELS[e]} β / AUC" for e in ESTIMATORS), *(f"{LABELS[e]} ms" for e in ESTIMATORS)]
-    report.table(header, contrast_rows(results, "N"))
+    report.table(header, contrast_rows(results, "N", ESTIMATORS))
     report.line()
     figure("contrast_n", "beta and AUC against N")
-    report.line(f"β / AUC against the lag m at N = {plan.window_for_lags} (τc has no lag: it fits lags up to K).")
+    report.line(f"β / AUC against the lag m at N = {plan.window_for_lags} (τc has no lag: it fits lags up to K; "
+                "GD and σ/⟨I⟩ use every frame of the window, no lag).")
     report.line()
-    report.table(["noise", "m", *(f"{LABELS[e]} β / AUC" for e in ESTIMATORS[:3])], contrast_rows(results, "m"))
+    report.table(["noise", "m", *(f"{LABELS[e]} β / AUC" for e in LAGGED)], contrast_rows(results, "m", LAGGED))
     report.line()
     figure("contrast_m", "beta against m")
+    report.line("### 1b. The field's descriptors")
+    report.line()
+    report.line("The field's descriptors (docs/descriptors.md) on the same frames: batch maps of "
+                "`edgedsm.estimators.descriptors` (Fujii and IM at the lag m, GD over every pair of the window, "
+                "σ/⟨I⟩ the temporal contrast); ms/frame is the engine with that descriptor alone (Fujii: q = 0).")
+    report.line()
+    report.table(["noise", "N", *(f"{LABELS[e]} β / AUC" for e in DESCRIPTORS),
+                  *(f"{LABELS[e]} ms" for e in DESCRIPTORS)], contrast_rows(results, "N", DESCRIPTORS))
+    report.line()
+    figure("descriptors_n", "descriptors: beta and AUC against N")
+    write_cases(report, results)
     report.line("## 2. Detection delay of a τc step")
     report.line()
     report.line(f"The whole surface steps from τc = {STEP_FROM:g} to {STEP_TO:g} Δt; frames after the step until "
@@ -215,7 +289,13 @@ def write_report(report: Report, results: Results, load: float | None, command: 
                 "tumbling block boundary (the best case: a step inside a block waits up to one more block).")
     report.line()
     report.table(["mode", "N", "S1 50 % / 90 %", "S3 50 % / 90 %", "τc 50 % / 90 %", "S1 ms", "τc ms"],
-                 delay_rows(results))
+                 delay_rows(results, ("s1", "s3", "tau_c"), ("s1", "tau_c")))
+    report.line()
+    report.line("The descriptors through the same step, each in the modes the engine offers it (GD: sliding only), "
+                "and the engine's ms/frame for it alone in that mode.")
+    report.line()
+    report.table(["mode", "N", *(f"{LABELS[e]} 50 % / 90 %" for e in DESCRIPTORS),
+                  *(f"{LABELS[e]} ms" for e in DESCRIPTORS)], delay_rows(results, DESCRIPTORS, DESCRIPTORS))
     report.line()
     figure("step", "step response per mode")
     report.line("## 3. Level portability")
@@ -227,7 +307,7 @@ def write_report(report: Report, results: Results, load: float | None, command: 
                 "same. "
                 "τc is reported in frames; the daemon publishes it in seconds (× Δt).")
     report.line()
-    report.table(["mode", "N", *(f"{e.upper() if e != 'tau_c' else 'τc'}" for e in ESTIMATORS)],
+    report.table(["mode", "N", *(LABELS[e] if e != "tau_c" else "τc" for e in ESTIMATORS + DESCRIPTORS)],
                  level_rows(results))
     report.line()
     report.line("## 4. Spatial smoothing against resolution")
@@ -240,9 +320,12 @@ def write_report(report: Report, results: Results, load: float | None, command: 
     report.table(["filter", "k", "CNR", "AUC", "edge width px", "ms/map"], smoothing_rows(results))
     report.line()
     figure("smoothing", "CNR against edge width")
+    report.extend(kept[0])
     report.line("## How to choose")
     report.line()
-    report.extend(how_to_choose(results))
+    rows = how_to_choose(results)
+    at = next(i + 1 for i, row in enumerate(rows) if row.startswith("| uneven laser light"))
+    report.extend(rows[:at] + kept[1] + rows[at:] + descriptor_choices(results))
 
 
 def how_to_choose(results: Results) -> list[str]:
@@ -295,6 +378,51 @@ def how_to_choose(results: Results) -> list[str]:
     ]
 
 
+def descriptor_choices(results: Results) -> list[str]:
+    """The how-to-choose rows of the field's descriptors, with this run's numbers."""
+    plan = results.plan
+    small, big, mid = min(plan.windows), max(plan.windows), plan.window_for_lags
+    pair = {(noise, name, n): (b, a) for noise, name, n, b, a in results.contrast_n}
+    case = {(c, name): (b, a) for c, name, b, a in results.cases}
+    levels = {(mode, n, name): after for mode, n, name, _, after in results.levels}
+
+    def ms(name: str, n: int) -> str:
+        return _f(results.cost.get(("sliding", name, n), float("nan")), 2)
+
+    def auc_of(name: str, noise: str = "clean", n: int = big) -> str:
+        return _f(pair[noise, name, n][1])
+
+    def beta_of(name: str, noise: str = "clean", n: int = big) -> str:
+        return _f(pair[noise, name, n][0])
+
+    gd_times = results.cost["sliding", "gd", big] / results.cost["sliding", "s1", big]
+    steps = " / ".join(_f(levels["sliding", n, "contrast"]) for n in plan.step_windows)
+    return [
+        f"| report what papers report (Fujii) | `fujii` (engine: q = 0; all modes) | 200·S2: S2's β and AUC "
+        f"(AUC {auc_of('fujii')} (S2 {auc_of('s2')}) at N = {big} clean, {auc_of('fujii', 'noisy')} "
+        f"(S2 {auc_of('s2', 'noisy')}) noisy) and S2's sums: {ms('fujii', mid)} ms/frame (S2 {ms('s2', mid)}) at "
+        f"N = {mid} (tables 1, 1b) |",
+        f"| GD, the field's most cited descriptor | `gd`, N of a few τc; sliding only | every pair of the window: "
+        f"once N ≫ τc both levels decorrelate inside it and GD reads the intensity spread, so its AUC falls "
+        f"with N ({auc_of('gd', n=small)} → {auc_of('gd')} at N = {small} → {big}; S2 {auc_of('s2', n=small)} → "
+        f"{auc_of('s2')}); β {beta_of('gd', n=small)} → {beta_of('gd')}; "
+        f"its push is O(N): {ms('gd', small)} → {ms('gd', big)} ms/frame, {gd_times:.0f}× S1 "
+        f"at N = {big} (table 1b) |",
+        f"| weigh large jumps more than small ones | `im` (all modes) | squared differences: β {beta_of('im')} "
+        f"(S1 {beta_of('s1')}), AUC {auc_of('im')} (S1 {auc_of('s1')}) clean, {auc_of('im', 'noisy')} "
+        f"(S1 {auc_of('s1', 'noisy')}) noisy at N = {big}; phase noise alone AUC {_f(case['clean', 'im'][1])} → "
+        f"{_f(case['phase noise', 'im'][1])} at N = {mid}; one more sum: {ms('im', mid)} ms/frame "
+        f"(S1 {ms('s1', mid)}) (tables 1b, 1c) |",
+        f"| the temporal speckle contrast σ/⟨I⟩ of the literature | `contrast` (all modes), short N, not for "
+        f"thresholds across N | it tells the levels apart only through its finite-window bias (a slow pixel's "
+        f"σ is underestimated in a short window): AUC {auc_of('contrast', n=small)} → {auc_of('contrast')} at "
+        f"N = {small} → {big}; settled level after the step {steps} at N = "
+        f"{' / '.join(map(str, plan.step_windows))}; ambient light alone β {_f(case['clean', 'contrast'][0])} → "
+        f"{_f(case['ambient light', 'contrast'][0])}; no sum of its own: {ms('contrast', mid)} ms/frame "
+        f"(tables 1b, 1c, 3) |",
+    ]
+
+
 # ----------------------------------------------------------------------------- command
 HELP = accuracy.HELP
 #: the command's --help text: what the benchmark measures (the measuring module's docstring)
@@ -312,7 +440,9 @@ def run(args: argparse.Namespace) -> int:
     results = measure(plan)
     report = Report("Accuracy against time")
     figures = Path(args.output).with_suffix("") if args.output else None
-    write_report(report, results, load, "edgedsm bench accuracy" + (" --quick" if args.quick else ""), figures)
+    kept = kept_from(Path(args.output)) if args.output else ([], [])
+    write_report(report, results, load, "edgedsm bench accuracy" + (" --quick" if args.quick else ""), figures,
+                 kept)
     if args.output:
         report.save(args.output)
     return 0

@@ -187,27 +187,29 @@ def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, thread
         maps_ms = time_maps(engine, 1 if "tau_c" in estimators else 3) * 1e3  # the first loads the kernel
         out.append({"shape": shape, "estimators": "+".join(estimators), "K": lags,
                     "ms": min(times) * 1e3, "median_ms": statistics.median(times) * 1e3,
-                    "maps_ms": maps_ms, "state": engine.bytes_per_pixel})
+                    "maps_ms": maps_ms, "state": engine.bytes_per_pixel, "traffic": engine.traffic_per_pixel})
         log(f"  sliding {kernel} {out[-1]['estimators']}: {out[-1]['ms']:.2f} ms/frame")
         del engine
         gc.collect()
     return out
 
 
-def tau_table(rows: list[dict[str, Any]], descriptors: bool = False) -> list[str]:
-    """The τc rows (with S1+S2+S3 alone), or with ``descriptors`` the descriptors' rows."""
+def tau_table(rows: list[dict[str, Any]], bandwidth: float, descriptors: bool = False) -> list[str]:
+    """The τc rows (with S1+S2+S3 alone), or with ``descriptors`` the descriptors' rows; each
+    push's time also against its own memory-bandwidth bound (moved bytes at ``bandwidth`` B/s)."""
     lines = [f"| frame | estimators (sliding{'' if descriptors else ', K'}) | ms/frame best (median) | x S1+S2+S3 | "
-             "state B/px | maps() ms |",
-             "|---|---|---:|---:|---:|---:|"]
+             "state B/px | moved B/px | x bandwidth bound | maps() ms |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
     named = {"+".join(names) for names in DESCRIPTOR_SETS}
     for row in rows:
         if (row["estimators"] in named) != descriptors:
             continue
         base = next(r for r in rows if r["shape"] == row["shape"] and r["estimators"] == "s1+s2+s3")
         lags = "" if descriptors else f" (K = {row['K']})"
+        bound_ms = row["traffic"] * row["shape"][0] * row["shape"][1] / bandwidth * 1e3
         lines.append(f"| {row['shape'][1]}x{row['shape'][0]} | {row['estimators']}{lags} | "
                      f"{row['ms']:.2f} ({row['median_ms']:.2f}) | {row['ms'] / base['ms']:.2f} | "
-                     f"{row['state']:.0f} | {row['maps_ms']:.0f} |")
+                     f"{row['state']:.0f} | {row['traffic']:.0f} | {row['ms'] / bound_ms:.2f} | {row['maps_ms']:.0f} |")
     return lines
 
 
@@ -415,19 +417,20 @@ def run(args: argparse.Namespace) -> int:
         emit()
         emit(f"Sliding window, {kernels[0]} kernel, the estimators named, K lags of τc (K = 2m). "
              f"*x S1+S2+S3*: best ms/frame against the engine with the three maps only, in the same "
-             f"run. τc keeps K exact lag-product sums per pixel (int32 for 8-bit data); maps() "
+             f"run. *moved B/px* and *x bandwidth bound* as in the first table, for that set of estimators. "
+             f"τc keeps K exact lag-product sums per pixel (int32 for 8-bit data); maps() "
              f"includes the per-pixel fit of τc.")
         emit()
-        for line in tau_table(tau_rows):
+        for line in tau_table(tau_rows, bandwidth):
             emit(line)
         emit()
         emit("## The field's streaming descriptors")
         emit()
         emit(f"Sliding window, {kernels[0]} kernel, each descriptor beside S1+S2+S3 (docs/descriptors.md; K "
              f"does not apply): contrast and Fujii reuse S3's and S2's sums, IM keeps one more sum, GD's "
-             f"update reads the whole ring (O(N) per pixel per push).")
+             f"update reads the whole ring (O(N) per pixel per push: its moved bytes count the N frames).")
         emit()
-        for line in tau_table(tau_rows, descriptors=True):
+        for line in tau_table(tau_rows, bandwidth, descriptors=True):
             emit(line)
     emit()
     emit("## Map noise at constant activity")

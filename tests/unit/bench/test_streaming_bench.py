@@ -29,8 +29,17 @@ def test_bench_engine_writes_tables_and_plot(tmp_path, capsys):
     assert "## Correlation time τc" in text and "| 64x64 | tau_c (K = 6) |" in text
     assert "| 64x64 | s1+s2+s3+tau_c (K = 6) |" in text
     assert "## The field's streaming descriptors" in text
-    for name in ("contrast", "fujii", "im", "gd"):
-        assert f"| 64x64 | s1+s2+s3+{name} |" in text
+    moved = {}
+    for name in ("s1+s2+s3", "s1+s2+s3+contrast", "s1+s2+s3+fujii", "s1+s2+s3+im", "s1+s2+s3+gd"):
+        line = next(line for line in text.splitlines() if line.startswith(f"| 64x64 | {name} "))  # S1-S3: (K = 6)
+        cells = [cell.strip() for cell in line.split("|")]
+        moved[name] = float(cells[6])
+        assert float(cells[7]) > 0  # x its own bandwidth bound
+    # contrast and Fujii reuse S3's and S2's sums; GD reads the N = 20 ring frames (1 B each at
+    # 8 bits) and reads and writes its int64 sum (2 x 8 B)
+    assert moved["s1+s2+s3+contrast"] == moved["s1+s2+s3+fujii"] == moved["s1+s2+s3"]
+    assert moved["s1+s2+s3+gd"] == moved["s1+s2+s3"] + 20 + 16
+    assert moved["s1+s2+s3+im"] > moved["s1+s2+s3"]
     if importlib.util.find_spec("matplotlib"):
         assert (tmp_path / "bench-engine.png").stat().st_size > 10_000
     assert "Measured memory bandwidth" in capsys.readouterr().out
