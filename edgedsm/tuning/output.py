@@ -50,6 +50,8 @@ def snippet(result: Result, config: DaemonConfig, command: str) -> str:
              f"window = {candidate.setting.window}", f"lag = {candidate.setting.lag}",
              f"mode = {_toml_value(candidate.setting.mode)}",
              f"noise_floor = {_toml_value(candidate.noise_floor or candidate.estimator == 'tau_c')}"]
+    if candidate.estimator == "fujii":  # 200·S2 at q = 0: the config refuses another q beside it
+        lines.append("q = 0.0")
     series = next(s for s in result.series if s.setting == candidate.setting)
     if candidate.estimator == "tau_c" and series.max_lag is not None:
         lines.append(f"max_lag = {series.max_lag}")

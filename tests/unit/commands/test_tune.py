@@ -70,7 +70,7 @@ def test_the_snippet_is_a_daemon_config_with_the_regions_geometry_and_thresholds
     folder, snippet, text = demo
     estimator, (region,) = snippet["estimator"], snippet["regions"]
     assert estimator["window"] == 100 and estimator["lag"] in (5, 10) and estimator["activity"] in (
-        "s1", "s2", "s3", "tau_c")
+        "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im")
     assert {k: region[k] for k in ("name", "shape", "x", "y", "width", "height")} == {
         "name": "plate", "shape": "rect", "x": 8.0, "y": 8.0, "width": 48.0, "height": 48.0}
     assert region["min_dwell_s"] == 3.0 and region["hysteresis"] == 0.05
