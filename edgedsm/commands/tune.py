@@ -11,8 +11,9 @@ recordings. Every candidate (an activity the daemon judges on: S1, S2, S3, Fujii
 above the noise floor, the temporal contrast plain, τc; at each window and lag that fits;
 --estimators narrows them) is scored on every region: the separation of wet and dry (AUC, d′),
 when the daemon's state machine with the proposed thresholds calls it dry, its false
-transitions, and its cost per frame, measured by the engine on this PC. Exit 65 when the run cannot answer (too short,
-marks outside it, or no candidate separating wet from dry), with the best separation found.
+transitions, and its cost per frame, measured by the engine on this PC. Exit 65 when the run
+cannot answer (too short, marks outside it, or no candidate separating wet from dry), with the
+best separation found.
 """
 
 from __future__ import annotations
