@@ -30,6 +30,9 @@ from edgedsm.tuning.series import JUDGEABLE, WITH_FLOOR, Series, Setting
 GOOD_AUC = 0.95  # below: wet and dry overlap too much to trust thresholds
 USABLE_AUC = 0.9  # below, for every candidate: the run cannot be tuned (exit 65)
 DELAY_SLACK = 0.1  # a cheaper candidate within this share of the fastest's delay is preferred
+#: activities that do not depend on the lag m (the contrast: σ/⟨I⟩ of the window): scored at one
+#: lag per window and mode, the first tried
+LAG_FREE = ("contrast",)
 NAMES = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "τc", "contrast": "contrast", "fujii": "Fujii", "im": "IM"}
 
 
@@ -97,10 +100,13 @@ class Outcome:
 def candidates(settings: Iterable[Setting], estimators: Sequence[str] = JUDGEABLE) -> list[Candidate]:
     """Every variant of ``estimators`` (among series.JUDGEABLE) at each setting: above the noise
     and plain where the daemon has a floor, else plain (the contrast); τc only where the mode
-    keeps a window."""
+    keeps a window; a LAG_FREE one at the first of the settings that differ only in the lag."""
     out = []
     for setting in settings:
         for estimator in (name for name in JUDGEABLE if name in estimators):
+            if estimator in LAG_FREE and any(c.estimator == estimator and (c.setting.window, c.setting.mode) ==
+                                             (setting.window, setting.mode) for c in out):
+                continue
             if estimator in WITH_FLOOR:
                 out += [Candidate(estimator, True, setting), Candidate(estimator, False, setting)]
             elif estimator != "tau_c" or setting.has_tau:

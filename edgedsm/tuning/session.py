@@ -116,7 +116,9 @@ def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s:
                           on_frame=on_frame, estimators=estimators)
         result.series.append(series)
         costs: dict[str, float] = {}
-        for candidate in candidates([setting], estimators):
+        for candidate in candidates(settings[:index + 1], estimators):
+            if candidate.setting != setting:  # scored at an earlier setting
+                continue
             if candidate.estimator not in costs:
                 costs[candidate.estimator] = _cost(sample, candidate, series, run.bits, config.estimator.q)
             cost = costs[candidate.estimator]

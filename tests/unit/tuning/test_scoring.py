@@ -91,6 +91,8 @@ def test_the_candidates_are_the_activities_the_daemon_judges_above_the_noise_whe
         "S1 above noise", "S1", "S2 above noise", "S2", "S3 above noise", "S3", "τc", "contrast",
         "Fujii above noise", "Fujii", "IM above noise", "IM"]
     assert len(candidates([exponential])) == 11  # no τc without a window
+    other_lag = candidates([sliding, Setting(100, 10)])  # the contrast does not depend on m: scored once
+    assert [c.setting.lag for c in other_lag if c.estimator == "contrast"] == [5] and len(other_lag) == 23
     only = candidates([sliding, exponential], ("fujii", "contrast"))
     assert [(c.estimator, c.noise_floor, c.setting.mode, c.variant) for c in only] == [
         ("contrast", False, "sliding", "contrast"), ("fujii", True, "sliding", "fujii@noise"),
