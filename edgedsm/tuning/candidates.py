@@ -1,8 +1,10 @@
 """The candidates ``edgedsm tune`` weighs, what each does on the reference run, and the choice
 (docs/commissioning.md).
 
-A candidate is an estimator as the daemon judges it (S1, S2 or S3, plain or above the noise
-floor, or τc in seconds) at one window N, lag m and mode. Its outcome on every region: the
+A candidate is an estimator as the daemon judges it (``estimator.activity``: S1, S2, S3, Fujii
+or IM, plain or above the noise floor; the temporal contrast, plain: it has no floor; or τc in
+seconds) at one window N, lag m and mode. GD is not one: the daemon does not judge on it (its
+streaming update is O(N) per pixel, sliding mode only: docs/descriptors.md). Its outcome on every region: the
 separation of wet from dry, the proposed thresholds and what the state machine does with them
 (:mod:`edgedsm.tuning.scoring`), and its cost per frame, measured by the engine at the camera's
 frame size. The choice: among the candidates that separate every region (AUC >= GOOD_AUC), call
@@ -23,18 +25,21 @@ import numpy as np
 
 from edgedsm.drying import Thresholds
 from edgedsm.tuning.scoring import Replay, Separation, propose, replay, separation
-from edgedsm.tuning.series import Series, Setting
+from edgedsm.tuning.series import JUDGEABLE, WITH_FLOOR, Series, Setting
 
 GOOD_AUC = 0.95  # below: wet and dry overlap too much to trust thresholds
 USABLE_AUC = 0.9  # below, for every candidate: the run cannot be tuned (exit 65)
 DELAY_SLACK = 0.1  # a cheaper candidate within this share of the fastest's delay is preferred
-NAMES = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "τc"}
+#: activities that do not depend on the lag m (the contrast: σ/⟨I⟩ of the window): scored at one
+#: lag per window and mode, the first tried
+LAG_FREE = ("contrast",)
+NAMES = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "τc", "contrast": "contrast", "fujii": "Fujii", "im": "IM"}
 
 
 @dataclass(frozen=True)
 class Candidate:
-    estimator: str  # s1, s2, s3, tau_c
-    noise_floor: bool  # judged above the noise floor (S1-S3)
+    estimator: str  # an estimator.activity: s1, s2, s3, tau_c, contrast, fujii, im
+    noise_floor: bool  # judged above the noise floor (those of series.WITH_FLOOR)
     setting: Setting
 
     @property
@@ -92,14 +97,20 @@ class Outcome:
         return self.auc >= GOOD_AUC and math.isfinite(self.delay_s) and self.false_per_hour == 0
 
 
-def candidates(settings: Iterable[Setting]) -> list[Candidate]:
-    """Every estimator variant at each setting (τc only where the mode keeps a window)."""
+def candidates(settings: Iterable[Setting], estimators: Sequence[str] = JUDGEABLE) -> list[Candidate]:
+    """Every variant of ``estimators`` (among series.JUDGEABLE) at each setting: above the noise
+    and plain where the daemon has a floor, else plain (the contrast); τc only where the mode
+    keeps a window; a LAG_FREE one at the first of the settings that differ only in the lag."""
     out = []
     for setting in settings:
-        for estimator in ("s1", "s2", "s3"):
-            out += [Candidate(estimator, True, setting), Candidate(estimator, False, setting)]
-        if setting.has_tau:
-            out.append(Candidate("tau_c", False, setting))
+        for estimator in (name for name in JUDGEABLE if name in estimators):
+            if estimator in LAG_FREE and any(c.estimator == estimator and (c.setting.window, c.setting.mode) ==
+                                             (setting.window, setting.mode) for c in out):
+                continue
+            if estimator in WITH_FLOOR:
+                out += [Candidate(estimator, True, setting), Candidate(estimator, False, setting)]
+            elif estimator != "tau_c" or setting.has_tau:
+                out.append(Candidate(estimator, False, setting))
     return out
 
 

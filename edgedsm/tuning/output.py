@@ -15,6 +15,8 @@ from edgedsm.config import DaemonConfig
 from edgedsm.tuning.candidates import Outcome, pareto
 from edgedsm.tuning.session import Result
 
+#: the activities that have a unit (docs/descriptors.md; the others are dimensionless)
+UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "tau_c": " (s)"}
 THRESHOLD_KEYS = {"wet_above", "dry_below", "wet_below_s", "dry_above_s", "hysteresis", "min_dwell_s"}
 
 
@@ -50,6 +52,8 @@ def snippet(result: Result, config: DaemonConfig, command: str) -> str:
              f"window = {candidate.setting.window}", f"lag = {candidate.setting.lag}",
              f"mode = {_toml_value(candidate.setting.mode)}",
              f"noise_floor = {_toml_value(candidate.noise_floor or candidate.estimator == 'tau_c')}"]
+    if candidate.estimator == "fujii":  # 200·S2 at q = 0: the config refuses another q beside it
+        lines.append("q = 0.0")
     series = next(s for s in result.series if s.setting == candidate.setting)
     if candidate.estimator == "tau_c" and series.max_lag is not None:
         lines.append(f"max_lag = {series.max_lag}")
@@ -118,7 +122,7 @@ def plot_chosen(path: Path, result: Result) -> None:
         ax.axvline(mark, color="black", lw=0.8)
         ax.text(mark, ax.get_ylim()[1], f" {text}", va="top", fontsize=8)
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(chosen.candidate.label().split(",")[0] + (" (s)" if chosen.candidate.estimator == "tau_c" else ""))
+    ax.set_ylabel(chosen.candidate.label().split(",")[0] + UNITS.get(chosen.candidate.estimator, ""))
     ax.set_title(f"{Path(result.run.name).name}: {chosen.candidate.label()}")
     ax.legend(fontsize=8)
     fig.tight_layout()

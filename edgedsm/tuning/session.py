@@ -2,10 +2,14 @@
 within a time budget (docs/commissioning.md).
 
 The settings are tried in order of likelihood (N near 100, m near 5 first: the paper's and the
-daemon's defaults), one streaming pass each; a pass's time is measured and no pass is begun that
-the budget cannot hold (the first always runs). Each candidate's cost per frame is measured by the
+daemon's defaults), one streaming pass each; a setting's time (its pass, its cost timings and its
+scoring) is measured and no setting is begun that the budget cannot hold if it takes as long as
+the last (the first always runs). The candidates of a setting are every judgeable estimator asked
+for (``estimators``, default all of series.JUDGEABLE): more estimators make each setting longer,
+so the same budget covers fewer settings. Each candidate's cost per frame is measured by the
 engine on frames of the run at the camera's size (the whole frame, or the regions' bounding box
-with ``estimator.area = "regions"``), as the daemon would push them.
+with ``estimator.area = "regions"``), as the daemon would push them; Fujii's at q = 0, the q its
+daemon runs at.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.errors import DataError
 from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, recommend
-from edgedsm.tuning.series import Series, Setting, push_cost, run_pass
+from edgedsm.tuning.series import JUDGEABLE, Series, Setting, push_cost, run_pass
 
 WINDOWS = (100, 200, 50, 400)
 LAGS = (5, 10, 2, 1, 20)
@@ -90,26 +94,31 @@ def check_marks(run: Run) -> None:
 
 def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s: float,
          settings: Sequence[Setting], on_frame: Callable[[], None] | None = None,
-         on_pass: Callable[[Setting, int, int], None] | None = None) -> Result:
-    """Score every candidate of ``settings`` on ``run`` within ``budget_s`` (module docstring)."""
+         on_pass: Callable[[Setting, int, int], None] | None = None,
+         estimators: Sequence[str] = JUDGEABLE) -> Result:
+    """Score every candidate of ``estimators`` at ``settings`` on ``run`` within ``budget_s``
+    (module docstring)."""
     check_marks(run)
     started = time.perf_counter()
     result = Result(run)
     step = max(1, round(STATE_STEP_S / run.dt), math.ceil(run.count / MAX_SAMPLES))
     dwell = {region.name: region.min_dwell_s for region in config.regions}
     sample = _cost_frames(run, config, masks)
+    last_s = 0.0  # the last setting's time: pass, costs and scoring
     for index, setting in enumerate(settings):
-        elapsed = time.perf_counter() - started
-        if result.series and elapsed + result.series[-1].seconds > budget_s:  # a pass costs about the last
+        setting_started = time.perf_counter()
+        if result.series and setting_started - started + last_s > budget_s:  # a setting costs about the last
             result.skipped = list(settings[index:])
             break
         if on_pass is not None:
             on_pass(setting, index, len(settings))
         series = run_pass(run.frames(), setting, config, masks, run.dt, step, bits=run.bits, times_s=run.times_s,
-                          on_frame=on_frame)
+                          on_frame=on_frame, estimators=estimators)
         result.series.append(series)
         costs: dict[str, float] = {}
-        for candidate in candidates([setting]):
+        for candidate in candidates(settings[:index + 1], estimators):
+            if candidate.setting != setting:  # scored at an earlier setting
+                continue
             if candidate.estimator not in costs:
                 costs[candidate.estimator] = _cost(sample, candidate, series, run.bits, config.estimator.q)
             cost = costs[candidate.estimator]
@@ -118,6 +127,7 @@ def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s:
                 result.excluded.append((candidate, outcome))
             else:
                 result.outcomes.append(outcome)
+        last_s = time.perf_counter() - setting_started
     result.chosen, result.reason = recommend(result.outcomes)
     result.seconds = time.perf_counter() - started
     if result.chosen is None and max((o.auc for o in result.outcomes), default=0.0) < USABLE_AUC:
@@ -139,6 +149,6 @@ def _cost_frames(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray]) -
 
 
 def _cost(frames: list[np.ndarray], candidate: Candidate, series: Series, bits: int | None, q: float) -> float:
-    estimators = ("tau_c",) if candidate.estimator == "tau_c" else (candidate.estimator,)
-    return push_cost(frames, estimators, candidate.setting, bits, max_lag=series.max_lag if
-                     candidate.estimator == "tau_c" else None, q=q)
+    """The candidate's estimator alone in the engine, at the q its daemon runs at (Fujii: 0)."""
+    return push_cost(frames, (candidate.estimator,), candidate.setting, bits, max_lag=series.max_lag if
+                     candidate.estimator == "tau_c" else None, q=0.0 if candidate.estimator == "fujii" else q)

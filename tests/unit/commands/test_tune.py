@@ -38,6 +38,7 @@ dry_below = 0.1
 min_dwell_s = 3
 """
 FAST = ["--windows", "100", "--lags", "5,10", "--no-progress"]
+PAPER = "s1,s2,s3,tau_c"  # the paper's estimators and τc, without the field's descriptors
 
 
 def _scene(tmp_path: Path, extra: str = "", seed: int = 11) -> Path:
@@ -70,7 +71,7 @@ def test_the_snippet_is_a_daemon_config_with_the_regions_geometry_and_thresholds
     folder, snippet, text = demo
     estimator, (region,) = snippet["estimator"], snippet["regions"]
     assert estimator["window"] == 100 and estimator["lag"] in (5, 10) and estimator["activity"] in (
-        "s1", "s2", "s3", "tau_c")
+        "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im")
     assert {k: region[k] for k in ("name", "shape", "x", "y", "width", "height")} == {
         "name": "plate", "shape": "rect", "x": 8.0, "y": 8.0, "width": 48.0, "height": 48.0}
     assert region["min_dwell_s"] == 3.0 and region["hysteresis"] == 0.05
@@ -79,6 +80,13 @@ def test_the_snippet_is_a_daemon_config_with_the_regions_geometry_and_thresholds
     assert text.startswith("# edgedsm tune") and "calls every region dry" in text.splitlines()[1]
     report = (folder / "report" / "report.md").read_text()
     assert "| candidate | AUC |" in report and (folder / "report" / "activity.png").stat().st_size > 0
+    # every activity the daemon judges on is a candidate (the descriptors with a floor twice), not GD
+    for lag in (5, 10):
+        for label in ("S1", "S2 above noise", "τc", "Fujii", "Fujii above noise", "IM", "IM above noise"):
+            assert f"| {label}, N=100 m={lag} sliding |" in report, label
+    # the contrast does not depend on the lag: scored once per window; it has no noise floor
+    assert report.count("| contrast, N=100 m=5 sliding |") == 1 and report.count("| contrast") == 1
+    assert "contrast above noise" not in report and "GD" not in report
     assert (folder / "report" / "tradeoff.png").stat().st_size > 0
 
 
@@ -134,7 +142,9 @@ def test_a_lamp_switched_on_while_wet_moves_the_choice_from_s2_to_s3_or_tau_c(tm
     text = (tmp_path / "scene.toml").read_text()
     lamp = "[ambient_light]\neta = 0.05\nsteps = [{frame = 100, eta = 0.3}]\n"
     (tmp_path / "scene.toml").write_text(text.replace("[ambient_light]\neta = 0.05\n", lamp))
-    code, result, _ = _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50")
+    # the paper's estimators: with the descriptors the contrast, which divides by ⟨I⟩ as S2 does
+    # (its d′ falls to about 9 too), calls dry 3.5 s early and is chosen (docs/commissioning.md)
+    code, result, _ = _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50", "--estimators", PAPER)
     assert code == 0
     assert result["recommended"]["estimator"] in ("s3", "tau_c"), result["reason"]
 
@@ -151,8 +161,9 @@ def test_a_lamp_switched_on_while_wet_moves_the_choice_from_s2_to_s3_or_tau_c(tm
 def test_under_a_gaussian_beam_s2_beats_s1(tmp_path, capsys):
     # the bright centre weighs in S1's region mean as it does not in S2's (paper Eq. 2's
     # normalisation by I_k + I_{k+m}): S2 separates wet from dry better and is chosen
+    # (the paper's estimators: with the descriptors the contrast, σ/⟨I⟩, normalised too, is chosen)
     _scene(tmp_path, '\n[illumination]\nkind = "gaussian"\nomega = 20.0\n')
-    code, result, _ = _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50")
+    code, result, _ = _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50", "--estimators", PAPER)
     assert code == 0
     assert result["recommended"]["estimator"] == "s2", result["reason"]
     by_label = {c["label"]: c for c in result["candidates"]}
@@ -170,7 +181,7 @@ def test_on_a_darkening_film_the_activity_above_the_noise_is_more_timely_than_th
     code, result, _ = _tune(tmp_path, capsys, "--wet-until", "150", "--dry-from", "1050", "--dt", "1")
     assert code == 0
     by_label = {c["label"]: c for c in result["candidates"]}
-    for estimator in ("S1", "S2"):
+    for estimator in ("S1", "S2", "Fujii", "IM"):  # Fujii: 83-95 s against 123-159 s; IM: 207-223 against 215-243
         for lag in (5, 10):
             plain, above = (by_label[f"{estimator}{kind}, N=100 m={lag} sliding"] for kind in ("", " above noise"))
             assert above["timing_error_s"] < plain["timing_error_s"], (estimator, lag, above, plain)
@@ -183,6 +194,10 @@ def test_marks_outside_the_run_and_a_run_too_short_are_one_line_exit_65(tmp_path
     assert code == 65 and "the marks must satisfy 0 < --wet-until" in err
     code, _, err = _tune(tmp_path, capsys, "--wet-until", "2", "--dry-from", "50")
     assert code == 65 and "too short for a window: the wet part holds 41 frames" in err
+    with pytest.raises(SystemExit) as refused:  # GD is no candidate: the daemon does not judge on it
+        _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50", "--estimators", "s2,gd")
+    assert refused.value.code == 2
+    assert "gd is not a candidate: the daemon does not judge on it" in capsys.readouterr().err
 
 
 def test_a_surface_that_never_dries_is_refused_with_the_best_separation_found(tmp_path, capsys):

@@ -10,7 +10,7 @@ import pytest
 
 from edgedsm.drying import Thresholds
 from edgedsm.errors import EstimatorError
-from edgedsm.tuning.candidates import Candidate, Outcome, RegionOutcome, pareto, recommend
+from edgedsm.tuning.candidates import Candidate, Outcome, RegionOutcome, candidates, pareto, recommend
 from edgedsm.tuning.scoring import HYSTERESIS, Replay, Separation, propose, replay, separation
 from edgedsm.tuning.series import Setting
 
@@ -82,3 +82,19 @@ def test_the_choice_is_the_most_timely_sound_candidate_unless_a_cheaper_one_is_a
     assert chosen is nearly and "2.1 s before the dry mark" in reason and "1 ms per frame" in reason
     none, why = recommend([unsound, _outcome("s1", None, 1e-3)])
     assert none is None and why.startswith("no candidate separates wet from dry")
+
+
+def test_the_candidates_are_the_activities_the_daemon_judges_above_the_noise_where_it_has_a_floor():
+    sliding, exponential = Setting(100, 5), Setting(100, 5, "exponential")
+    labels = [c.label() for c in candidates([sliding])]
+    assert [label.split(",")[0] for label in labels] == [
+        "S1 above noise", "S1", "S2 above noise", "S2", "S3 above noise", "S3", "τc", "contrast",
+        "Fujii above noise", "Fujii", "IM above noise", "IM"]
+    assert len(candidates([exponential])) == 11  # no τc without a window
+    other_lag = candidates([sliding, Setting(100, 10)])  # the contrast does not depend on m: scored once
+    assert [c.setting.lag for c in other_lag if c.estimator == "contrast"] == [5] and len(other_lag) == 23
+    only = candidates([sliding, exponential], ("fujii", "contrast"))
+    assert [(c.estimator, c.noise_floor, c.setting.mode, c.variant) for c in only] == [
+        ("contrast", False, "sliding", "contrast"), ("fujii", True, "sliding", "fujii@noise"),
+        ("fujii", False, "sliding", "fujii"), ("contrast", False, "exponential", "contrast"),
+        ("fujii", True, "exponential", "fujii@noise"), ("fujii", False, "exponential", "fujii")]
