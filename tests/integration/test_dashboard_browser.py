@@ -312,7 +312,8 @@ def test_the_history_plot_has_the_points_the_database_has(plant: Plant) -> None:
                           "ORDER BY t").fetchall()
         transitions = db.execute("SELECT to_state FROM alerts WHERE device = 'plate-a' AND kind = 'transition' "
                                  "ORDER BY t").fetchall()
-    assert len(rows) >= 20 and count == len(rows) == len(plotted)
+    # a history (states every 0.5 s for the ~10 s the plate takes to dry), plotted point for point
+    assert len(rows) >= 10 and count == len(rows) == len(plotted)
     for (t, activity), (x, y) in zip(rows, plotted, strict=True):
         assert x == pytest.approx(t, abs=1e-6)
         assert (y is None and activity is None) or y == pytest.approx(activity, rel=1e-9)
