@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +113,31 @@ def _log_ticks(ax, values: tuple[int, ...]) -> None:
     ax.minorticks_off()
 
 
+def _against_window(results: Results, colours: dict[str, str], names: tuple[str, ...],
+                    label: Callable[[str, str], str], title: str, path: Path) -> Path:
+    """β and AUC of ``names`` on the logo object against N, clean and noisy, saved to ``path``."""
+    from matplotlib import pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for noise, style in (("clean", "-"), ("noisy", "--")):
+        for name in names:
+            pts = sorted((n, b, a) for nz, nm, n, b, a in results.contrast_n if nz == noise and nm == name)
+            xs = [p[0] for p in pts]
+            axes[0].plot(xs, [p[1] for p in pts], style, marker="o", color=colours[name], label=label(name, noise))
+            axes[1].plot(xs, [p[2] for p in pts], style, marker="o", color=colours[name])
+    for ax, heading in zip(axes, ("contrast β", "AUC (logo vs background)"), strict=True):
+        _log_ticks(ax, results.plan.windows)
+        ax.set_xlabel("window N (frames)")
+        ax.set_title(heading)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, ncol=2)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _figures(results: Results, folder: Path) -> dict[str, Path]:
     import matplotlib
 
@@ -123,45 +149,15 @@ def _figures(results: Results, folder: Path) -> dict[str, Path]:
     colours = {"s1": "tab:blue", "s2": "tab:orange", "s3": "tab:green", "tau_c": "tab:red", "fujii": "tab:olive",
                "gd": "tab:brown", "im": "tab:purple", "contrast": "tab:cyan"}
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for noise, style in (("clean", "-"), ("noisy", "--")):
-        for name in ESTIMATORS:
-            pts = sorted((n, b, a) for nz, nm, n, b, a in results.contrast_n if nz == noise and nm == name)
-            xs = [p[0] for p in pts]
-            axes[0].plot(xs, [p[1] for p in pts], style, marker="o", color=colours[name],
-                         label=f"{LABELS[name]} {noise}")
-            axes[1].plot(xs, [p[2] for p in pts], style, marker="o", color=colours[name])
-    for ax, title in zip(axes, ("contrast β", "AUC (logo vs background)"), strict=True):
-        _log_ticks(ax, results.plan.windows)
-        ax.set_xlabel("window N (frames)")
-        ax.set_title(title)
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8, ncol=2)
-    fig.suptitle(f"Logo object, m = {results.plan.lag}: solid without noise, dashed with noise")
-    fig.tight_layout()
-    out["contrast_n"] = folder / "contrast-vs-window.png"
-    fig.savefig(out["contrast_n"], dpi=110)
-    plt.close(fig)
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for noise, style in (("clean", "-"), ("noisy", "--")):
-        for name in ("s2", "gd", "im", "contrast"):  # Fujii's β and AUC are S2's (200·S2)
-            pts = sorted((n, b, a) for nz, nm, n, b, a in results.contrast_n if nz == noise and nm == name)
-            xs = [p[0] for p in pts]
-            label = f"{LABELS[name]}{' = Fujii/200' if name == 's2' else ''} {noise}"
-            axes[0].plot(xs, [p[1] for p in pts], style, marker="o", color=colours[name], label=label)
-            axes[1].plot(xs, [p[2] for p in pts], style, marker="o", color=colours[name])
-    for ax, title in zip(axes, ("contrast β", "AUC (logo vs background)"), strict=True):
-        _log_ticks(ax, results.plan.windows)
-        ax.set_xlabel("window N (frames)")
-        ax.set_title(title)
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8, ncol=2)
-    fig.suptitle(f"The field's descriptors beside S2, m = {results.plan.lag}: solid without noise, dashed with noise")
-    fig.tight_layout()
-    out["descriptors_n"] = folder / "descriptors-vs-window.png"
-    fig.savefig(out["descriptors_n"], dpi=110)
-    plt.close(fig)
+    out["contrast_n"] = _against_window(
+        results, colours, ESTIMATORS, lambda name, noise: f"{LABELS[name]} {noise}",
+        f"Logo object, m = {results.plan.lag}: solid without noise, dashed with noise",
+        folder / "contrast-vs-window.png")
+    out["descriptors_n"] = _against_window(
+        results, colours, ("s2", "gd", "im", "contrast"),  # Fujii's β and AUC are S2's (200·S2)
+        lambda name, noise: f"{LABELS[name]}{' = Fujii/200' if name == 's2' else ''} {noise}",
+        f"The field's descriptors beside S2, m = {results.plan.lag}: solid without noise, dashed with noise",
+        folder / "descriptors-vs-window.png")
 
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     for noise, style in (("clean", "-"), ("noisy", "--")):
