@@ -9,6 +9,7 @@ those of ``edgedsm.geometry`` (the daemon's regions use the same ones).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -175,6 +176,17 @@ class PhaseNoise(StrictModel):
                              "with step σ_noise, like the process phase")
 
 
+def latest_at(frame: int, steps: Iterable[tuple[int, float]], start: float) -> float:
+    """The value of the latest (first frame, value) step at or before ``frame`` (steps in
+    increasing order of frame), else ``start``: what steps that do not compound give."""
+    value = start
+    for first, step_value in steps:
+        if first > frame:
+            break
+        value = step_value
+    return value
+
+
 class AmbientStep(StrictModel):
     """From ``frame`` on, the ambient light is ``eta`` (a lamp or daylight switched on or off)."""
 
@@ -196,12 +208,7 @@ class AmbientLight(StrictModel):
 
     def eta_at(self, frame: int) -> float:
         """η at ``frame``: the latest step's at or before it, else the scene's ``eta``."""
-        eta = self.eta
-        for step in self.steps:
-            if step.frame > frame:
-                break
-            eta = step.eta
-        return eta
+        return latest_at(frame, ((step.frame, step.eta) for step in self.steps), self.eta)
 
     @property
     def levels(self) -> list[float]:
@@ -244,11 +251,7 @@ class Scene(StrictModel):
     def light_level(self, frame: int) -> float:
         """The light reaching the sensor at ``frame`` relative to frame 0's scale (darkening and
         exposure steps; 1.0 when the scene has neither)."""
-        exposure = 1.0
-        for step in self.exposure_steps:
-            if step.frame > frame:
-                break
-            exposure = step.factor
+        exposure = latest_at(frame, ((step.frame, step.factor) for step in self.exposure_steps), 1.0)
         return exposure * (1.0 if self.darkening is None else self.darkening.factor(frame))
 
     @property
