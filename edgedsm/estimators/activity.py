@@ -35,13 +35,12 @@ from typing import Any
 
 import numpy as np
 
+from edgedsm.estimators.value_set import INT64_MAX, window_spreads
+
 try:
     import numba
 except ImportError:  # numba is the optional 'fast' extra: the NumPy twins below serve
     numba = None
-
-#: int64's largest value: N·Σ(I-k)² stays exact in int64 up to INT64_MAX // N.
-INT64_MAX = 2**63 - 1
 
 
 def _inline(function: Callable[..., Any]) -> Callable[..., Any]:
@@ -170,16 +169,7 @@ def s2_values(ratio_sum: np.ndarray, ratio_unit: float, pairs: int, out: np.ndar
 
 def window_sigmas(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
     """:func:`window_sigma` of every pixel (new float64 array)."""
-    s = total.astype(np.int64)
-    k = np.floor(s.astype(np.float64) / n + 0.5).astype(np.int64)
-    r = s - k * n
-    centred = total_sq.astype(np.int64) - k * (s + r)  # Σ(I-k)² >= 0, exact
-    fits = centred <= INT64_MAX // n
-    spread = (n * np.where(fits, centred, 0) - r * r).astype(np.float64)
-    if not fits.all():  # as centred_spread's float64 branch
-        wide = ~fits
-        spread[wide] = n * centred[wide].astype(np.float64) - (r[wide] * r[wide]).astype(np.float64)
-    return np.sqrt(spread) / n
+    return np.sqrt(window_spreads(total, total_sq, n)) / n
 
 
 def s3_values(s1: np.ndarray, sigma: np.ndarray, out: np.ndarray) -> None:

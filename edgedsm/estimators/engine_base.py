@@ -24,6 +24,7 @@ import numpy as np
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags, tau_mode_problem
+from edgedsm.estimators.dft_bins import BAND_NAMES, DftBins, band_plan
 from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import Layout, Moments
@@ -38,8 +39,9 @@ KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
 #: Names of the maps the engine can keep: the paper's S1-S3 and τc, and the field's descriptors that
 #: stream at O(1) per pixel from the same sums (issue 24, docs/descriptors.md): the temporal
 #: contrast σ/⟨I⟩, Fujii (200·S2 at q = 0) and the inertia moment mean (ΔI)² at lag m; and the
-#: generalized differences (GD), sliding mode only, O(N) per pixel per push.
-ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd")
+#: generalized differences (GD), sliding mode only, O(N) per pixel per push; the frequency bands,
+#: O(bins) per pixel per push (edgedsm.estimators.dft_bins).
+ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd", *BAND_NAMES)
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
@@ -81,7 +83,9 @@ class SlidingWindow:
         estimators: which of "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im" ``maps()``
             returns (default: the first three), or "gd"; only their sums are kept. "fujii"
             (200·S2 at q = 0, BSLTL's fujii.m) needs q = 0; "gd" (BSLTL's gendiff.m) needs mode
-            "sliding" and costs O(N) per pixel per push (it reads the whole ring).
+            "sliding" and costs O(N) per pixel per push (it reads the whole ring); "band_low",
+            "band_high", "band_ratio" (high/(low + q)): the power below and above ``band_split``
+            (edgedsm.estimators.dft_bins), sliding or tumbling mode, O(bins) per pixel per push.
         mode: "sliding" (default), "exponential" or "tumbling" (docs/engine.md); the engine
             constructed is that mode's subclass.
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
@@ -93,6 +97,9 @@ class SlidingWindow:
             fitted at the multi-tau lags ``tau_lags(K)`` (1, 2, 3, 4, 6, 8, 11, 15, 20 for
             K = 20), one row of lag products each. "tau_c" needs mode "sliding" or "tumbling"
             (its bias model is that of a finite window).
+        dt: the frame interval in seconds, the bands' frequency scale (None: cycles per frame).
+        band_split: the bands' split frequency, Hz with ``dt`` (else cycles per frame), below
+            the Nyquist frequency; None: half of it.
 
     Exactness, bounds, memory per pixel and the degenerate cases: docs/engine.md.
     """
@@ -121,7 +128,7 @@ class SlidingWindow:
                  bits: int | None = None, estimators: Iterable[str] | str = DEFAULT_ESTIMATORS,
                  mode: Mode | None = None, kernel: KernelName = "auto",
                  threads: int | None = None, resync_every: int | None = None,
-                 max_lag: int | None = None) -> None:
+                 max_lag: int | None = None, dt: float | None = None, band_split: float | None = None) -> None:
         if mode is not None and mode != self.mode:
             raise EstimatorError(f"mode {mode!r} asked of the {self.mode} engine")
         self.shape = self._check_shape(shape)
@@ -142,6 +149,7 @@ class SlidingWindow:
         if "fujii" in self.estimators and self.q != 0.0:
             raise EstimatorError(f"estimator 'fujii' is 200·S2 at q = 0 (BSLTL's fujii.m): construct the engine "
                                  f"with q=0, got q={self.q}")
+        self._bins = DftBins(self.window, band_plan(self.estimators, self.mode, self.window, dt, band_split))
         if kernel not in KERNELS:
             raise EstimatorError(f"kernel must be one of {', '.join(KERNELS)}; got {kernel!r}")
         self._kernels = load_kernels(kernel)
@@ -309,7 +317,7 @@ class SlidingWindow:
         bits = self.bits if self.bits is not None else 8
         n_px = self.shape[0] * self.shape[1]
         sums = {**self._moments.layout(n_px, bits), "products": self._tau.layout(n_px, bits)["products"],
-                **{name: value for name, value in self._layout(bits).items() if name == "gd"}}  # GD's own sum
+                **{name: value for name, value in self._layout(bits).items() if name in ("gd", "bins")}}  # own sums
         moved = sum(math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in sums.values())
         return self._frame_reads() * (1 if bits <= 8 else 2) + 2 * moved / n_px
 
@@ -344,10 +352,12 @@ class SlidingWindow:
         if unknown := sorted(set(wanted) - set(self.estimators)):
             raise EstimatorError(f"maps {unknown} were not requested from this engine (it has {self.estimators})")
         self._check_ready()
-        only_tau = set(wanted) <= {"tau_c", "gd"}
+        only_tau = set(wanted) <= {"tau_c", "gd", *BAND_NAMES}
         flat = {} if only_tau else self._moments.maps(self._sums(), self.shape[0] * self.shape[1])
         if "gd" in wanted:
             flat["gd"] = gd_of_sum(self._arrays["gd"], self.window)
+        if bands := tuple(name for name in wanted if name in BAND_NAMES):
+            flat.update(self._bins.maps(self._sums(), bands, self.q))
         return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
                 for name in wanted}
 
@@ -426,9 +436,10 @@ class SlidingWindow:
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
                      how: str) -> EngineSnapshot:
-        if estimators is not None and "gd" in estimators:
-            raise EstimatorError("a snapshot does not carry 'gd' (its map comes from maps())")
-        wanted = tuple(name for name in self.estimators if name != "gd") if estimators is None \
+        own = ("gd", *BAND_NAMES)  # kept outside the moment sums
+        if estimators is not None and (left := [name for name in own if name in estimators]):
+            raise EstimatorError(f"a snapshot does not carry {', '.join(map(repr, left))} (maps() gives them)")
+        wanted = tuple(name for name in self.estimators if name not in own) if estimators is None \
             else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")

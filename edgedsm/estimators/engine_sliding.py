@@ -7,7 +7,9 @@ sums (:class:`edgedsm.estimators.moment_sums.WindowMoments`) and τc's lag produ
 N+1: slot j % N holds frame j, and the slot of frame i-N is read and overwritten by frame i in
 the same pass. With "gd" (generalized differences) Σ_{i<j} |I_i - I_j| over the window is kept
 exactly: frame i adds its distance to the window's other frames and frame i-N takes its own
-away, O(N) per pixel per push (``kernels.gd_kernel``). Bounds and memory: docs/engine.md.
+away, O(N) per pixel per push (``kernels.gd_kernel``). With a band map the kept DFT bins follow
+the sliding DFT, and 1/N of the pixels are re-anchored from the ring at each push
+(:class:`edgedsm.estimators.dft_bins.DftBins`). Bounds and memory: docs/engine.md.
 """
 
 from __future__ import annotations
@@ -29,26 +31,29 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
     _tau: SlidingLagProducts
 
     def _accumulators(self) -> tuple[WindowMoments, SlidingLagProducts]:
-        return (WindowMoments(self.estimators, self.window, self.lag, self.q, keep_totals=self._do_tau),
+        keep_totals = self._do_tau or self._bins.on  # ΣI, ΣI² serve τc and the bands' σ²
+        return (WindowMoments(self.estimators, self.window, self.lag, self.q, keep_totals=keep_totals),
                 SlidingLagProducts(self.window, self.max_lag, self._do_tau))
 
     def _layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
         return {"ring": ((self.window, pixels), np.uint8 if bits <= 8 else np.uint16),
                 **self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits),
-                **({"gd": ((pixels,), np.int64)} if self._do_gd else {})}
+                **({"gd": ((pixels,), np.int64)} if self._do_gd else {}), **self._bins.layout(pixels, bits)}
 
     def _bind(self, bits: int, parallel: bool) -> None:
         self._moments.bind(self._kernels, self.ratio_kind, self.scale_bits, parallel, slide=True)
         self._tau.bind(self._kernels, parallel, bits)
         if self._do_gd:
             self._gd_steps = (self._kernels.gd_kernel(False, parallel), self._kernels.gd_kernel(True, parallel))
+        self._bins.bind(self._kernels, parallel, rotate=True)
 
     def _frame_reads(self) -> int:
         # the new frame and frame i-m read, a ring slot written, frames i-N (from the slot it
         # overwrites) and i-N+m read; with τc frames i-k and i-N+k for each lag k; with GD the
-        # window's N frames
-        return 5 + (2 * self.tau_lags.size if self._do_tau else 0) + (self.window if self._do_gd else 0)
+        # window's N frames; with the bands, the N frames of 1/N of the pixels (the re-anchor)
+        return 5 + (2 * self.tau_lags.size if self._do_tau else 0) + (self.window if self._do_gd else 0) \
+            + (1 if self._bins.on else 0)
 
     def _push(self, new: np.ndarray) -> None:
         i, n, m = self.frames_seen, self.window, self.lag
@@ -61,11 +66,14 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
         if self._do_gd:  # frames 0..i-1 in slots 0..i-1 while the window fills, then all but slot i % N
             grow, slide = self._gd_steps
             (slide if i >= n else grow)(new, ring, i % n, min(i, n), arrays["gd"])
+        # frame i-N leaves the bins; while the window fills, frame 0 stands for the frames before it
+        self._bins.slide(arrays, new, slot if i >= n else ring[0] if i else new)
         if i >= n:  # slot holds frame i-N: the kernel reads it, then writes frame i there
             self._moments.slide(arrays, new, slot, lagged, ring[(i - n + m) % n])
         else:
             self._moments.add(arrays, new, slot, lagged)
         self._tau.after_push(arrays, i)
+        self._bins.reanchor(arrays, ring, i + 1)  # the bins of 1/N of the pixels, exact again
 
     def _flush(self) -> None:
         self._tau.flush(self._arrays, self.frames_seen)
@@ -98,6 +106,7 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
             ordered = np.sort(np.stack(frames), axis=0)
             for k, values in enumerate(ordered):
                 fresh["gd"] += (2 * k - len(frames) + 1) * values.astype(np.int64)
+        self._bins.reanchor(fresh, ring, self.frames_seen, slice(None))
         if self._do_tau:
             fresh["products"][:] = self._tau.rebuild(frames)
             fresh["retired"][:] = self._arrays["retired"]

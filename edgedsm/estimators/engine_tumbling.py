@@ -6,7 +6,9 @@ The S1/S2/S3 sums (:class:`edgedsm.estimators.moment_sums.WindowMoments`) and τ
 and edge sums (:class:`edgedsm.estimators.lag_products.TumblingLagProducts`) of the block in
 progress grow by adding only; at a block's end they become the ``done_`` set that ``maps()``
 reads, and the others start again from zero. The ring keeps the last m frames (m+1 slots;
-K + TAU_BATCH + 1 with τc). Bounds and memory: docs/engine.md.
+K + TAU_BATCH + 1 with τc). With a band map the block's DFT bins are summed directly
+(:class:`edgedsm.estimators.dft_bins.DftBins`; its first frame, the bins' offset, in
+``band_origin``). Bounds and memory: docs/engine.md.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from edgedsm.estimators.snapshot import TauSnapshot
 
 #: The arrays of the last completed block carry this prefix.
 DONE = "done_"
+#: The block's first frame (the offset of its DFT bins), not part of the completed block's sums.
+ORIGIN = "band_origin"
 
 
 class TumblingEngine(SlidingWindow, mode="tumbling"):
@@ -32,26 +36,32 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
     _tau: TumblingLagProducts
 
     def _accumulators(self) -> tuple[WindowMoments, TumblingLagProducts]:
-        return (WindowMoments(self.estimators, self.window, self.lag, self.q, keep_totals=self._do_tau),
+        keep_totals = self._do_tau or self._bins.on  # ΣI, ΣI² serve τc and the bands' σ²
+        return (WindowMoments(self.estimators, self.window, self.lag, self.q, keep_totals=keep_totals),
                 TumblingLagProducts(self.window, self.max_lag, self._do_tau))
 
     def _block_layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
-        return {**self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits)}
+        return {**self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits),
+                **self._bins.layout(pixels, bits)}
 
     def _layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
         block = self._block_layout(bits)
         return {"ring": ((self._tau.ring_slots(self.lag), pixels), np.uint8 if bits <= 8 else np.uint16),
-                **block, **{DONE + name: spec for name, spec in block.items()}}
+                **block, **{DONE + name: spec for name, spec in block.items()},
+                **{name: spec for name, spec in self._bins.layout(pixels, bits, origin=True).items()
+                   if name == ORIGIN}}
 
     def _bind(self, bits: int, parallel: bool) -> None:
         self._moments.bind(self._kernels, self.ratio_kind, self.scale_bits, parallel, slide=False)
         self._tau.bind(self._kernels, parallel, bits)
+        self._bins.bind(self._kernels, parallel, rotate=False)
 
     def _frame_reads(self) -> int:
-        # the new frame and frame i-m read, a ring slot written; with τc frame i-k for each lag k
-        return 3 + (self.tau_lags.size if self._do_tau else 0)
+        # the new frame and frame i-m read, a ring slot written; with τc frame i-k for each lag k;
+        # with the bands the block's first frame
+        return 3 + (self.tau_lags.size if self._do_tau else 0) + (1 if self._bins.on else 0)
 
     def _sums(self) -> Mapping[str, np.ndarray]:
         """The sums of the last completed block."""
@@ -59,7 +69,7 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
 
     @property
     def _block_names(self) -> tuple[str, ...]:
-        return tuple(name for name in self._arrays if name != "ring" and not name.startswith(DONE))
+        return tuple(name for name in self._arrays if name not in ("ring", ORIGIN) and not name.startswith(DONE))
 
     def _push(self, new: np.ndarray) -> None:
         i, n, m = self.frames_seen, self.window, self.lag
@@ -70,6 +80,7 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
         # frame i goes to slot i % slots, frame i-m is read from another slot
         lagged = ring[(i - m) % slots] if position >= m else new  # no pair across blocks
         self._tau.push(arrays, new, i)
+        self._bins.add(arrays, new, position)
         self._moments.add(arrays, new, ring[i % slots], lagged)
         self._tau.after_push(arrays, i)
         if position == n - 1:  # block complete: it becomes the one maps() reports

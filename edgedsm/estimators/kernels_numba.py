@@ -419,3 +419,43 @@ def gd_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
                 gd_sum[start + j] += acc[j]
 
     return kernel
+
+
+@functools.cache
+def dft_kernel(rotate: bool, parallel: bool = True) -> Callable[..., None]:
+    """DFT bins of the frequency bands (:mod:`edgedsm.estimators.dft_bins`), O(B) per pixel.
+
+    ``kernel(new, old, cos, sin, bins)``: d = new - old (exact in float64), then for each kept bin
+    b with X = bins[0, b] + i·bins[1, b]: with ``rotate`` the sliding DFT's step X ← (X + d)·W,
+    W = cos[b] + i·sin[b]; else the block sum X += d·(cos[b] - i·sin[b]). Pixels go in blocks,
+    bins along contiguous rows (the inner loop vectorises).
+    """
+
+    @kernel_variant(parallel)
+    def kernel(new, old, cos, sin, bins):  # pragma: no cover - compiled
+        size = new.size
+        count = cos.size
+        blocks = (size + PRODUCTS_BLOCK - 1) // PRODUCTS_BLOCK
+        for block in numba.prange(blocks):
+            start = block * PRODUCTS_BLOCK
+            stop = min(start + PRODUCTS_BLOCK, size)
+            width = stop - start
+            d = np.empty(width, np.float64)
+            for j in range(width):
+                d[j] = np.float64(new[start + j]) - np.float64(old[start + j])
+            for b in range(count):
+                c = cos[b]
+                s = sin[b]
+                re = bins[0, b, start:stop]
+                im = bins[1, b, start:stop]
+                for j in range(width):
+                    if rotate:
+                        a = re[j] + d[j]
+                        y = im[j]
+                        re[j] = c * a - s * y
+                        im[j] = s * a + c * y
+                    else:
+                        re[j] = re[j] + d[j] * c
+                        im[j] = im[j] - d[j] * s
+
+    return kernel

@@ -21,9 +21,9 @@ from edgedsm.estimators.activity import values_numpy
 from edgedsm.estimators.activity import window_sigmas as sigma_from_sums
 
 KERNEL = "numpy"
-__all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "exponential_kernel", "gd_kernel",
-           "maps_kernel", "max_threads", "pairs_kernel", "products_kernel", "set_threads", "sigma_from_sums",
-           "window_kernel"]
+__all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "dft_kernel", "exponential_kernel",
+           "gd_kernel", "maps_kernel", "max_threads", "pairs_kernel", "products_kernel", "set_threads",
+           "sigma_from_sums", "window_kernel"]
 CHUNK = 1 << 15  # pixels per chunk: the int64/float64 temporaries (256 KiB each) stay in L2
 
 
@@ -244,5 +244,27 @@ def gd_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
                 if remove:
                     acc -= np.abs(old - row)
             gd_sum[part] += acc
+
+    return kernel
+
+
+@functools.cache
+def dft_kernel(rotate: bool, parallel: bool = True) -> Callable[..., None]:
+    """See kernels_numba.dft_kernel."""
+
+    def kernel(new, old, cos, sin, bins) -> None:
+        for start in range(0, new.size, CHUNK):
+            part = slice(start, start + CHUNK)
+            d = new[part].astype(np.float64) - old[part].astype(np.float64)
+            for b in range(cos.size):
+                re, im = bins[0, b, part], bins[1, b, part]
+                if rotate:
+                    a = re + d
+                    y = im.copy()
+                    re[:] = cos[b] * a - sin[b] * y
+                    im[:] = sin[b] * a + cos[b] * y
+                else:
+                    re += d * cos[b]
+                    im -= d * sin[b]
 
     return kernel

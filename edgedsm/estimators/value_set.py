@@ -13,6 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: int64's largest value: N·Σ(I-k)² stays exact in int64 up to INT64_MAX // N.
+INT64_MAX = 2**63 - 1
+
 #: The per-pixel values ``activity.pixel_values`` forms, in its order (and the maps arrays' names).
 VALUES = ("s1", "s2", "s3", "sigma", "contrast", "fujii", "im")
 
@@ -30,6 +33,23 @@ def value_sizes(flags: tuple[bool, ...], pixels: int) -> dict[str, int]:
     do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
     formed = (do_abs, do_s2, do_s3, do_s3 or do_contrast, do_contrast, do_fujii, do_im)
     return {name: pixels if on else 0 for name, on in zip(VALUES, formed, strict=True)}
+
+
+def window_spreads(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
+    """N²σ² = N·ΣI² - (ΣI)² of every pixel from the exact sums over N = ``n`` frames (grey
+    levels², new float64 array; σ of Eq. 4 is its root over N): with k the nearest integer to the
+    mean and r = ΣI - kN, N·Σ(I-k)² - r², every term an exact integer while N·Σ(I-k)² fits int64
+    (else that product in float64, as ``activity.centred_spread``)."""
+    s = total.astype(np.int64)
+    k = np.floor(s.astype(np.float64) / n + 0.5).astype(np.int64)
+    r = s - k * n
+    centred = total_sq.astype(np.int64) - k * (s + r)  # Σ(I-k)² >= 0, exact
+    fits = centred <= INT64_MAX // n
+    spread = (n * np.where(fits, centred, 0) - r * r).astype(np.float64)
+    if not fits.all():
+        wide = ~fits
+        spread[wide] = n * centred[wide].astype(np.float64) - (r[wide] * r[wide]).astype(np.float64)
+    return spread
 
 
 def gd_of_sum(gd_sum: np.ndarray, n: int) -> np.ndarray:
