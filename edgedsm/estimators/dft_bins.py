@@ -57,6 +57,7 @@ BIN_BYTES = 16
 #: The stated error bound's constant: |band - batch| <= BOUND_FACTOR · N · ε · D² (module doc).
 BOUND_FACTOR = 2.0
 _EPS = 2.0**-53
+REANCHOR_BLOCK = 512  # pixels per FFT of the re-anchor
 
 
 @dataclass(frozen=True)
@@ -183,11 +184,17 @@ class DftBins:
                 return
         # while the window fills, frame 0 stands for the frames before it (as in ``slide``)
         slots = [max(j, 0) % n for j in range(frames_seen - n, frames_seen)]
-        window = ring[slots, pixels].astype(np.float64)
-        window -= window[0]  # only differences: |X_j| <= N·D however bright the pixel
-        spectrum = np.fft.rfft(window, axis=0)[self.ks]
-        arrays["bins"][0, :, pixels] = spectrum.real
-        arrays["bins"][1, :, pixels] = spectrum.imag
+        bins = arrays["bins"]
+        # in blocks: arrays of a few hundred KiB are reused by the allocator, larger ones are new
+        # pages each time, whose faults cost several times the FFT
+        first, stop, _ = pixels.indices(ring.shape[1])
+        for start in range(first, stop, REANCHOR_BLOCK):
+            part = slice(start, min(start + REANCHOR_BLOCK, stop))
+            window = ring[slots, part].astype(np.float64)
+            window -= window[0]  # only differences: |X_j| <= N·D however bright the pixel
+            spectrum = np.fft.rfft(window, axis=0)[self.ks]
+            bins[0, :, part] = spectrum.real
+            bins[1, :, part] = spectrum.imag
 
     # ----------------------------------------------------------------- tumbling
     def add(self, arrays: Mapping[str, np.ndarray], new: np.ndarray, position: int) -> None:

@@ -169,7 +169,7 @@ def exact_s2(samples: np.ndarray, lag: int) -> np.ndarray:
 
 
 #: The field's streaming descriptors (docs/descriptors.md), each timed beside S1+S2+S3.
-DESCRIPTOR_SETS = tuple(("s1", "s2", "s3", name) for name in ("contrast", "fujii", "im", "gd"))
+DESCRIPTOR_SETS = tuple(("s1", "s2", "s3", name) for name in ("contrast", "fujii", "im", "gd", "band_ratio"))
 
 
 def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, threads: int | None,
