@@ -30,7 +30,8 @@ def test_bench_engine_writes_tables_and_plot(tmp_path, capsys):
     assert "| 64x64 | s1+s2+s3+tau_c (K = 6) |" in text
     assert "## The field's streaming descriptors" in text
     moved = {}
-    for name in ("s1+s2+s3", "s1+s2+s3+contrast", "s1+s2+s3+fujii", "s1+s2+s3+im", "s1+s2+s3+gd"):
+    for name in ("s1+s2+s3", "s1+s2+s3+contrast", "s1+s2+s3+fujii", "s1+s2+s3+im", "s1+s2+s3+gd",
+                 "s1+s2+s3+band_ratio"):
         line = next(line for line in text.splitlines() if line.startswith(f"| 64x64 | {name} "))  # S1-S3: (K = 6)
         cells = [cell.strip() for cell in line.split("|")]
         moved[name] = float(cells[6])
@@ -40,6 +41,9 @@ def test_bench_engine_writes_tables_and_plot(tmp_path, capsys):
     assert moved["s1+s2+s3+contrast"] == moved["s1+s2+s3+fujii"] == moved["s1+s2+s3"]
     assert moved["s1+s2+s3+gd"] == moved["s1+s2+s3"] + 20 + 16
     assert moved["s1+s2+s3+im"] > moved["s1+s2+s3"]
+    # the band ratio at N = 20, split 0.25 cycles per frame: the 5 low bins (16 B each) read and
+    # written, and the re-anchor's N frames of 1/N of the pixels (1 B per pixel)
+    assert moved["s1+s2+s3+band_ratio"] == moved["s1+s2+s3"] + 2 * 16 * 5 + 1
     if importlib.util.find_spec("matplotlib"):
         assert (tmp_path / "bench-engine.png").stat().st_size > 10_000
     assert "Measured memory bandwidth" in capsys.readouterr().out
