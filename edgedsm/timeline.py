@@ -41,8 +41,9 @@ COLUMNS = ("frame", "time_s", "region", "s1", "s2", "s3", "tau_c_frames", "tau_c
            "mean_intensity", "signal", "s1_above_noise", "s2_above_noise", "s3_above_noise")
 #: the columns of the light and the activity above the camera's noise (docs/noise.md)
 NOISE_COLUMNS = COLUMNS[9:]
-#: the field's descriptors the engine streams, which ``descriptors`` may add as columns
-DESCRIPTORS = ("contrast", "fujii", "im")
+#: the field's descriptors the engine streams, which ``descriptors`` may add as columns (the bands:
+#: split at ``band_split``, Hz of the timeline's ``dt``)
+DESCRIPTORS = ("contrast", "fujii", "im", "band_low", "band_high", "band_ratio")
 
 
 PATCH_SIDE = 64  # the daemon's default estimator.noise_patch
@@ -107,7 +108,7 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
              histogram_range: tuple[float, float] | None = None, bits: int | None = None,
              times_s: Sequence[float] | None = None, mode: str | None = None, with_tau: bool = True,
              with_noise: bool = True, noise_model: NoiseModel | None = None,
-             descriptors: Sequence[str] = ()) -> Timeline:
+             descriptors: Sequence[str] = (), band_split: float | None = None) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
     The first sample is at the frame that fills the window (index window-1), time = frame · dt,
@@ -124,7 +125,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     (:mod:`edgedsm.noise_patches`): ``noise_model`` (a datasheet's), else the last model the
     frames gave; the above-noise columns read NaN while there is none, the signal column
     "off" without ``with_noise``. ``descriptors``: some of :data:`DESCRIPTORS`, whose region
-    means follow as columns (the histogram may be of one of them).
+    means follow as columns (the histogram may be of one of them); ``band_split``: the bands'
+    split in Hz (of ``dt``), default half the Nyquist frequency.
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
@@ -154,7 +156,7 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
             in_engine = with_tau and (mode != "tumbling" or int64_problem(frame.shape, window, depth) is not None)
             estimators = ("s1", "s2", "s3", *extra, *(("tau_c",) if in_engine else ()))
             engine = SlidingWindow(frame.shape, window, lag, bits=bits, mode=mode, estimators=estimators,
-                                   max_lag=max_lag if in_engine else None)
+                                   max_lag=max_lag if in_engine else None, dt=dt, band_split=band_split)
             if with_tau and not in_engine:
                 pooled = TumblingRegionTau(frame.shape, regions, window, max_lag, depth)
             if with_noise:

@@ -136,7 +136,7 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
                       max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times,
                       with_tau=args.with_tau, with_noise=args.with_noise, noise_model=_datasheet(args),
-                      descriptors=descriptors)
+                      descriptors=descriptors, band_split=getattr(args, "split", None))
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)
@@ -168,7 +168,9 @@ def _pyplot():
 def plot_activity(path: Path, result: Timeline, title: str) -> None:
     plt = _pyplot()
     names = list(dict.fromkeys(row[2] for row in result.rows))
-    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)"}
+    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)",
+              "band_low": "low band (grey levels²)", "band_high": "high band (grey levels²)",
+              "band_ratio": "high / low band"}
     columns = (("s1", "S1 (grey levels)"), ("s2", "S2"), ("s3", "S3"),
                *((name, labels[name]) for name in result.descriptors), ("tau_c_s", "τc (s)"))
     fig, axes = plt.subplots(len(columns), 1, figsize=(8, 9 + 2 * len(result.descriptors)), sharex=True)

@@ -185,6 +185,8 @@ class Descriptor:
 
 
 _BATCH_ONLY = "batch only (streaming: issue 24 engine work)"
+_BANDS_STREAM = ("O(B) per pixel per frame, B the bins of the smaller band, 16 B each (SlidingWindow, sliding "
+                 "and tumbling; edgedsm.estimators.dft_bins)")
 
 DESCRIPTORS: dict[str, Descriptor] = {
     "s1": Descriptor(lambda f, *, lag, **_: s1(f, lag), "grey levels", True, "graphavd (m = 1)",
@@ -211,11 +213,11 @@ DESCRIPTORS: dict[str, Descriptor] = {
                       "1 (0..255)", False, "graphmhi", _BATCH_ONLY, False,
                       "Σ_j [|I_j - I_{j+1}| > U] 255 j / Σ j"),
     "band_low": Descriptor(lambda f, *, dt, split, **_: bands.split_powers(f, dt, split)[0], "grey levels²",
-                           False, None, _BATCH_ONLY, False, "periodogram power in (0, split]"),
+                           False, None, _BANDS_STREAM, False, "periodogram power in (0, split]"),
     "band_high": Descriptor(lambda f, *, dt, split, **_: bands.split_powers(f, dt, split)[1], "grey levels²",
-                            False, None, _BATCH_ONLY, False, "periodogram power in (split, Nyquist]"),
+                            False, None, _BANDS_STREAM, False, "periodogram power in (split, Nyquist]"),
     "band_ratio": Descriptor(lambda f, *, dt, split, q, **_: bands.ratio(*bands.split_powers(f, dt, split), q=q),
-                             "1", False, None, _BATCH_ONLY, False, "high-band power / (low-band power + q)"),
+                             "1", False, None, _BANDS_STREAM, False, "high-band power / (low-band power + q)"),
 }
 
 

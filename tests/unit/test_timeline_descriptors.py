@@ -11,7 +11,7 @@ import pytest
 
 from edgedsm.cli import main
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import descriptors
+from edgedsm.estimators import bands, descriptors
 from edgedsm.timeline import COLUMNS, timeline
 from tests.unit.test_timeline import small_drying_scene
 
@@ -87,3 +87,42 @@ def test_the_configs_activity_adds_its_column(tmp_path: Path) -> None:
     left = [float(r["im"]) for r in rows if r["region"] == "left"]
     right = [float(r["im"]) for r in rows if r["region"] == "right"]
     assert min(left) > 10 * max(right)
+
+
+@pytest.mark.parametrize("every", [4, 16])  # sliding, and tumbling (every a multiple of N)
+def test_band_columns_are_the_region_means_of_the_batch_bands(every: int) -> None:
+    rng = np.random.default_rng(9)
+    t = np.arange(64)[:, None, None]
+    slow = 100 + 60 * np.cos(2 * np.pi * 0.05 * t) + rng.normal(0, 5, (64, 8, 8))  # 2.5 Hz at 50 frames/s
+    fast = 100 + 60 * np.cos(2 * np.pi * 0.4 * t) + rng.normal(0, 5, (64, 8, 8))  # 20 Hz
+    frames = np.clip(np.concatenate([slow, fast], axis=2), 0, 255).astype(np.uint8)
+    left = np.zeros((8, 16), bool)
+    left[:, :8] = True
+    regions = {"slow": left, "fast": ~left}
+    result = timeline(iter(frames), regions, window=16, lag=1, every=every, dt=0.02, with_tau=False,
+                      with_noise=False, descriptors=("band_ratio", "band_low"), band_split=10.0,
+                      histogram_estimator="band_ratio")
+    assert result.columns == (*COLUMNS, "band_low", "band_ratio")
+    for row in result.rows:
+        index, name = row[0], row[2]
+        window, mask = frames[index - 15:index + 1], regions[name]
+        values = dict(zip(result.columns, row, strict=True))
+        low, high = bands.split_powers(window, 0.02, 10.0)
+        assert values["band_low"] == pytest.approx(low[mask].mean(), rel=1e-9)
+        assert values["band_ratio"] == pytest.approx(bands.ratio(low, high)[mask].mean(), rel=1e-9)
+    ratios = {name: result.series(name, "band_ratio") for name in regions}
+    assert (ratios["slow"] < 0.1).all() and (ratios["fast"] > 10).all()
+
+
+def test_analyze_timeline_follows_the_band_ratio(tmp_path: Path) -> None:
+    frames = np.random.default_rng(2).integers(0, 256, (40, 8, 8), dtype=np.uint8)
+    np.save(tmp_path / "frames.npy", frames)
+    out = tmp_path / "out"
+    assert main(["analyze", str(tmp_path / "frames.npy"), "--timeline", str(out), "--window", "16", "--every", "8",
+                 "--estimator", "band_ratio", "--dt", "0.02", "--split", "5", "--no-tau-c", "--no-noise-floor"]) == 0
+    with (out / "timeline.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert list(rows[0])[-1] == "band_ratio" and len(rows) == 4
+    window = frames[39 - 15:40]
+    expected = bands.ratio(*bands.split_powers(window, 0.02, 5.0)).mean()
+    assert float(rows[-1]["band_ratio"]) == pytest.approx(expected, rel=1e-5)  # the CSV keeps 6 digits
