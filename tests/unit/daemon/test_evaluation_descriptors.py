@@ -1,5 +1,5 @@
 """The field's descriptors through the daemon (issue 24): the drying states judged on Fujii (above its
-noise floor) and on the temporal contrast (no floor: as it is), their region statistics, maps and
+noise floor) and on the temporal contrast (above its floor: the signal's contrast), their region statistics, maps and
 metrics in every sink, and the config's rules for them (Fujii runs the engine at q = 0)."""
 
 from __future__ import annotations
