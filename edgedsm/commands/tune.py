@@ -7,8 +7,8 @@ file, TIFF, video, an image folder, .npy) or a simulated scene (SCENE.toml, `def
 regions and the camera settings come from the daemon config (-c). Before --wet-until the surface
 is wet, after --dry-from it is dry (seconds from the first frame, on the recording's own clock,
 camera.frame_interval_s, or --dt). Instead of a run and marks, --wet REC and --dry REC take two
-recordings. Every candidate (an activity the daemon judges on: S1, S2, S3, Fujii and IM plain and
-above the noise floor, the temporal contrast plain, τc; at each window and lag that fits;
+recordings. Every candidate (an activity the daemon judges on: S1, S2, S3, Fujii, IM and the
+temporal contrast plain and above the noise floor, τc; at each window and lag that fits;
 --estimators narrows them) is scored on every region: the separation of wet and dry (AUC, d′),
 when the daemon's state machine with the proposed thresholds calls it dry, its false
 transitions, and its cost per frame, measured by the engine on this PC. Exit 65 when the run

@@ -1,11 +1,11 @@
 """The candidates ``edgedsm tune`` weighs, what each does on the reference run, and the choice
 (docs/commissioning.md).
 
-A candidate is an estimator as the daemon judges it (``estimator.activity``: S1, S2, S3, Fujii
-or IM, plain or above the noise floor; the temporal contrast, plain: it has no floor; or τc in
-seconds) at one window N, lag m and mode. GD is not one: the daemon does not judge on it (its
-streaming update is O(N) per pixel, sliding mode only: docs/descriptors.md). Its outcome on every region: the
-separation of wet from dry, the proposed thresholds and what the state machine does with them
+A candidate is an estimator as the daemon judges it (``estimator.activity``: S1, S2, S3, Fujii,
+IM or the temporal contrast, plain or above the noise floor; or τc in seconds) at one window N,
+lag m and mode. GD is not one: the daemon does not judge on it (its streaming update is O(N)
+per pixel, sliding mode only: docs/descriptors.md). Its outcome on every region: the separation
+of wet from dry, the proposed thresholds and what the state machine does with them
 (:mod:`edgedsm.tuning.scoring`), and its cost per frame, measured by the engine at the camera's
 frame size. The choice: among the candidates that separate every region (AUC >= GOOD_AUC), call
 every region dry and make no false transition, the Pareto front of (timing error, cost), the
@@ -99,7 +99,7 @@ class Outcome:
 
 def candidates(settings: Iterable[Setting], estimators: Sequence[str] = JUDGEABLE) -> list[Candidate]:
     """Every variant of ``estimators`` (among series.JUDGEABLE) at each setting: above the noise
-    and plain where the daemon has a floor, else plain (the contrast); τc only where the mode
+    and plain where the daemon has a floor, else plain; τc only where the mode
     keeps a window; a LAG_FREE one at the first of the settings that differ only in the lag."""
     out = []
     for setting in settings:

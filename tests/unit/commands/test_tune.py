@@ -84,9 +84,9 @@ def test_the_snippet_is_a_daemon_config_with_the_regions_geometry_and_thresholds
     for lag in (5, 10):
         for label in ("S1", "S2 above noise", "τc", "Fujii", "Fujii above noise", "IM", "IM above noise"):
             assert f"| {label}, N=100 m={lag} sliding |" in report, label
-    # the contrast does not depend on the lag: scored once per window; it has no noise floor
-    assert report.count("| contrast, N=100 m=5 sliding |") == 1 and report.count("| contrast") == 1
-    assert "contrast above noise" not in report and "GD" not in report
+    # the contrast does not depend on the lag: scored once per window, plain and above the noise
+    assert report.count("| contrast, N=100 m=5 sliding |") == 1 and report.count("| contrast") == 2
+    assert report.count("| contrast above noise, N=100 m=5 sliding |") == 1 and "GD" not in report
     assert (folder / "report" / "tradeoff.png").stat().st_size > 0
 
 

@@ -88,13 +88,14 @@ def test_the_candidates_are_the_activities_the_daemon_judges_above_the_noise_whe
     sliding, exponential = Setting(100, 5), Setting(100, 5, "exponential")
     labels = [c.label() for c in candidates([sliding])]
     assert [label.split(",")[0] for label in labels] == [
-        "S1 above noise", "S1", "S2 above noise", "S2", "S3 above noise", "S3", "τc", "contrast",
-        "Fujii above noise", "Fujii", "IM above noise", "IM"]
-    assert len(candidates([exponential])) == 11  # no τc without a window
+        "S1 above noise", "S1", "S2 above noise", "S2", "S3 above noise", "S3", "τc", "contrast above noise",
+        "contrast", "Fujii above noise", "Fujii", "IM above noise", "IM"]
+    assert len(candidates([exponential])) == 12  # no τc without a window
     other_lag = candidates([sliding, Setting(100, 10)])  # the contrast does not depend on m: scored once
-    assert [c.setting.lag for c in other_lag if c.estimator == "contrast"] == [5] and len(other_lag) == 23
+    assert [c.setting.lag for c in other_lag if c.estimator == "contrast"] == [5, 5] and len(other_lag) == 24
     only = candidates([sliding, exponential], ("fujii", "contrast"))
     assert [(c.estimator, c.noise_floor, c.setting.mode, c.variant) for c in only] == [
-        ("contrast", False, "sliding", "contrast"), ("fujii", True, "sliding", "fujii@noise"),
-        ("fujii", False, "sliding", "fujii"), ("contrast", False, "exponential", "contrast"),
+        ("contrast", True, "sliding", "contrast@noise"), ("contrast", False, "sliding", "contrast"),
+        ("fujii", True, "sliding", "fujii@noise"), ("fujii", False, "sliding", "fujii"),
+        ("contrast", True, "exponential", "contrast@noise"), ("contrast", False, "exponential", "contrast"),
         ("fujii", True, "exponential", "fujii@noise"), ("fujii", False, "exponential", "fujii")]
