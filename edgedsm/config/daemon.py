@@ -17,8 +17,9 @@ from edgedsm.config.outputs import CadenceSection, HomeAssistantSection, HttpSec
 from edgedsm.config.recording import RecordingSection
 from edgedsm.config.regions import RegionSection, _default_regions, _default_shape
 from edgedsm.devices.uri import RelaySpec
-from edgedsm.errors import ConfigError
+from edgedsm.errors import ConfigError, EstimatorError
 from edgedsm.estimators.correlation_time import tau_mode_problem, tau_threshold_problem
+from edgedsm.estimators.dft_bins import BandPlan
 from edgedsm.publish.settings import CADENCE_KEYS, MqttSettings
 from edgedsm.publish.sparkplug.settings import SparkplugSettings
 from edgedsm.validation import StrictModel, read_toml, validate
@@ -93,7 +94,29 @@ class DaemonConfig(StrictModel):
         if self.sparkplug is not None and self.sparkplug.edge_node_id is None:
             self.sparkplug.edge_node_id = self.device.name
         self._check_tau_c()
+        self._check_bands()
         return self
+
+    @property
+    def band_args(self) -> dict[str, float | None]:
+        """The engine's ``dt`` and ``band_split`` for the band ratio: the split in Hz of the camera's
+        frame interval, or (no split given) the default, half the Nyquist frequency in any unit."""
+        split = self.estimator.band_split_hz
+        return {"dt": self.camera.frame_interval_s if split is not None else None, "band_split": split}
+
+    def _check_bands(self) -> None:
+        """The band ratio's split against the camera's frame interval (messages name the key path)."""
+        est = self.estimator
+        if est.activity != "band_ratio" or est.band_split_hz is None:
+            return
+        if self.camera.frame_interval_s is None:
+            raise ValueError("estimator.band_split_hz: a split in Hz needs camera.frame_interval_s (the frame "
+                             "interval in seconds); without band_split_hz the split is half the Nyquist frequency")
+        try:
+            BandPlan.of(est.window, self.camera.frame_interval_s, est.band_split_hz)
+        except EstimatorError as exc:
+            raise ValueError(f"estimator.band_split_hz: {exc} (camera.frame_interval_s = "
+                             f"{self.camera.frame_interval_s:g} s, estimator.window = {est.window})") from None
 
     @property
     def tau_c_on(self) -> bool:

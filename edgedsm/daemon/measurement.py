@@ -116,7 +116,7 @@ class Measurement:
         def engine(shape: tuple[int, int]) -> SlidingWindow:
             return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.engine_q, bits=frame.bits,
                                  estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
-                                 max_lag=est.lags if self.tau.on else None)
+                                 max_lag=est.lags if self.tau.on else None, **self.config.band_args)
 
         # the same arrays for a few pixels first: a window too big for memory is refused before
         # anything large is allocated

@@ -113,15 +113,23 @@ def error_bound(window: int, spread: float | np.ndarray) -> float | np.ndarray:
     return BOUND_FACTOR * window * _EPS * np.square(spread, dtype=np.float64)
 
 
+def band_mode_problem(mode: str) -> str | None:
+    """Why the bands cannot stream in window ``mode`` (None: they can); the one statement of it
+    (engine, config)."""
+    if mode in ("sliding", "tumbling"):
+        return None
+    return (f"the frequency bands (band_low, band_high, band_ratio) need a finite window: mode 'sliding' or "
+            f"'tumbling', not {mode!r} (docs/engine.md)")
+
+
 def band_plan(estimators: tuple[str, ...], mode: str, window: int, dt: float | None,
               split: float | None) -> BandPlan | None:
     """The plan of the band maps among ``estimators`` (None: none asked for); refused in the
     exponential mode (module doc)."""
     if not set(estimators) & set(BAND_NAMES):
         return None
-    if mode == "exponential":
-        raise EstimatorError("the frequency bands (band_low, band_high, band_ratio) need a finite window: "
-                             "mode 'sliding' or 'tumbling', not 'exponential' (docs/engine.md)")
+    if problem := band_mode_problem(mode):
+        raise EstimatorError(problem)
     return BandPlan.of(window, dt, split)
 
 
