@@ -13,6 +13,7 @@ provides ``_layout`` (its arrays), ``_bind`` (its kernels), ``_push`` (one frame
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 from collections.abc import Iterable, Mapping
@@ -436,20 +437,20 @@ class SlidingWindow:
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
                      how: str) -> EngineSnapshot:
-        own = ("gd", *BAND_NAMES)  # kept outside the moment sums
-        if estimators is not None and (left := [name for name in own if name in estimators]):
-            raise EstimatorError(f"a snapshot does not carry {', '.join(map(repr, left))} (maps() gives them)")
-        wanted = tuple(name for name in self.estimators if name not in own) if estimators is None \
+        if estimators is not None and "gd" in estimators:
+            raise EstimatorError("a snapshot does not carry 'gd' (its map comes from maps())")
+        wanted = tuple(name for name in self.estimators if name != "gd") if estimators is None \
             else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
         flags = flags_of(wanted)
-        spread = flags[2] or flags[3]  # S3 and the contrast need σ
+        bands = bool(set(wanted) & set(BAND_NAMES))
+        spread = flags[2] or flags[3] or bands  # S3, the contrast and the bands need σ
         needed = {"abs": flags[0], "ratio": flags[1], "total": spread, "total_sq": spread, "m2": spread,
-                  "mean": flags[3], "sq": flags[5]}
+                  "mean": flags[3], "sq": flags[5], "bins": bands}
         source_sums, old = self._sums(), into.sums if into is not None else {}
         sums = {}
-        for name in self._moments.snapshot_names:
+        for name in (*self._moments.snapshot_names, *(("bins",) if self._bins.on else ())):
             source = source_sums.get(name)
             if not needed[name] or source is None:
                 sums[name] = np.zeros(0, np.int64)
@@ -463,7 +464,8 @@ class SlidingWindow:
             shape=self.shape, mode=self.mode, estimators=wanted, window=self.window,
             pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
             sums=sums, weight_frames=self._moments.weight_frames,
-            maps_step=self._moments.maps_step(self._kernels, flags), value_names=self._moments.value_names)
+            maps_step=self._moments.maps_step(self._kernels, flags), value_names=self._moments.value_names,
+            bands=functools.partial(self._bins.maps, q=self.q) if bands else None)
 
     def _snapshot(self) -> dict[str, Any]:
         """Copies of the whole state (for tests and debugging), lag products brought up to date."""

@@ -46,6 +46,7 @@ import numpy as np
 from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, percentiles
 from edgedsm.analysis_kernels import masked_moments
 from edgedsm.estimators.activity import pixel_values
+from edgedsm.estimators.dft_bins import BAND_NAMES
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
 from edgedsm.estimators.value_set import flags_of
@@ -190,17 +191,38 @@ class Moments:
 
 def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | RegionLayout, maps: Sequence[str],
                    spread: bool = True, parallel: bool = True) -> dict[str, dict[str, Moments]]:
-    """Moments of ``maps`` (among :data:`MAPS`) over each region, from a window's sums.
+    """Moments of ``maps`` (among :data:`MAPS`, and the bands) over each region, from a window's sums.
 
     ``sums``: an engine snapshot, or the live sums (``SlidingWindow.snapshot(live=True)``; then on
     the thread that pushes, before the next push). ``regions``: plans by name, or their
     :class:`RegionLayout` (built once: cheaper per call). Without ``spread`` only the means (std
     0, no sample). ``parallel``: the pass uses numba's threads (the caller's setting).
+    The frequency bands are not in the fused pass (their values come from B DFT bins per pixel):
+    each region's box is formed by the engine's band maps and reduced as without numba.
     """
     wanted = tuple(name for name in MAPS if name in maps)
-    if sums.mode not in ("sliding", "tumbling", "exponential") or not wanted:
+    bands = tuple(name for name in BAND_NAMES if name in maps)
+    if sums.mode not in ("sliding", "tumbling", "exponential") or not (wanted or bands):
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
     layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
+    result = _fused_moments(sums, layout, wanted, spread, parallel) if wanted else {name: {} for name in layout.plans}
+    if bands:  # from the DFT bins and σ² of each region's box (dft_bins.DftBins.maps)
+        assert sums.bands is not None, "a snapshot of the bands carries their maps function"
+        height, width = sums.shape
+        bins, total, total_sq = sums.sums["bins"], sums.sums["total"], sums.sums["total_sq"]
+        for name, plan in layout.plans.items():
+            box = plan.box
+            part = {"bins": bins.reshape(2, -1, height, width)[:, :, box.rows, box.cols].reshape(2, bins.shape[1], -1),
+                    "total": total.reshape(height, width)[box.rows, box.cols].ravel(),
+                    "total_sq": total_sq.reshape(height, width)[box.rows, box.cols].ravel()}
+            for key, values in sums.bands(part, bands).items():
+                result[name][key] = _box_moments(values.reshape(box.mask.shape), box, spread)
+    return result
+
+
+def _fused_moments(sums: EngineSnapshot, layout: RegionLayout, wanted: tuple[str, ...], spread: bool,
+                   parallel: bool) -> dict[str, dict[str, Moments]]:
+    """:func:`region_moments` of ``wanted`` (:data:`MAPS` order) by the fused pass over the sums."""
     kind = "exponential" if sums.mode == "exponential" else "window"
     want = [name in wanted for name in MAPS]
     kernels = _kernels(*want[:3], kind, parallel, *want[3:])
@@ -253,15 +275,14 @@ def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], 
                        spread: bool) -> dict[str, dict[str, Moments]]:
     """Without numba: the float maps, reduced by masked_moments (same sample, same rounding class)."""
     values = maps_from(sums)  # all the snapshot's maps: its maps kernel was chosen for them
-    result: dict[str, dict[str, Moments]] = {}
-    for name, plan in regions.items():
-        box = plan.box
-        per_map = {}
-        for key in wanted:
-            count, mean, std, sample = masked_moments(values[key][box.rows, box.cols], box.mask, PERCENTILE_SAMPLES)
-            per_map[key] = Moments(count, mean, std if spread else 0.0, sample if spread else sample[:0])
-        result[name] = per_map
-    return result
+    return {name: {key: _box_moments(values[key][plan.box.rows, plan.box.cols], plan.box, spread) for key in wanted}
+            for name, plan in regions.items()}
+
+
+def _box_moments(values: np.ndarray, box: RegionBox, spread: bool) -> Moments:
+    """A map's ``values`` over a region's box, reduced by masked_moments where its mask is set."""
+    count, mean, std, sample = masked_moments(values, box.mask, PERCENTILE_SAMPLES)
+    return Moments(count, mean, std if spread else 0.0, sample if spread else sample[:0])
 
 
 # -- compiled kernels (numba) ---------------------------------------------------------------------

@@ -37,6 +37,8 @@ class EngineSnapshot:
     weight_frames: float  # exponential mode: Σλ^k over the frames
     maps_step: Callable[..., None]  # the engine's maps kernel for one thread
     value_names: tuple[str, ...]  # the sums activity.pixel_values reads, in its order (moment_sums)
+    # with a band map: (sums, names) -> the flat band maps (dft_bins.DftBins.maps), sums with "bins"
+    bands: Callable[..., dict[str, np.ndarray]] | None = None
 
     @property
     def value_inputs(self) -> tuple[np.ndarray, ...]:
@@ -99,6 +101,8 @@ def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> di
     flat = buffers.take(sizes) if buffers is not None else {name: np.empty(size) for name, size in sizes.items()}
     snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window,
                        *(flat[name] for name in VALUES), snapshot.weight_frames)
+    if snapshot.bands is not None:  # new arrays: the band maps' own formulas (dft_bins)
+        flat = {**flat, **snapshot.bands(snapshot.sums, tuple(n for n in snapshot.estimators if n not in flat))}
     return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}
 
 

@@ -36,8 +36,9 @@ from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.noise_patches import NoisePatches
 
 PLAIN = PAPER_MAPS  # S1, S2, S3: always formed (the daemon does; S3's and τc's floors need S1)
-#: every activity the daemon can judge on (``estimator.activity``), in the order candidates are listed
-JUDGEABLE = (*PAPER_MAPS, "tau_c", *DESCRIPTOR_ACTIVITIES)
+#: every activity the daemon can judge on (``estimator.activity``), in the order candidates are listed;
+#: not the band ratio yet (its split would be one more tuned setting, and the exponential mode has no bands)
+JUDGEABLE = (*PAPER_MAPS, "tau_c", *(name for name in DESCRIPTOR_ACTIVITIES if name != "band_ratio"))
 #: those the daemon judges above a noise floor (τc is held, not lowered)
 WITH_FLOOR = tuple(name for name in JUDGEABLE if name in FLOORED)
 

@@ -1,17 +1,21 @@
 """The field's descriptors through the daemon (issue 24): the drying states judged on Fujii (above its
 noise floor) and on the temporal contrast (above its floor: the signal's contrast), their region statistics, maps and
-metrics in every sink, and the config's rules for them (Fujii runs the engine at q = 0)."""
+metrics in every sink, and the config's rules for them (Fujii runs the engine at q = 0); the band
+ratio (no floor) likewise, and its split's and mode's config rules."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
 
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.tau import engine_estimators
+from edgedsm.dashboard.plant import Plant
 from edgedsm.errors import ConfigError
 from edgedsm.publish.ha_discovery import Discovery
+from edgedsm.publish.mapcodec import encode_map
 from edgedsm.publish.prometheus import _stats_families
 from edgedsm.publish.sparkplug.metrics import declared_readings, map_reading, stats_readings
 from edgedsm.publish.topics import Topics
@@ -91,3 +95,64 @@ def test_the_config_takes_the_descriptors_and_refuses_fujii_with_a_q(repo):
     with pytest.raises(ConfigError, match="activity"):
         validate(DaemonConfig, {"camera": {"uri": "sim:x"}, "estimator": {"activity": "gd"},
                                 "regions": [{**PLATE, "wet_above": 1.0, "dry_below": 0.5}]}, "<gd>")
+
+
+def test_drying_judged_on_the_band_ratio(repo):
+    # high-band / low-band power at the default split (half the Nyquist frequency), q = 0: the demo
+    # plate's ratio ~0.15 while wet (τc = 3 frames), ~0.06 at frame 700 as it slows; no noise floor
+    config = _config(repo, {"activity": "band_ratio", "q": 0},
+                     [{**PLATE, "wet_above": 0.14, "dry_below": 0.07}])
+    assert engine_estimators(config) == ("s1", "s2", "s3", "band_ratio")
+    assert config.band_args == {"dt": None, "band_split": None}
+    sink, pipeline = _run(config, repo, 720)
+    assert pipeline.counters["dropped_queue"] == 0
+    assert _moves(sink) == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")], sink.alerts
+    ready = [s for s in sink.stats if s.ready]
+    assert all(s.estimator == "band_ratio" and set(s.regions["plate"]) == {"s1", "s2", "s3", "band_ratio"}
+               for s in ready)
+    first, last = ready[0].regions["plate"]["band_ratio"], ready[-1].regions["plate"]["band_ratio"]
+    assert 0.14 < first.mean < 0.17 and 0.05 < last.mean < 0.07, (first, last)
+    assert 0 <= last.p05 <= last.median <= last.p95 and last.std > 0
+    signal = ready[-1].signal["plate"]
+    assert signal.noise_floor is None and signal.above_noise is None  # none defined (docs/noise.md)
+    report = sink.states[-1]
+    assert report.estimator == "band_ratio" and report.regions["plate"].state == "dry"
+    maps = [m for m in sink.maps if m.name == "band_ratio"]
+    assert maps and {m.name for m in sink.maps} == {"s1", "s2", "s3", "band_ratio"}
+    values = maps[-1].values
+    assert math.isfinite(values.max()) and values.min() >= 0
+    readings = stats_readings(ready[-1])
+    assert readings["regions/plate/band_ratio/mean"].value == last.mean
+    assert "regions/plate/band_ratio/mean" in declared_readings(["plate"], engine_estimators(config))
+    families = {family.name: family for family in _stats_families(ready[-1])}
+    samples = {s.labels["estimator"]: s.value for s in families["edgedsm_region_activity"].samples}
+    assert samples == {name: ready[-1].regions["plate"][name].mean for name in ("s1", "s2", "s3", "band_ratio")}
+    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").activity_entity("plate", "band_ratio")
+    assert "'band_ratio'" in entity.config["value_template"]
+    dashboard = Plant("edgedsm", None, lambda kind, data: None)
+    dashboard.handle("edgedsm/cam/stats", ready[-1].to_bytes())
+    png, meta = encode_map(values, estimator="band_ratio")
+    dashboard.handle("edgedsm/cam/map/band_ratio/meta", json.dumps(meta).encode())
+    dashboard.handle("edgedsm/cam/map/band_ratio", png)
+    (device,) = dashboard.snapshot()
+    assert device["stats"]["activity"] == {"plate": last.mean} and device["stats"]["estimator"] == "band_ratio"
+    assert device["maps"]["band_ratio"]["max"] == pytest.approx(float(values.max()), rel=1e-3)
+
+
+def test_the_band_ratio_config_rules(repo):
+    regions = [{**PLATE, "wet_above": 0.14, "dry_below": 0.07}]
+
+    def config(estimator: dict, camera: dict | None = None) -> DaemonConfig:
+        return validate(DaemonConfig, {"camera": {"uri": "sim:x", **(camera or {})},
+                                       "estimator": {"activity": "band_ratio", "window": 64, "lag": 1, **estimator},
+                                       "regions": regions}, "<bands>")
+
+    split = config({"band_split_hz": 5.0}, {"frame_interval_s": 0.02})
+    assert split.band_args == {"dt": 0.02, "band_split": 5.0}
+    with pytest.raises(ConfigError, match=r"estimator.band_split_hz: .*Nyquist frequency 25 Hz"):
+        config({"band_split_hz": 25.0}, {"frame_interval_s": 0.02})
+    with pytest.raises(ConfigError, match=r"estimator.band_split_hz: a split in Hz needs camera.frame_interval_s"):
+        config({"band_split_hz": 5.0})
+    with pytest.raises(ConfigError, match=r"estimator: .*activity: the frequency bands .* not 'exponential'"):
+        config({"mode": "exponential"})
+    assert config({"mode": "tumbling"}).estimator.maps == ("s1", "s2", "s3", "band_ratio")

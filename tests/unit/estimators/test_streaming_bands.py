@@ -2,7 +2,8 @@
 and band_ratio equal the batch reference (edgedsm.estimators.bands) within the stated bound
 N·ε·D² (times BOUND_FACTOR) in the sliding and tumbling modes, on random, adversarial and long
 streams; constant pixels read 0, never NaN; the exponential mode and a split at Nyquist are
-refused; only the smaller band's bins are kept (16 bytes per bin per pixel)."""
+refused; only the smaller band's bins are kept (16 bytes per bin per pixel); snapshots and
+region statistics carry them."""
 
 from __future__ import annotations
 
@@ -14,9 +15,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from edgedsm.analysis import RegionBox
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow, bands
 from edgedsm.estimators.dft_bins import BIN_BYTES, BOUND_FACTOR, BandPlan, error_bound
+from edgedsm.estimators.region_stats import RegionPlan, region_moments
+from edgedsm.estimators.snapshot import maps_from
 
 KERNELS = ["numpy"] + (["numba"] if importlib.util.find_spec("numba") else [])
 BANDS = ("band_low", "band_high", "band_ratio")
@@ -206,15 +210,43 @@ def test_bad_band_settings_are_refused():
     SlidingWindow(SHAPE, 16, 1, mode="exponential", band_split=99.0)  # no band asked: not read
 
 
-def test_bands_are_not_in_snapshots_and_resync_keeps_them():
+@pytest.mark.parametrize("mode", ["sliding", "tumbling"])
+def test_snapshots_and_region_statistics_carry_the_bands(mode):
+    n = 8
+    frames = stream("adversarial", 16, 32, seed=3)
+    engine = SlidingWindow(SHAPE, n, 1, q=2.0, bits=16, estimators=("s1", "s2", "s3", "band_ratio"), mode=mode,
+                           band_split=0.3)
+    for frame in frames:
+        engine.push(frame)
+    direct = engine.maps()
+    snapshot = engine.snapshot()
+    assert snapshot.sums["bins"].shape == (2, 2, SHAPE[0] * SHAPE[1])  # j = 1, 2 below 0.3 (N = 8), as many as above
+    for name, values in maps_from(snapshot).items():
+        np.testing.assert_array_equal(values, direct[name])
+    np.testing.assert_array_equal(maps_from(engine.snapshot(["band_ratio"]))["band_ratio"], direct["band_ratio"])
+    left = np.zeros(SHAPE, bool)
+    left[:, :4] = True
+    left[0, 0] = False
+    regions = {"left": RegionPlan.of(RegionBox.of(left), SHAPE), "right": RegionPlan.of(RegionBox.of(~left), SHAPE)}
+    moments = region_moments(engine.snapshot(live=True), regions, ("s2", "band_ratio"))
+    for name, mask in (("left", left), ("right", ~left)):
+        values = direct["band_ratio"][mask]
+        got = moments[name]["band_ratio"]
+        assert got.pixels == mask.sum()
+        assert got.mean == pytest.approx(values.mean(), rel=1e-12)
+        assert got.std == pytest.approx(values.std(), rel=1e-9, abs=1e-12)
+    only = region_moments(engine.snapshot(["band_ratio"], live=True), regions, ("band_ratio",))
+    assert only["left"]["band_ratio"].mean == moments["left"]["band_ratio"].mean
+    copies = engine.snapshot_buffers()
+    assert copies.sums["bins"].nbytes == BIN_BYTES * 2 * SHAPE[0] * SHAPE[1]  # the daemon's memory check counts it
+
+
+def test_resync_reanchors_every_pixel():
     n = 8
     frames = stream("random", 16, 30, seed=3)
     engine = SlidingWindow(SHAPE, n, 1, bits=16, estimators=("s1", "band_ratio"))
     for frame in frames:
         engine.push(frame)
-    with pytest.raises(EstimatorError, match="does not carry 'band_ratio'"):
-        engine.snapshot(["band_ratio"])
-    assert engine.snapshot().estimators == ("s1",)
     before = engine.maps(["band_ratio"])["band_ratio"]
     engine.resync()  # every pixel re-anchored from the ring
     np.testing.assert_allclose(engine.maps(["band_ratio"])["band_ratio"], before, rtol=1e-9)
