@@ -11,9 +11,11 @@ import math
 import pytest
 
 from edgedsm.config import DaemonConfig
+from edgedsm.daemon.engine_budget import engine_bytes_per_pixel
 from edgedsm.daemon.tau import engine_estimators
 from edgedsm.dashboard.plant import Plant
 from edgedsm.errors import ConfigError
+from edgedsm.estimators import SlidingWindow
 from edgedsm.publish.ha_discovery import Discovery
 from edgedsm.publish.mapcodec import encode_map
 from edgedsm.publish.prometheus import _stats_families
@@ -156,3 +158,10 @@ def test_the_band_ratio_config_rules(repo):
     with pytest.raises(ConfigError, match=r"estimator: .*activity: the frequency bands .* not 'exponential'"):
         config({"mode": "exponential"})
     assert config({"mode": "tumbling"}).estimator.maps == ("s1", "s2", "s3", "band_ratio")
+
+
+def test_the_memory_check_counts_the_band_bins():
+    # N = 64, default split: 16 bins of 16 B kept, and copied once for the maps; one more float map
+    plain = SlidingWindow((1, 64), 64, 1, bits=8)
+    bands = SlidingWindow((1, 64), 64, 1, bits=8, estimators=("s1", "s2", "s3", "band_ratio"))
+    assert engine_bytes_per_pixel(bands) - engine_bytes_per_pixel(plain) == 2 * 16 * 16 + 2 * 8
