@@ -122,6 +122,11 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     if first is None:
         raise EstimatorError(f"{args.frames}: no frames")
     regions, config_dt, descriptors = _regions(args, first.shape)
+    split = getattr(args, "split", None)  # the bands' split in Hz: --split, else the config's band_split_hz
+    if split is None and args.config is not None:
+        from edgedsm.config import load_config
+
+        split = load_config(args.config).estimator.band_split_hz
     dt = args.dt or scene_dt or config_dt or 1.0
 
     read = [0]
@@ -136,7 +141,7 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
                       max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times,
                       with_tau=args.with_tau, with_noise=args.with_noise, noise_model=_datasheet(args),
-                      descriptors=descriptors, band_split=getattr(args, "split", None))
+                      descriptors=descriptors, band_split=split)
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)

@@ -126,3 +126,22 @@ def test_analyze_timeline_follows_the_band_ratio(tmp_path: Path) -> None:
     window = frames[39 - 15:40]
     expected = bands.ratio(*bands.split_powers(window, 0.02, 5.0)).mean()
     assert float(rows[-1]["band_ratio"]) == pytest.approx(expected, rel=1e-5)  # the CSV keeps 6 digits
+
+
+def test_the_configs_band_ratio_and_split_give_the_column(tmp_path: Path) -> None:
+    frames = np.random.default_rng(3).integers(0, 256, (40, 8, 8), dtype=np.uint8)
+    np.save(tmp_path / "frames.npy", frames)
+    config = tmp_path / "edgedsm.toml"
+    config.write_text('[camera]\nuri = "sim:default"\nframe_interval_s = 0.02\n\n[estimator]\nactivity = "band_ratio"\n'
+                      'window = 16\nlag = 1\nband_split_hz = 5.0\n\n[[regions]]\nname = "all"\nshape = "rect"\nx = 0\n'
+                      'y = 0\nwidth = 8\nheight = 8\nwet_above = 2.0\ndry_below = 1.0\n')
+    out = tmp_path / "out"
+    assert main(["analyze", str(tmp_path / "frames.npy"), "--timeline", str(out), "-c", str(config), "--window",
+                 "16", "--every", "8", "--no-tau-c", "--no-noise-floor"]) == 0
+    with (out / "timeline.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert list(rows[0])[-1] == "band_ratio" and len(rows) == 4
+    for row in rows:  # the config's Δt (0.02 s) and split (5 Hz): 3 of the 8 bins in the low band
+        index = int(row["frame"])
+        expected = bands.ratio(*bands.split_powers(frames[index - 15:index + 1], 0.02, 5.0)).mean()
+        assert float(row["band_ratio"]) == pytest.approx(expected, rel=1e-5)
