@@ -56,19 +56,33 @@ def spectrum(frames: np.ndarray) -> np.ndarray:
 def band_power(frames: np.ndarray, bands: list[tuple[float, float]], dt: float | None = None) -> np.ndarray:
     """(len(bands), H, W): each pixel's power in each band (lo, hi], grey levels² (module doc);
     hi = inf reaches the Nyquist frequency whatever the rounding of f_j."""
+    stack = check_frames(frames)
+    members = band_members(stack.shape[0], bands, dt)
+    power = spectrum(stack)
+    return np.stack([power[j].sum(axis=0) for j in members])
+
+
+def band_members(n: int, bands: list[tuple[float, float]], dt: float | None = None) -> list[np.ndarray]:
+    """The indices j of the frequencies f_j in each band (lo, hi] of an N = ``n`` frame window
+    (hi = inf reaches the Nyquist frequency); refuses a band with lo >= hi or starting at or above
+    the highest frequency. The one rule of the batch maps and the streaming engine."""
     if not bands:
         raise EstimatorError("give at least one frequency band (lo, hi)")
-    stack = check_frames(frames)
-    freq = frequencies(stack.shape[0], dt)
+    freq = frequencies(n, dt)
     nyquist = freq[-1] if len(freq) > 1 else 0.0
-    for lo, hi in bands:
+    members = []
+    for band in bands:
+        try:
+            lo, hi = (float(value) for value in band)
+        except (TypeError, ValueError):
+            raise EstimatorError(f"a band is (lo, hi), two numbers, got {band!r}") from None
         if not (np.isfinite(lo) and not np.isnan(hi) and 0 <= lo < hi):
             raise EstimatorError(f"a band (lo, hi) needs 0 <= lo < hi, got ({lo}, {hi})")
         if lo >= nyquist:
             raise EstimatorError(f"band ({lo}, {hi}] starts at or above the Nyquist frequency {nyquist:.6g}"
                                  f" ({'Hz' if dt is not None else 'cycles per frame'})")
-    power = spectrum(stack)
-    return np.stack([power[(freq > lo) & (freq <= hi)].sum(axis=0) for lo, hi in bands])
+        members.append(np.flatnonzero((freq > lo) & (freq <= hi)))
+    return members
 
 
 def split_powers(frames: np.ndarray, dt: float | None = None, split: float | None = None

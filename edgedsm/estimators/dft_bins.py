@@ -37,7 +37,7 @@ with Δt (seconds), else cycles per frame.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators.bands import frequencies, ratio
+from edgedsm.estimators.bands import band_members, frequencies, ratio
 from edgedsm.estimators.value_set import window_spreads
 
 Layout = dict[str, tuple[tuple[int, ...], Any]]
@@ -62,33 +62,40 @@ REANCHOR_BLOCK = 512  # pixels per FFT of the re-anchor
 
 @dataclass(frozen=True)
 class BandPlan:
-    """Which DFT bins a window of ``window`` frames keeps for the split ``split`` (Hz with ``dt``
-    in seconds, else cycles per frame; None: half the Nyquist frequency, as ``bands.split_powers``)."""
+    """Which DFT bins a window of ``window`` frames keeps: for the split ``split`` (Hz with ``dt``
+    in seconds, else cycles per frame; None: half the Nyquist frequency, as ``bands.split_powers``)
+    the smaller band's, when ``split_on``; and every bin of the ``custom`` bands (lo, hi]."""
 
     window: int
     dt: float | None
     split: float
     low: np.ndarray  # the bins j of (0, split]
     high: np.ndarray  # the bins j of (split, Nyquist]
+    split_on: bool = True  # band_low, band_high or band_ratio asked for
+    custom: tuple[np.ndarray, ...] = ()  # the bins j of each band of ``bands``
 
     @classmethod
-    def of(cls, window: int, dt: float | None, split: float | None) -> BandPlan:
+    def of(cls, window: int, dt: float | None, split: float | None, bands: Sequence[tuple[float, float]] = (),
+           split_on: bool = True) -> BandPlan:
         if dt is not None and (isinstance(dt, bool) or not isinstance(dt, int | float | np.integer | np.floating)):
             raise EstimatorError(f"the frame interval dt must be a number of seconds, got {dt!r}")
         freq = frequencies(window, dt)  # refuses dt <= 0; Hz, else cycles per frame
+        custom = tuple(band_members(window, list(bands), dt)) if bands else ()
         nyquist = 0.5 / (1.0 if dt is None else float(dt))
         value = nyquist / 2 if split is None else split
+        j = np.arange(freq.size)
+        if not split_on:
+            return cls(window, None if dt is None else float(dt), float(value), j[:0], j[:0], False, custom)
         if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating) \
                 or not (np.isfinite(value) and 0 < value < nyquist):
             unit = "Hz" if dt is not None else "cycles per frame"
             raise EstimatorError(f"the band split must lie between 0 and the Nyquist frequency {nyquist:.6g} {unit}, "
                                  f"got {split!r}")
-        j = np.arange(freq.size)
         if freq[-1] <= value:  # an odd N has no bin at Nyquist: as bands.band_power, refused
             raise EstimatorError(f"no frequency of a {window}-frame window lies above the band split {value:.6g}: "
                                  f"its highest is {freq[-1]:.6g} {'Hz' if dt is not None else 'cycles per frame'}")
         return cls(window, None if dt is None else float(dt), float(value),
-                   j[(freq > 0) & (freq <= value)], j[freq > value])
+                   j[(freq > 0) & (freq <= value)], j[freq > value], True, custom)
 
     @property
     def keeps_low(self) -> bool:
@@ -96,9 +103,14 @@ class BandPlan:
         return self.low.size <= self.high.size
 
     @property
-    def kept(self) -> np.ndarray:
-        """The bins j kept per pixel (the smaller band's)."""
+    def side(self) -> np.ndarray:
+        """The bins j of the split's smaller band (none without ``split_on``)."""
         return self.low if self.keeps_low else self.high
+
+    @property
+    def kept(self) -> np.ndarray:
+        """The bins j kept per pixel, ascending: the split's smaller band's and the custom bands'."""
+        return np.union1d(self.side, np.concatenate([self.side[:0], *self.custom])).astype(np.int64)
 
     def weights(self) -> np.ndarray:
         """c_j / N² of each kept bin: P_j = c_j |X_j|²/N² (Eq. 4 of bands.py)."""
@@ -123,14 +135,18 @@ def band_mode_problem(mode: str) -> str | None:
 
 
 def band_plan(estimators: tuple[str, ...], mode: str, window: int, dt: float | None,
-              split: float | None) -> BandPlan | None:
+              split: float | None, bands: Sequence[tuple[float, float]] | None = None) -> BandPlan | None:
     """The plan of the band maps among ``estimators`` (None: none asked for); refused in the
-    exponential mode (module doc)."""
-    if not set(estimators) & set(BAND_NAMES):
+    exponential mode (module doc), and "bands" without ``bands``."""
+    split_on = bool(set(estimators) & set(BAND_NAMES))
+    if not split_on and "bands" not in estimators:
         return None
     if problem := band_mode_problem(mode):
         raise EstimatorError(problem)
-    return BandPlan.of(window, dt, split)
+    if "bands" in estimators and not bands:
+        raise EstimatorError("estimator 'bands' needs the bands: bands=[(lo, hi), ...] (Hz with dt, else cycles "
+                             "per frame)")
+    return BandPlan.of(window, dt, split, bands if "bands" in estimators and bands else (), split_on)
 
 
 class DftBins:
@@ -218,21 +234,41 @@ class DftBins:
 
     # ----------------------------------------------------------------- maps
     def maps(self, sums: Mapping[str, np.ndarray], names: tuple[str, ...], q: float) -> dict[str, np.ndarray]:
-        """The flat float64 band maps ``names`` (of BAND_NAMES) from the kept bins and σ² (from the
-        exact sums ``total``, ``total_sq``); the other band is σ² minus the kept one, >= 0. A pixel
-        with σ = 0 (constant) has both bands exactly 0."""
-        assert self.plan is not None
+        """The flat float64 band maps ``names`` (of BAND_NAMES, and "bands": (K, P), one row per
+        custom band) from the kept bins and σ² (from the exact sums ``total``, ``total_sq``); the
+        split's other band is σ² minus the kept one, >= 0. A pixel with σ = 0 (constant) reads 0
+        in every band."""
+        plan = self.plan
+        assert plan is not None
         n = self.window
         bins = sums["bins"]
-        kept = np.zeros(bins.shape[2], np.float64)
-        for row, weight in enumerate(self.plan.weights().tolist()):
-            kept += weight * (bins[0, row] * bins[0, row] + bins[1, row] * bins[1, row])
+        row_of = {int(j): row for row, j in enumerate(plan.kept.tolist())}
         variance = window_spreads(sums["total"], sums["total_sq"], n) / float(n * n)
         flat = variance == 0
-        kept[flat] = 0.0
-        other = np.maximum(variance - kept, 0.0)
-        low, high = (kept, other) if self.plan.keeps_low else (other, kept)
-        out = {"band_low": low, "band_high": high}
-        if "band_ratio" in names:
-            out["band_ratio"] = ratio(low, high, q)
+        power = {}  # the power P_j of each bin a map reads (pixels)
+        wanted = set(plan.side.tolist()) if set(names) & set(BAND_NAMES) else set()
+        if "bands" in names:
+            wanted.update(j for members in plan.custom for j in members.tolist())
+        for j, weight in zip(plan.kept.tolist(), plan.weights().tolist(), strict=True):
+            if j in wanted:
+                row = row_of[j]
+                power[j] = weight * (bins[0, row] * bins[0, row] + bins[1, row] * bins[1, row])
+        out: dict[str, np.ndarray] = {}
+        if "bands" in names:
+            stack = np.zeros((len(plan.custom), bins.shape[2]), np.float64)
+            for k, members in enumerate(plan.custom):
+                for j in members.tolist():
+                    stack[k] += power[j]
+            stack[:, flat] = 0.0
+            out["bands"] = stack
+        if set(names) & set(BAND_NAMES):
+            kept = np.zeros(bins.shape[2], np.float64)
+            for j in plan.side.tolist():
+                kept += power[j]
+            kept[flat] = 0.0
+            other = np.maximum(variance - kept, 0.0)
+            low, high = (kept, other) if plan.keeps_low else (other, kept)
+            out.update(band_low=low, band_high=high)
+            if "band_ratio" in names:
+                out["band_ratio"] = ratio(low, high, q)
         return {name: out[name] for name in names}

@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 import importlib
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from types import ModuleType
 from typing import Any, ClassVar, Literal
 
@@ -42,7 +42,7 @@ KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
 #: contrast σ/⟨I⟩, Fujii (200·S2 at q = 0) and the inertia moment mean (ΔI)² at lag m; and the
 #: generalized differences (GD), sliding mode only, O(N) per pixel per push; the frequency bands,
 #: O(bins) per pixel per push (edgedsm.estimators.dft_bins).
-ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd", *BAND_NAMES)
+ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd", *BAND_NAMES, "bands")
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
@@ -86,7 +86,8 @@ class SlidingWindow:
             (200·S2 at q = 0, BSLTL's fujii.m) needs q = 0; "gd" (BSLTL's gendiff.m) needs mode
             "sliding" and costs O(N) per pixel per push (it reads the whole ring); "band_low",
             "band_high", "band_ratio" (high/(low + q)): the power below and above ``band_split``
-            (edgedsm.estimators.dft_bins), sliding or tumbling mode, O(bins) per pixel per push.
+            (edgedsm.estimators.dft_bins), sliding or tumbling mode, O(bins) per pixel per push;
+            "bands": the power in each of ``bands``, one (K, H, W) map (not in snapshots).
         mode: "sliding" (default), "exponential" or "tumbling" (docs/engine.md); the engine
             constructed is that mode's subclass.
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
@@ -101,6 +102,7 @@ class SlidingWindow:
         dt: the frame interval in seconds, the bands' frequency scale (None: cycles per frame).
         band_split: the bands' split frequency, Hz with ``dt`` (else cycles per frame), below
             the Nyquist frequency; None: half of it.
+        bands: "bands"' frequency bands (lo, hi], Hz with ``dt`` (else cycles per frame).
 
     Exactness, bounds, memory per pixel and the degenerate cases: docs/engine.md.
     """
@@ -129,7 +131,8 @@ class SlidingWindow:
                  bits: int | None = None, estimators: Iterable[str] | str = DEFAULT_ESTIMATORS,
                  mode: Mode | None = None, kernel: KernelName = "auto",
                  threads: int | None = None, resync_every: int | None = None,
-                 max_lag: int | None = None, dt: float | None = None, band_split: float | None = None) -> None:
+                 max_lag: int | None = None, dt: float | None = None, band_split: float | None = None,
+                 bands: Sequence[tuple[float, float]] | None = None) -> None:
         if mode is not None and mode != self.mode:
             raise EstimatorError(f"mode {mode!r} asked of the {self.mode} engine")
         self.shape = self._check_shape(shape)
@@ -150,7 +153,7 @@ class SlidingWindow:
         if "fujii" in self.estimators and self.q != 0.0:
             raise EstimatorError(f"estimator 'fujii' is 200·S2 at q = 0 (BSLTL's fujii.m): construct the engine "
                                  f"with q=0, got q={self.q}")
-        self._bins = DftBins(self.window, band_plan(self.estimators, self.mode, self.window, dt, band_split))
+        self._bins = DftBins(self.window, band_plan(self.estimators, self.mode, self.window, dt, band_split, bands))
         if kernel not in KERNELS:
             raise EstimatorError(f"kernel must be one of {', '.join(KERNELS)}; got {kernel!r}")
         self._kernels = load_kernels(kernel)
@@ -353,13 +356,14 @@ class SlidingWindow:
         if unknown := sorted(set(wanted) - set(self.estimators)):
             raise EstimatorError(f"maps {unknown} were not requested from this engine (it has {self.estimators})")
         self._check_ready()
-        only_tau = set(wanted) <= {"tau_c", "gd", *BAND_NAMES}
+        only_tau = set(wanted) <= {"tau_c", "gd", "bands", *BAND_NAMES}
         flat = {} if only_tau else self._moments.maps(self._sums(), self.shape[0] * self.shape[1])
         if "gd" in wanted:
             flat["gd"] = gd_of_sum(self._arrays["gd"], self.window)
-        if bands := tuple(name for name in wanted if name in BAND_NAMES):
+        if bands := tuple(name for name in wanted if name in BAND_NAMES or name == "bands"):
             flat.update(self._bins.maps(self._sums(), bands, self.q))
-        return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
+        return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape((*flat[name].shape[:-1],
+                                                                                          *self.shape))
                 for name in wanted}
 
     def sigma(self) -> np.ndarray:
@@ -437,9 +441,9 @@ class SlidingWindow:
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
                      how: str) -> EngineSnapshot:
-        if estimators is not None and "gd" in estimators:
-            raise EstimatorError("a snapshot does not carry 'gd' (its map comes from maps())")
-        wanted = tuple(name for name in self.estimators if name != "gd") if estimators is None \
+        if estimators is not None and (left := [name for name in ("gd", "bands") if name in estimators]):
+            raise EstimatorError(f"a snapshot does not carry {', '.join(map(repr, left))} (maps() gives it)")
+        wanted = tuple(name for name in self.estimators if name not in ("gd", "bands")) if estimators is None \
             else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")

@@ -68,7 +68,7 @@ def check_bands(maps: dict[str, np.ndarray], window: np.ndarray, d: np.ndarray, 
     reference = bands.ratio(low, high, q)
     denominator = low + q
     usable = denominator > 2 * bound  # the ratio is conditioned by its denominator
-    allowed = (bound + reference * bound) / (denominator - bound)
+    allowed = np.divide(bound + reference * bound, denominator - bound, out=np.zeros_like(bound), where=usable)
     assert (np.abs(maps["band_ratio"] - reference)[usable] <= allowed[usable]).all()
     for name in BANDS:
         assert np.isfinite(maps[name]).all()
@@ -252,3 +252,46 @@ def test_resync_reanchors_every_pixel():
     np.testing.assert_allclose(engine.maps(["band_ratio"])["band_ratio"], before, rtol=1e-9)
     reference = bands.ratio(*bands.split_powers(frames[-n:]))
     np.testing.assert_allclose(engine.maps(["band_ratio"])["band_ratio"], reference, rtol=1e-9)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("mode", ["sliding", "tumbling"])
+@pytest.mark.parametrize("kind", ["random", "adversarial"])
+def test_custom_bands_equal_band_power(kernel, mode, kind):
+    """bands=[(lo, hi), ...] in Hz: one (K, H, W) map, each band within the bound of
+    bands.band_power; the bins of the split's smaller band and of the bands are kept once."""
+    n, dt, bits = 20, 0.01, 16  # 50 Hz Nyquist, 5 Hz resolution
+    chosen = [(0.0, 12.0), (12.0, 30.0), (27.0, float("inf"))]  # bins 1-2, 3-6, 6-10 (overlapping)
+    frames = stream(kind, bits, 8 * n, seed=5)
+    engine = SlidingWindow(SHAPE, n, 1, bits=bits, estimators=("bands", *BANDS), mode=mode, kernel=kernel,
+                           dt=dt, band_split=12.0, bands=chosen)
+    assert engine._bins.plan.kept.tolist() == list(range(1, 11))  # split: 1-2 (low) kept; bands: 1-10
+    for i, frame in enumerate(frames, 1):
+        engine.push(frame)
+        if i >= n and i % n == 0:
+            maps = engine.maps()
+            window = frames[i - n:i]
+            assert maps["bands"].shape == (3, *SHAPE)
+            reference = bands.band_power(window, chosen, dt)
+            bound = error_bound(n, spread(frames, i, n))
+            assert (np.abs(maps["bands"] - reference) <= bound).all()
+            check_bands(maps, window, spread(frames, i, n), 0.0, dt, 12.0)
+    if kind == "adversarial":
+        assert (maps["bands"][:, 0:3] == 0).all()  # dark, saturated, constant: every band exactly 0
+    assert np.isfinite(maps["bands"]).all()
+
+
+def test_custom_bands_need_their_list_and_stay_out_of_snapshots():
+    with pytest.raises(EstimatorError, match=r"estimator 'bands' needs the bands"):
+        SlidingWindow(SHAPE, 16, 1, estimators=("bands",))
+    with pytest.raises(EstimatorError, match=r"starts at or above the Nyquist frequency 50"):
+        SlidingWindow(SHAPE, 20, 1, estimators=("bands",), dt=0.01, bands=[(60.0, 70.0)])
+    with pytest.raises(EstimatorError, match="finite window"):
+        SlidingWindow(SHAPE, 16, 1, estimators=("bands",), bands=[(0.1, 0.2)], mode="exponential")
+    engine = SlidingWindow(SHAPE, 16, 1, bits=8, estimators=("s1", "bands"), bands=[(0.1, 0.2)])
+    assert engine.array_bytes()["bins"] == BIN_BYTES * 2 * SHAPE[0] * SHAPE[1]  # f = 2/16, 3/16
+    for frame in stream("random", 8, 16):
+        engine.push(frame)
+    with pytest.raises(EstimatorError, match="does not carry 'bands'"):
+        engine.snapshot(["bands"])
+    assert engine.snapshot().estimators == ("s1",)
