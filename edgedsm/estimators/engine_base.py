@@ -38,7 +38,7 @@ KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
 #: Names of the maps the engine can keep: the paper's S1-S3 and τc, and the field's descriptors that
 #: stream at O(1) per pixel from the same sums (issue 24, docs/descriptors.md): the temporal
 #: contrast σ/⟨I⟩, Fujii (200·S2 at q = 0) and the inertia moment mean (ΔI)² at lag m; and the
-#: generalized differences (GD), sliding mode only, O(N) per pixel per push.
+#: generalized differences (GD), sliding and tumbling modes, O(N) per pixel per push.
 ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd")
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
@@ -81,7 +81,7 @@ class SlidingWindow:
         estimators: which of "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im" ``maps()``
             returns (default: the first three), or "gd"; only their sums are kept. "fujii"
             (200·S2 at q = 0, BSLTL's fujii.m) needs q = 0; "gd" (BSLTL's gendiff.m) needs mode
-            "sliding" and costs O(N) per pixel per push (it reads the whole ring).
+            "sliding" or "tumbling" and costs O(N) per pixel per push (it reads the window's frames).
         mode: "sliding" (default), "exponential" or "tumbling" (docs/engine.md); the engine
             constructed is that mode's subclass.
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
@@ -134,9 +134,9 @@ class SlidingWindow:
         self.q = float(q)
         self.estimators = self._check_estimators(estimators)
         self._do_gd = "gd" in self.estimators
-        if self._do_gd and self.mode != "sliding":
-            raise EstimatorError(f"estimator 'gd' needs mode='sliding' (its update reads the window's frames), "
-                                 f"got {self.mode!r}")
+        if self._do_gd and self.mode == "exponential":
+            raise EstimatorError("estimator 'gd' needs mode='sliding' or 'tumbling': its update reads the window's "
+                                 "frames, and the exponential mode keeps no window")
         if self._do_gd and self.window * (self.window - 1) // 2 * 65535 > 2**63 - 1:
             raise EstimatorError(f"estimator 'gd': a window of {self.window} frames overflows its int64 sum")
         if "fujii" in self.estimators and self.q != 0.0:
@@ -347,7 +347,7 @@ class SlidingWindow:
         only_tau = set(wanted) <= {"tau_c", "gd"}
         flat = {} if only_tau else self._moments.maps(self._sums(), self.shape[0] * self.shape[1])
         if "gd" in wanted:
-            flat["gd"] = gd_of_sum(self._arrays["gd"], self.window)
+            flat["gd"] = gd_of_sum(self._sums()["gd"], self.window)
         return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape(self.shape)
                 for name in wanted}
 
@@ -426,19 +426,16 @@ class SlidingWindow:
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
                      how: str) -> EngineSnapshot:
-        if estimators is not None and "gd" in estimators:
-            raise EstimatorError("a snapshot does not carry 'gd' (its map comes from maps())")
-        wanted = tuple(name for name in self.estimators if name != "gd") if estimators is None \
-            else self._check_estimators(estimators)
+        wanted = self.estimators if estimators is None else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
         flags = flags_of(wanted)
         spread = flags[2] or flags[3]  # S3 and the contrast need σ
         needed = {"abs": flags[0], "ratio": flags[1], "total": spread, "total_sq": spread, "m2": spread,
-                  "mean": flags[3], "sq": flags[5]}
+                  "mean": flags[3], "sq": flags[5], "gd": "gd" in wanted}
         source_sums, old = self._sums(), into.sums if into is not None else {}
         sums = {}
-        for name in self._moments.snapshot_names:
+        for name in (*self._moments.snapshot_names, *(("gd",) if self._do_gd else ())):
             source = source_sums.get(name)
             if not needed[name] or source is None:
                 sums[name] = np.zeros(0, np.int64)

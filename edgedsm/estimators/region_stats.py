@@ -7,7 +7,9 @@ writes 32 bytes per pixel and reads them back per region and map. Here one pass 
 the regions cover (:class:`RegionLayout`) reads the engine's sums once: each pixel of the
 regions' union gets its S1, S2 and S3 (Eq. 1-4), and the contrast, Fujii and IM asked for
 (:data:`MAPS`), computed once into a row buffer, whatever the
-regions holding it, and each region sums its column runs of that buffer. It runs on the
+regions holding it, and each region sums its column runs of that buffer. GD (generalized
+differences), one division of its own exact sum per pixel, is formed over each region's box and
+reduced apart (:func:`region_moments`). It runs on the
 pipeline thread between two pushes, from the live sums (the pushes are on that thread too).
 
 Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 relative, tested):
@@ -48,7 +50,7 @@ from edgedsm.analysis_kernels import masked_moments
 from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
-from edgedsm.estimators.value_set import flags_of
+from edgedsm.estimators.value_set import flags_of, gd_of_sum
 
 try:
     import numba
@@ -190,17 +192,32 @@ class Moments:
 
 def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | RegionLayout, maps: Sequence[str],
                    spread: bool = True, parallel: bool = True) -> dict[str, dict[str, Moments]]:
-    """Moments of ``maps`` (among :data:`MAPS`) over each region, from a window's sums.
+    """Moments of ``maps`` (among :data:`MAPS`, and "gd") over each region, from a window's sums.
 
     ``sums``: an engine snapshot, or the live sums (``SlidingWindow.snapshot(live=True)``; then on
     the thread that pushes, before the next push). ``regions``: plans by name, or their
     :class:`RegionLayout` (built once: cheaper per call). Without ``spread`` only the means (std
     0, no sample). ``parallel``: the pass uses numba's threads (the caller's setting).
+    GD (generalized differences) is not in the fused pass (its per-pixel value is one division of
+    its own exact sum, :func:`~edgedsm.estimators.value_set.gd_of_sum`): its values over each
+    region's box are formed and reduced as without numba (same sample, same rounding class).
     """
     wanted = tuple(name for name in MAPS if name in maps)
-    if sums.mode not in ("sliding", "tumbling", "exponential") or not wanted:
+    if sums.mode not in ("sliding", "tumbling", "exponential") or not (wanted or "gd" in maps):
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
     layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
+    result = _fused_moments(sums, layout, wanted, spread, parallel) if wanted else {name: {} for name in layout.plans}
+    if "gd" in maps:
+        gd_sums = sums.sums["gd"].reshape(sums.shape)
+        for name, plan in layout.plans.items():
+            box = plan.box
+            result[name]["gd"] = _box_moments(gd_of_sum(gd_sums[box.rows, box.cols], sums.window), box, spread)
+    return result
+
+
+def _fused_moments(sums: EngineSnapshot, layout: RegionLayout, wanted: tuple[str, ...], spread: bool,
+                   parallel: bool) -> dict[str, dict[str, Moments]]:
+    """:func:`region_moments` of ``wanted`` (:data:`MAPS` order) by the fused pass over the sums."""
     kind = "exponential" if sums.mode == "exponential" else "window"
     want = [name in wanted for name in MAPS]
     kernels = _kernels(*want[:3], kind, parallel, *want[3:])
@@ -253,15 +270,14 @@ def _moments_from_maps(sums: EngineSnapshot, regions: Mapping[str, RegionPlan], 
                        spread: bool) -> dict[str, dict[str, Moments]]:
     """Without numba: the float maps, reduced by masked_moments (same sample, same rounding class)."""
     values = maps_from(sums)  # all the snapshot's maps: its maps kernel was chosen for them
-    result: dict[str, dict[str, Moments]] = {}
-    for name, plan in regions.items():
-        box = plan.box
-        per_map = {}
-        for key in wanted:
-            count, mean, std, sample = masked_moments(values[key][box.rows, box.cols], box.mask, PERCENTILE_SAMPLES)
-            per_map[key] = Moments(count, mean, std if spread else 0.0, sample if spread else sample[:0])
-        result[name] = per_map
-    return result
+    return {name: {key: _box_moments(values[key][plan.box.rows, plan.box.cols], plan.box, spread) for key in wanted}
+            for name, plan in regions.items()}
+
+
+def _box_moments(values: np.ndarray, box: RegionBox, spread: bool) -> Moments:
+    """A map's ``values`` over a region's box, reduced by masked_moments where its mask is set."""
+    count, mean, std, sample = masked_moments(values, box.mask, PERCENTILE_SAMPLES)
+    return Moments(count, mean, std if spread else 0.0, sample if spread else sample[:0])
 
 
 # -- compiled kernels (numba) ---------------------------------------------------------------------
