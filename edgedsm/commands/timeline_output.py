@@ -168,7 +168,7 @@ def _pyplot():
 def plot_activity(path: Path, result: Timeline, title: str) -> None:
     plt = _pyplot()
     names = list(dict.fromkeys(row[2] for row in result.rows))
-    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)"}
+    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)", "gd": "GD (grey levels)"}
     columns = (("s1", "S1 (grey levels)"), ("s2", "S2"), ("s3", "S3"),
                *((name, labels[name]) for name in result.descriptors), ("tau_c_s", "τc (s)"))
     fig, axes = plt.subplots(len(columns), 1, figsize=(8, 9 + 2 * len(result.descriptors)), sharex=True)

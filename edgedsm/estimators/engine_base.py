@@ -28,7 +28,7 @@ from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_erro
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import Layout, Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
-from edgedsm.estimators.value_set import flags_of, gd_of_sum
+from edgedsm.estimators.value_set import flags_of, gd_mode_problem, gd_of_sum
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
@@ -134,9 +134,8 @@ class SlidingWindow:
         self.q = float(q)
         self.estimators = self._check_estimators(estimators)
         self._do_gd = "gd" in self.estimators
-        if self._do_gd and self.mode == "exponential":
-            raise EstimatorError("estimator 'gd' needs mode='sliding' or 'tumbling': its update reads the window's "
-                                 "frames, and the exponential mode keeps no window")
+        if self._do_gd and (problem := gd_mode_problem(self.mode)):
+            raise EstimatorError(f"estimator 'gd': {problem}")
         if self._do_gd and self.window * (self.window - 1) // 2 * 65535 > 2**63 - 1:
             raise EstimatorError(f"estimator 'gd': a window of {self.window} frames overflows its int64 sum")
         if "fujii" in self.estimators and self.q != 0.0:

@@ -262,7 +262,7 @@ def test_tumbling_gd_equals_the_batch_reference_of_the_last_block_bit_for_bit(ke
 
 
 def test_gd_streams_in_the_window_modes_and_in_snapshots():
-    with pytest.raises(EstimatorError, match="'gd' needs mode='sliding' or 'tumbling'"):
+    with pytest.raises(EstimatorError, match="estimator 'gd': gd needs mode 'sliding' or 'tumbling', not 'expon"):
         SlidingWindow(SHAPE, 10, 2, estimators=("gd",), mode="exponential")
     engine = SlidingWindow(SHAPE, 4, 1, bits=8, estimators=("s2", "gd"))
     frames = stream("random", 8, 5)
