@@ -5,6 +5,7 @@ is), their region statistics, maps and metrics in every sink, and the config's r
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -12,8 +13,10 @@ import pytest
 from edgedsm.cli import main
 from edgedsm.config import load_config
 from edgedsm.daemon.tau import engine_estimators
+from edgedsm.dashboard.plant import Plant
 from edgedsm.errors import ConfigError
 from edgedsm.publish.ha_discovery import Discovery
+from edgedsm.publish.mapcodec import encode_map
 from edgedsm.publish.prometheus import _stats_families
 from edgedsm.publish.sparkplug.metrics import declared_readings, map_reading, stats_readings
 from edgedsm.publish.topics import Topics
@@ -68,6 +71,14 @@ def test_drying_judged_on_a_descriptor_above_its_noise_floor(repo, activity, mod
     assert samples == {name: ready[-1].regions["plate"][name].mean for name in ("s1", "s2", "s3", activity)}
     entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").activity_entity("plate", activity)
     assert f"'{activity}'" in entity.config["value_template"] and entity.config["state_topic"] == "edgedsm/test/stats"
+    dashboard = Plant("edgedsm", None, lambda kind, data: None)
+    dashboard.handle("edgedsm/cam/stats", ready[-1].to_bytes())
+    png, meta = encode_map(maps[-1].values, estimator=activity)
+    dashboard.handle(f"edgedsm/cam/map/{activity}/meta", json.dumps(meta).encode())
+    dashboard.handle(f"edgedsm/cam/map/{activity}", png)
+    (device,) = dashboard.snapshot()
+    assert device["stats"]["activity"] == {"plate": last.mean} and device["stats"]["estimator"] == activity
+    assert device["maps"][activity]["max"] == pytest.approx(float(maps[-1].values.max()), rel=1e-3)
 
 
 def test_drying_judged_on_the_temporal_contrast_without_a_floor(repo):
