@@ -1,18 +1,18 @@
 """The candidates ``edgedsm tune`` weighs, what each does on the reference run, and the choice
 (docs/commissioning.md).
 
-A candidate is an estimator as the daemon judges it (``estimator.activity``: S1, S2, S3, Fujii
-or IM, plain or above the noise floor; the temporal contrast, plain: it has no floor; or τc in
-seconds) at one window N, lag m and mode. GD is not one: the daemon does not judge on it (its
-streaming update is O(N) per pixel, sliding mode only: docs/descriptors.md). Its outcome on every region: the
-separation of wet from dry, the proposed thresholds and what the state machine does with them
-(:mod:`edgedsm.tuning.scoring`), and its cost per frame, measured by the engine at the camera's
-frame size. The choice: among the candidates that separate every region (AUC >= GOOD_AUC), call
-every region dry and make no false transition, the Pareto front of (timing error, cost), the
-timing error being the worst region's distance of its dry call from the dry mark (the mark is
-the user's best knowledge of when the surface is dry: a call long before it is as suspect as one
-long after; a τc that saturates at its longest lag calls dry early, for one); the recommended
-one is the most timely, unless one within DELAY_SLACK of its error costs less.
+A candidate is an estimator as the daemon judges it (``estimator.activity``: S1, S2, S3, Fujii, IM
+or GD, plain or above the noise floor; the temporal contrast, plain: it has no floor; or τc in
+seconds) at one window N, lag m and mode. GD is one only when asked for by name
+(series.DEFAULT_CANDIDATES: its push is O(N) per pixel) and where the mode keeps a window. Its
+outcome on every region: the separation of wet from dry, the proposed thresholds and what the state
+machine does with them (:mod:`edgedsm.tuning.scoring`), and its cost per frame, measured by the
+engine at the camera's frame size. The choice: among the candidates that separate every region (AUC
+>= GOOD_AUC), call every region dry and make no false transition, the Pareto front of (timing
+error, cost), the timing error being the worst region's distance of its dry call from the dry mark
+(the mark is the user's best knowledge of when the surface is dry: a call long before it is as
+suspect as one long after; a τc that saturates at its longest lag calls dry early, for one); the
+recommended one is the most timely, unless one within DELAY_SLACK of its error costs less.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 from edgedsm.drying import Thresholds
 from edgedsm.tuning.scoring import Replay, Separation, propose, replay, separation
-from edgedsm.tuning.series import JUDGEABLE, WITH_FLOOR, Series, Setting
+from edgedsm.tuning.series import DEFAULT_CANDIDATES, JUDGEABLE, WITH_FLOOR, Series, Setting, in_mode
 
 GOOD_AUC = 0.95  # below: wet and dry overlap too much to trust thresholds
 USABLE_AUC = 0.9  # below, for every candidate: the run cannot be tuned (exit 65)
@@ -33,12 +33,13 @@ DELAY_SLACK = 0.1  # a cheaper candidate within this share of the fastest's dela
 #: activities that do not depend on the lag m (the contrast: σ/⟨I⟩ of the window): scored at one
 #: lag per window and mode, the first tried
 LAG_FREE = ("contrast",)
-NAMES = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "τc", "contrast": "contrast", "fujii": "Fujii", "im": "IM"}
+NAMES = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "τc", "contrast": "contrast", "fujii": "Fujii", "im": "IM",
+         "gd": "GD"}
 
 
 @dataclass(frozen=True)
 class Candidate:
-    estimator: str  # an estimator.activity: s1, s2, s3, tau_c, contrast, fujii, im
+    estimator: str  # an estimator.activity: s1, s2, s3, tau_c, contrast, fujii, im, gd
     noise_floor: bool  # judged above the noise floor (those of series.WITH_FLOOR)
     setting: Setting
 
@@ -97,13 +98,13 @@ class Outcome:
         return self.auc >= GOOD_AUC and math.isfinite(self.delay_s) and self.false_per_hour == 0
 
 
-def candidates(settings: Iterable[Setting], estimators: Sequence[str] = JUDGEABLE) -> list[Candidate]:
+def candidates(settings: Iterable[Setting], estimators: Sequence[str] = DEFAULT_CANDIDATES) -> list[Candidate]:
     """Every variant of ``estimators`` (among series.JUDGEABLE) at each setting: above the noise
-    and plain where the daemon has a floor, else plain (the contrast); τc only where the mode
-    keeps a window; a LAG_FREE one at the first of the settings that differ only in the lag."""
+    and plain where the daemon has a floor, else plain (the contrast); τc and GD only where the
+    mode keeps a window; a LAG_FREE one at the first of the settings that differ only in the lag."""
     out = []
     for setting in settings:
-        for estimator in (name for name in JUDGEABLE if name in estimators):
+        for estimator in (name for name in JUDGEABLE if name in in_mode(estimators, setting.mode)):
             if estimator in LAG_FREE and any(c.estimator == estimator and (c.setting.window, c.setting.mode) ==
                                              (setting.window, setting.mode) for c in out):
                 continue

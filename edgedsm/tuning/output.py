@@ -16,7 +16,7 @@ from edgedsm.tuning.candidates import Outcome, pareto
 from edgedsm.tuning.session import Result
 
 #: the activities that have a unit (docs/descriptors.md; the others are dimensionless)
-UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "tau_c": " (s)"}
+UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "gd": " (grey levels)", "tau_c": " (s)"}
 THRESHOLD_KEYS = {"wet_above", "dry_below", "wet_below_s", "dry_above_s", "hysteresis", "min_dwell_s"}
 
 

@@ -93,6 +93,10 @@ def test_the_candidates_are_the_activities_the_daemon_judges_above_the_noise_whe
     assert len(candidates([exponential])) == 11  # no τc without a window
     other_lag = candidates([sliding, Setting(100, 10)])  # the contrast does not depend on m: scored once
     assert [c.setting.lag for c in other_lag if c.estimator == "contrast"] == [5] and len(other_lag) == 23
+    assert not any(c.estimator == "gd" for c in candidates([sliding]))  # GD only when asked for: its O(N) push
+    with_gd = candidates([sliding, exponential], ("s2", "gd"))  # and only where the mode keeps a window
+    assert [c.label() for c in with_gd if c.estimator == "gd"] == [
+        "GD above noise, N=100 m=5 sliding", "GD, N=100 m=5 sliding"] and len(with_gd) == 6
     only = candidates([sliding, exponential], ("fujii", "contrast"))
     assert [(c.estimator, c.noise_floor, c.setting.mode, c.variant) for c in only] == [
         ("contrast", False, "sliding", "contrast"), ("fujii", True, "sliding", "fujii@noise"),
