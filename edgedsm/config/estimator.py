@@ -25,7 +25,7 @@ class EstimatorSection(StrictModel):
                           "field's descriptors: contrast = temporal σ/⟨I⟩, fujii = 200·S2 at q = 0 (the engine "
                           "then runs at q = 0: an explicit non-zero q is refused), im = mean (I_k - I_{k+m})² in "
                           "grey levels²; gd = generalized differences Σ_{i<j} |I_i - I_j| / C(N,2) in grey levels, "
-                          "mode 'sliding' or 'tumbling', O(N) a pixel: a push of S1+S2+S3+gd ~12x one of S1+S2+S3 at "
+                          "mode 'sliding' or 'tumbling', O(N) a pixel: a push of S1+S2+S3+gd 10-12x one of S1+S2+S3 at "
                           "N = 64 sliding, ~6x tumbling; docs/descriptors.md)")
     window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
     lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
