@@ -75,7 +75,7 @@ def outcome_json(outcome: Outcome) -> dict[str, Any]:
             "delay_s": outcome.delay_s if math.isfinite(outcome.delay_s) else None,
             "timing_error_s": outcome.timing_error_s if math.isfinite(outcome.timing_error_s) else None,
             "false_per_hour": outcome.false_per_hour, "cost_ms_per_frame": outcome.cost_s * 1e3,
-            "sound": outcome.sound,
+            "sound": outcome.sound, "robust": outcome.robust,
             "regions": {name: {"auc": r.separation.auc, "delay_s": r.replay.delay_s,
                                "false_transitions": r.replay.false_transitions,
                                "transitions": [list(t) for t in r.replay.states],
@@ -169,13 +169,14 @@ def report(out: Path, result: Result, command: str) -> list[Path]:
     plot_tradeoff(out / "tradeoff.png", result)
     written.append(out / "tradeoff.png")
     lines += ["![timing error against cost](tradeoff.png)", "",
-              "| candidate | AUC | d′ | dry call vs mark (s) | false /h | ms/frame | sound |",
-              "|---|---|---|---|---|---|---|"]
+              "| candidate | AUC | d′ | dry call vs mark (s) | false /h | ms/frame | sound | robust |",
+              "|---|---|---|---|---|---|---|---|"]
     for outcome in sorted(result.outcomes, key=lambda o: (not o.sound, o.timing_error_s, o.cost_s)):
         delay = f"{outcome.delay_s:+.1f}" if math.isfinite(outcome.delay_s) else "never"
         d_prime = f"{outcome.d_prime:.1f}" if outcome.d_prime < 100 else "> 100"
         lines.append(f"| {outcome.candidate.label()} | {outcome.auc:.3f} | {d_prime} | {delay} | "
-                     f"{outcome.false_per_hour:.1f} | {outcome.cost_s * 1e3:.3f} | {'yes' if outcome.sound else ''} |")
+                     f"{outcome.false_per_hour:.1f} | {outcome.cost_s * 1e3:.3f} | {'yes' if outcome.sound else ''} | "
+                     f"{'yes' if outcome.robust else ''} |")
     if result.excluded:
         lines += ["", "Not scored:", ""] + [f"- {c.label()}: {why}" for c, why in result.excluded]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
