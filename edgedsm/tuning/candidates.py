@@ -9,16 +9,16 @@ of wet from dry, the proposed thresholds and what the state machine does with th
 (:mod:`edgedsm.tuning.scoring`), and its cost per frame, measured by the engine at the camera's
 frame size. The choice: among the candidates that separate every region (AUC >= GOOD_AUC), call
 every region dry and make no false transition (*sound*), those whose d′ reaches ROBUST_D_PRIME on
-every region (*robust*: their thresholds sit far from both the wet and the dry samples) if any;
-among them, the Pareto front of (timing error, robustness, cost), the timing error being the
-worst region's distance of its dry call from the dry mark (the mark is the user's best knowledge
-of when the surface is dry: a call long before it is as suspect as one long after; a τc that
-saturates at its longest lag calls dry early, for one) and the robustness the worst region's d′
-up to ROBUST_D_PRIME (beyond it, more separation moves the thresholds no further from harm); the
-recommended one is, among those within DELAY_SLACK of the most timely one's error, the most
-robust, then the cheapest. A more timely candidate that is sound but not robust is passed over,
-and the reason says so: an AUC of 0.96 can hide wet and dry samples that touch, and thresholds
-between them that the next run crosses.
+every region (*robust*: their wet and dry samples are apart, and the thresholds between them far
+from both) if any; among them, the Pareto front of (timing error, robustness, cost), the timing
+error being the worst region's distance of its dry call from the dry mark (the mark is the
+user's best knowledge of when the surface is dry: a call long before it is as suspect as one long
+after; a τc that saturates at its longest lag calls dry early, for one) and the robustness the
+worst region's d′. The recommended one is, among those within DELAY_SLACK of the most timely
+one's error, the cheapest, then the best separated (when none is robust: the best separated, then
+the cheapest). A more timely candidate that is sound but not robust is passed over, and the
+reason says so: an AUC of 0.96 can hide wet and dry samples that touch, and thresholds between
+them that the next run crosses.
 """
 
 from __future__ import annotations
@@ -36,12 +36,13 @@ from edgedsm.tuning.series import JUDGEABLE, WITH_FLOOR, Series, Setting
 GOOD_AUC = 0.95  # below: wet and dry overlap too much to trust thresholds
 USABLE_AUC = 0.9  # below, for every candidate: the run cannot be tuned (exit 65)
 DELAY_SLACK = 0.1  # a cheaper or more robust candidate within this share of the fastest's delay is preferred
-#: d′ (log activity, pooled σ: scoring.separation) from which a candidate is robust: with the
+#: d′ (log activity, pooled σ: scoring.separation) from which a candidate is robust. With the
 #: thresholds at the thirds of the gap between the wet samples' 5th percentile and the dry ones'
-#: 95th (scoring.propose), each threshold lies 1.645 + (d′ - 3.29)/3 = 0.548 + d′/3 σ from the
-#: nearer distribution's mean (two normal distributions of one σ), 3.9 σ at d′ = 10: a single
-#: sample crosses it with probability about 5e-5
-ROBUST_D_PRIME = 10.0
+#: 95th (scoring.propose), each lies 1.645 + (d′ - 3.29)/3 = 0.548 + d′/3 σ from the nearer
+#: distribution's mean (two normal distributions of one σ): below d′ = 3.29 the percentiles cross
+#: (the samples touch); at 5, 2.2 σ, a single sample beyond it with probability 1.4 %, which the
+#: dwell, several samples in a row, absorbs
+ROBUST_D_PRIME = 5.0
 #: activities that do not depend on the lag m (the contrast: σ/⟨I⟩ of the window): scored at one
 #: lag per window and mode, the first tried
 LAG_FREE = ("contrast",)
@@ -104,11 +105,6 @@ class Outcome:
         return sum(r.replay.false_per_hour for r in self.regions.values())
 
     @property
-    def robustness(self) -> float:
-        """The worst region's d′, up to ROBUST_D_PRIME (module docstring)."""
-        return min(self.d_prime, ROBUST_D_PRIME)
-
-    @property
     def robust(self) -> bool:
         return self.d_prime >= ROBUST_D_PRIME
 
@@ -162,17 +158,17 @@ def evaluate(candidate: Candidate, series: Series, wet_until_s: float, dry_from_
 
 def _beats(p: Outcome, o: Outcome) -> bool:
     """``p`` is at least as timely, robust and cheap as ``o``, and better on one of them."""
-    at_least = (p.timing_error_s <= o.timing_error_s and p.robustness >= o.robustness and p.cost_s <= o.cost_s)
-    return at_least and (p.timing_error_s < o.timing_error_s or p.robustness > o.robustness or p.cost_s < o.cost_s)
+    at_least = p.timing_error_s <= o.timing_error_s and p.d_prime >= o.d_prime and p.cost_s <= o.cost_s
+    return at_least and (p.timing_error_s < o.timing_error_s or p.d_prime > o.d_prime or p.cost_s < o.cost_s)
 
 
 def pareto(outcomes: Sequence[Outcome]) -> list[Outcome]:
     """The robust sound outcomes (the sound ones when none is robust) that no other beats on
-    timing error, robustness and cost together, most timely first."""
+    timing error, robustness (d′) and cost together, most timely first."""
     sound = [o for o in outcomes if o.sound]
     pool = [o for o in sound if o.robust] or sound
     front = [o for o in pool if not any(_beats(p, o) for p in pool)]
-    return sorted(front, key=lambda o: (o.timing_error_s, -o.robustness, o.cost_s))
+    return sorted(front, key=lambda o: (o.timing_error_s, o.cost_s, -o.d_prime))
 
 
 def recommend(outcomes: Sequence[Outcome]) -> tuple[Outcome | None, str]:
@@ -189,18 +185,18 @@ def recommend(outcomes: Sequence[Outcome]) -> tuple[Outcome | None, str]:
     fastest = front[0]
     timely = [o for o in front
               if o.timing_error_s <= fastest.timing_error_s + DELAY_SLACK * max(fastest.timing_error_s, 1.0)]
-    chosen = min(timely, key=lambda o: (-o.robustness, o.cost_s))
+    chosen = min(timely, key=lambda o: (o.cost_s, -o.d_prime) if o.robust else (-o.d_prime, o.cost_s))
     reason = (f"{chosen.candidate.label()} calls every region dry {_delay(chosen.delay_s)} with "
               f"no false transition (AUC {chosen.auc:.3f}, d′ {_d_prime(chosen.d_prime)}) at "
               f"{chosen.cost_s * 1e3:.3g} ms per frame")
     if chosen is not fastest:
         reason += (f"; the most timely, {fastest.candidate.label()}, calls it {_delay(fastest.delay_s)} but costs "
-                   f"{fastest.cost_s / chosen.cost_s:.1f}× as much" if fastest.robustness == chosen.robustness else
+                   f"{fastest.cost_s / chosen.cost_s:.1f}× as much" if chosen.cost_s < fastest.cost_s else
                    f"; the most timely, {fastest.candidate.label()}, calls it {_delay(fastest.delay_s)} but "
                    f"separates less (d′ {_d_prime(fastest.d_prime)})")
     if not chosen.robust:
-        reason += (f"; no candidate reaches d′ {ROBUST_D_PRIME:g} on every region, so the thresholds lie close to "
-                   "the wet or the dry samples: check them on a second run")
+        reason += (f"; no candidate reaches d′ {ROBUST_D_PRIME:g} on every region: its wet and dry samples nearly "
+                   "touch and the thresholds between them are fragile, check them on a second run")
     else:
         passed = [o for o in outcomes if o.sound and not o.robust and o.timing_error_s < chosen.timing_error_s]
         if passed:

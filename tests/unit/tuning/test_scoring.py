@@ -87,26 +87,28 @@ def test_the_choice_is_the_most_timely_sound_candidate_unless_a_cheaper_one_is_a
 
 def test_at_equal_timing_and_cost_the_better_separated_candidate_is_recommended():
     # both separate (AUC >= 0.95), both dry at the mark, same cost: d′ decides, whichever comes first
+    for low, high in ((2.5, 4.0), (6.0, 40.0)):  # neither robust (d′ < 5); both
+        touching = _outcome("contrast", 0.5, 1e-3, auc=0.96, d_prime=low)
+        apart = _outcome("s3", 0.5, 1e-3, auc=0.99, d_prime=high, lag=10)
+        for order in ([touching, apart], [apart, touching]):
+            assert pareto(order) == [apart]  # the other is beaten on robustness alone
+            chosen, reason = recommend(order)
+            assert chosen is apart and f"d′ {high:.1f}" in reason
+            assert ("no candidate reaches d′ 5 on every region" in reason) == (high < 5)
+    # a robust candidate is preferred to a more timely one whose wet and dry samples touch
     touching = _outcome("contrast", 0.5, 1e-3, auc=0.96, d_prime=2.5)
-    apart = _outcome("s3", 0.5, 1e-3, auc=0.99, d_prime=6.0, lag=10)
-    for order in ([touching, apart], [apart, touching]):
-        assert pareto(order) == [apart]  # the touching one is beaten on robustness alone
-        chosen, reason = recommend(order)
-        assert chosen is apart and "d′ 6.0" in reason
-        assert "no candidate reaches d′ 10 on every region" in reason  # both below: said
-    # a robust candidate (d′ >= 10) is preferred to a more timely one whose wet and dry samples touch
     robust = _outcome("s3", 4.0, 2e-3, d_prime=25.0, lag=10)
     chosen, reason = recommend([touching, robust])
     assert chosen is robust and pareto([touching, robust]) == [robust]
-    assert "contrast above noise, N=100 m=5 sliding calls it 0.5 s after the dry mark but with d′ 2.5 < 10" in reason
-    # among robust ones, d′ beyond 10 does not count: the cheaper of two equally timely is chosen
+    assert "contrast above noise, N=100 m=5 sliding calls it 0.5 s after the dry mark but with d′ 2.5 < 5" in reason
+    # among the timely robust ones the cheaper is chosen, d′ beyond the bar does not buy cost
     cheaper = _outcome("s2", 4.0, 1e-3, d_prime=12.0)
     assert recommend([robust, cheaper])[0] is cheaper
-    # a more timely candidate of lower d′ is named as such when the chosen one is more robust
-    fragile_fast = _outcome("s1", 0.5, 1e-3, d_prime=3.0)
-    fragile_near = _outcome("s2", 0.52, 1e-3, d_prime=8.0)
-    chosen, reason = recommend([fragile_fast, fragile_near])
-    assert chosen is fragile_near and "but separates less (d′ 3.0)" in reason
+    # none robust: among the timely ones the better separated, though it costs more
+    fast = _outcome("s1", 0.5, 1e-3, d_prime=3.0)
+    near = _outcome("s2", 0.52, 2e-3, d_prime=4.5)
+    chosen, reason = recommend([fast, near])
+    assert chosen is near and "but separates less (d′ 3.0)" in reason
 
 
 def test_the_candidates_are_the_activities_the_daemon_judges_above_the_noise_where_it_has_a_floor():
