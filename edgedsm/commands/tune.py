@@ -32,7 +32,7 @@ from edgedsm.commands.common import add_progress_flag
 from edgedsm.config import check_regions, load_config
 from edgedsm.errors import DataError
 from edgedsm.frameio import open_frames
-from edgedsm.tuning.output import report, snippet, summary_json
+from edgedsm.tuning.output import keep_last, report, snippet, summary_json
 from edgedsm.tuning.series import JUDGEABLE
 from edgedsm.tuning.session import LAGS, WINDOWS, Run, settings_for, tune
 
@@ -117,6 +117,12 @@ def _run(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
             bar.close()
     command = "edgedsm tune " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["tune"] else "edgedsm tune"
     written = report(Path(args.report), result, command) if args.report else []
+    last = config.device.commissioning_directory(config.base_dir)
+    try:  # for the dashboard (docs/commissioning.md); this run's answer stands without it
+        keep_last(last, result, command, config)
+    except OSError as exc:
+        print(f"edgedsm: warning: the dashboard will not show this report: cannot write {last}: "
+              f"{exc.strerror or exc} (set device.commissioning_dir)", file=sys.stderr)
     if args.json:
         print(json.dumps(summary_json(result), indent=1, ensure_ascii=False))
     if result.chosen is None:

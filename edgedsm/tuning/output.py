@@ -1,11 +1,14 @@
 """What ``edgedsm tune`` writes: the config snippet, the JSON summary, and the report (markdown and
 two plots: the chosen activity with its thresholds, and timing error against cost for every
-candidate)."""
+candidate); the last report, kept where the dashboard reads it (``device.commissioning_dir``)."""
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
+import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +20,8 @@ from edgedsm.tuning.session import Result
 
 #: the activities that have a unit (docs/descriptors.md; the others are dimensionless)
 UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "tau_c": " (s)"}
+#: the last report's files in device.commissioning_dir (the dashboard reads them: edgedsm.dashboard.commissioning)
+LAST_SUMMARY, LAST_PLOTS = "summary.json", ("activity.png", "tradeoff.png")
 THRESHOLD_KEYS = {"wet_above", "dry_below", "wet_below_s", "dry_above_s", "hysteresis", "min_dwell_s"}
 
 
@@ -181,3 +186,26 @@ def report(out: Path, result: Result, command: str) -> list[Path]:
         lines += ["", "Not scored:", ""] + [f"- {c.label()}: {why}" for c, why in result.excluded]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     return [out / "report.md", *written]
+
+
+def keep_last(folder: Path, result: Result, command: str, config: DaemonConfig) -> Path:
+    """The report (report.md and its plots) and LAST_SUMMARY (:func:`summary_json` with the
+    date, the command, the config and the device) in ``folder``, where the dashboard reads them.
+    Each file is written aside and moved in whole, the summary last, so that a page reading
+    meanwhile gets the old report or the new one, never a torn file."""
+    partial = folder / ".partial"
+    if partial.exists():
+        shutil.rmtree(partial)
+    written = report(partial, result, command)
+    summary = summary_json(result) | {
+        "written_at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "command": command,
+        "config": config.source, "device": config.device.name,
+        "plots": [path.name for path in written if path.suffix == ".png"]}
+    (partial / LAST_SUMMARY).write_text(json.dumps(summary, indent=1, ensure_ascii=False), encoding="utf-8")
+    for name in (*LAST_PLOTS, "report.md", LAST_SUMMARY):
+        if (partial / name).exists():
+            os.replace(partial / name, folder / name)
+        else:  # no recommendation: no activity plot; the last run's must not stay beside this summary
+            (folder / name).unlink(missing_ok=True)
+    partial.rmdir()
+    return folder / LAST_SUMMARY
