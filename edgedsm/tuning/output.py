@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.config import DaemonConfig
-from edgedsm.tuning.candidates import Outcome, pareto
+from edgedsm.tuning.candidates import ROBUST_D_PRIME, Outcome, pareto
 from edgedsm.tuning.session import Result
 
 #: the activities that have a unit (docs/descriptors.md; the others are dimensionless)
@@ -137,14 +137,16 @@ def plot_chosen(path: Path, result: Result) -> None:
 
 def plot_tradeoff(path: Path, result: Result) -> None:
     """Timing error against cost per frame for every candidate that calls every region dry; the
-    sound ones filled, the recommended one ringed."""
+    sound and robust ones filled, the sound ones of d′ < ROBUST_D_PRIME filled orange, the
+    recommended one ringed."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for outcome in result.outcomes:
         if not math.isfinite(outcome.timing_error_s):
             continue
-        ax.scatter(outcome.cost_s * 1e3, outcome.timing_error_s, s=18,
-                   facecolors="C0" if outcome.sound else "none", edgecolors="C0")
+        fill = ("C0" if outcome.robust else "C1") if outcome.sound else "none"
+        ax.scatter(outcome.cost_s * 1e3, outcome.timing_error_s, s=18, facecolors=fill,
+                   edgecolors="C0" if fill == "none" else fill)
     if result.chosen is not None:
         ax.scatter(result.chosen.cost_s * 1e3, result.chosen.timing_error_s, s=120, facecolors="none",
                    edgecolors="C3", label=f"recommended: {result.chosen.candidate.label()}")
@@ -152,7 +154,7 @@ def plot_tradeoff(path: Path, result: Result) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("engine push per frame (ms, measured)")
     ax.set_ylabel("worst |dry call - dry mark| (s)")
-    ax.set_title("filled: separates, calls dry, no false transition")
+    ax.set_title(f"filled: separates, calls dry, no false transition; orange: d′ < {ROBUST_D_PRIME:g}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -374,14 +374,13 @@ function renderCommissioning(answer) {
     return;
   }
   const choice = report.recommended;
-  if (choice) {
-    $("commissioning-choice").textContent = `recommended: ${choice.label} (estimator ${choice.estimator}`
-      + `${choice.noise_floor ? " above noise" : ""}, N = ${choice.window}, m = ${choice.lag}, ${choice.mode}) · `
-      + `dry ${markDelay(choice.delay_s)} the dry mark · AUC ${fmt(choice.auc, 3)} · d′ ${choice.d_prime === null ? "∞" : fmt(choice.d_prime, 3)}`
-      + ` · ${fmt(choice.cost_ms_per_frame, 3)} ms per frame`;
-  } else {
-    $("commissioning-choice").textContent = "no recommendation: no candidate separates wet from dry";
-  }
+  $("commissioning-choice").textContent = choice ? `recommended: ${choice.label}`
+    : "no recommendation: no candidate separates wet from dry on every region without a false transition";
+  $("commissioning-numbers").textContent = choice ? `dry ${markDelay(choice.delay_s)} the dry mark · AUC `
+    + `${fmt(choice.auc, 4)} · d′ ${choice.d_prime === null ? "∞" : fmt(choice.d_prime, 3)}`
+    + `${choice.robust === false ? " (not robust)" : ""} · ${fmt(choice.cost_ms_per_frame, 3)} ms per frame · `
+    + `[estimator] activity = "${choice.estimator}", window = ${choice.window}, lag = ${choice.lag}, `
+    + `mode = "${choice.mode}"` : "";
   $("commissioning-reason").textContent = `${report.reason}.`;
   const regions = choice ? Object.entries(choice.regions) : [];
   $("commissioning-regions").hidden = !choice;
@@ -390,12 +389,14 @@ function renderCommissioning(answer) {
       el("td", {}, name),
       el("td", { class: "wet" }, threshold(region.thresholds, "wet")),
       el("td", { class: "dry" }, threshold(region.thresholds, "dry")),
-      el("td", {}, fmt(region.thresholds.hysteresis, 3)),
-      el("td", {}, `${fmt(region.thresholds.min_dwell_s, 3)} s`),
+      el("td", {}, `${region.thresholds.hysteresis ?? "–"}`),
+      el("td", {}, `${region.thresholds.min_dwell_s ?? "–"} s`),
       el("td", {}, markDelay(region.delay_s)))));
-  $("commissioning-run").textContent = `${report.written_at} · run ${report.run} (${report.frames} frames, `
-    + `Δt ${fmt(report.dt_s, 3)} s, wet until ${fmt(report.wet_until_s, 4)} s, dry from ${fmt(report.dry_from_s, 4)} s) · `
-    + `${report.candidates} candidates in ${fmt(report.seconds, 3)} s · config ${report.config} · ${report.command}`;
+  const when = String(report.written_at).replace("T", " ").replace(/\+00:00$/, " UTC");
+  $("commissioning-run").textContent = `${when} · run ${report.run}: ${report.frames} frames, Δt ${report.dt_s} s, `
+    + `wet until ${report.wet_until_s} s, dry from ${report.dry_from_s} s · ${report.candidates} candidates in `
+    + `${fmt(report.seconds, 3)} s · config ${report.config}`;
+  $("commissioning-command").textContent = report.command;
   for (const name of ["activity", "tradeoff"]) {
     const img = $(`commissioning-${name}`);
     const shown = report.plots.includes(`${name}.png`);
