@@ -12,6 +12,10 @@ Example:
 from __future__ import annotations
 
 import argparse
+import faulthandler
+import logging
+import sys
+import threading
 
 NAME = "run"
 HELP = "run the measurement daemon (systemd service)"
@@ -36,4 +40,17 @@ def run(args: argparse.Namespace) -> int:
     configure_logging(config.logging.level, config.logging.json_lines)
     service = Service(args.config, config=config)
     with service.handling_signals():
-        return service.run()
+        code = service.run()
+    _name_threads_holding_exit()
+    return code
+
+
+def _name_threads_holding_exit() -> None:
+    """The interpreter joins every non-daemon thread before the process ends: one still running
+    would hold a stopped daemon past SIGTERM's 2 s, so it is named and its stack written out."""
+    holding = [thread for thread in threading.enumerate()
+               if thread.is_alive() and not thread.daemon and thread is not threading.main_thread()]
+    if holding:
+        logging.getLogger(__name__).error("stopped, but threads still running hold the exit: %s (stacks on stderr)",
+                                          ", ".join(thread.name for thread in holding))
+        faulthandler.dump_traceback(sys.stderr, all_threads=True)

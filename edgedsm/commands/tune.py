@@ -7,13 +7,13 @@ TIFF, video, an image folder, .npy) or a simulated scene (SCENE.toml, `default`)
 the camera settings come from the daemon config (-c). Before --wet-until the surface is wet, after
 --dry-from it is dry (seconds from the first frame, on the recording's own clock,
 camera.frame_interval_s, or --dt). Instead of a run and marks, --wet REC and --dry REC take two
-recordings. Every candidate (an activity the daemon judges on: S1, S2, S3, Fujii and IM plain and
-above the noise floor, the temporal contrast plain, τc; at each window and lag that fits;
+recordings. Every candidate (an activity the daemon judges on: S1, S2, S3, Fujii, IM and the
+temporal contrast plain and above the noise floor, τc; at each window and lag that fits;
 --estimators narrows them, or adds GD, left out by default for its O(N) push) is scored on every
-region: the separation of wet and dry (AUC, d′), when the daemon's state machine with the proposed
-thresholds calls it dry, its false transitions, and its cost per frame, measured by the engine on
-this PC. Exit 65 when the run cannot answer (too short, marks outside it, or no candidate
-separating wet from dry), with the best separation found.
+region: the separation of wet and dry (AUC, d′), when the daemon's state machine with the
+proposed thresholds calls it dry, its false transitions, and its cost per frame, measured by the
+engine on this PC. Exit 65 when the run cannot answer (too short, marks outside it, or no
+candidate separating wet from dry), with the best separation found.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from edgedsm.commands.common import add_progress_flag
 from edgedsm.config import check_regions, load_config
 from edgedsm.errors import DataError
 from edgedsm.frameio import open_frames
-from edgedsm.tuning.output import report, snippet, summary_json
+from edgedsm.tuning.output import keep_last, report, snippet, summary_json
 from edgedsm.tuning.series import DEFAULT_CANDIDATES, JUDGEABLE
 from edgedsm.tuning.session import LAGS, WINDOWS, Run, settings_for, tune
 
@@ -115,6 +115,12 @@ def _run(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
             bar.close()
     command = "edgedsm tune " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["tune"] else "edgedsm tune"
     written = report(Path(args.report), result, command) if args.report else []
+    last = config.device.commissioning_directory(config.base_dir)
+    try:  # for the dashboard (docs/commissioning.md); this run's answer stands without it
+        keep_last(last, result, command, config)
+    except OSError as exc:
+        print(f"edgedsm: warning: the dashboard will not show this report: cannot write {last}: "
+              f"{exc.strerror or exc} (set device.commissioning_dir)", file=sys.stderr)
     if args.json:
         print(json.dumps(summary_json(result), indent=1, ensure_ascii=False))
     if result.chosen is None:

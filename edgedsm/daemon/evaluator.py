@@ -15,7 +15,7 @@ import logging
 import threading
 import time
 from collections import Counter
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FuturesTimeout
 
 from edgedsm.config import DaemonConfig
@@ -23,6 +23,7 @@ from edgedsm.daemon.handover import Snapshot, Status
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.signal_judge import SignalJudge
 from edgedsm.daemon.tau import TauRegions, map_block
+from edgedsm.daemon.worker import SerialWorker
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
 from edgedsm.messages import Alert, AlertKind, Clock, MapFrame, MapStats, RegionState, RegionTau, StateReport, Stats
@@ -62,8 +63,7 @@ class Evaluator:
         self._lock = threading.Lock()  # guards the monitor and the generation
         self._generation = 0  # counts measurement restarts
         self._last_report: StateReport | None = None  # the last one published
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="edgedsm-evaluate",
-                                            initializer=yield_cores)
+        self._executor = SerialWorker("edgedsm-evaluate", initializer=yield_cores)
         self._pending: Future[None] | None = None  # the latest evaluation
         self._last: Future[None] | None = None  # the latest work handed over (an evaluation or an alert)
 
@@ -138,7 +138,7 @@ class Evaluator:
                 log.warning("the last evaluation did not finish within %.1f s", EVALUATION_TIMEOUT_S)
             except Exception:
                 log.exception("the last evaluation failed")
-        self._executor.shutdown(wait=False)
+        self._executor.shutdown()
         self.map_buffers = MapBuffers()  # the pooled maps (hundreds of MB at the largest frames)
 
     # -- the evaluator thread -----------------------------------------------------------------------

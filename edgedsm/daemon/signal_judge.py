@@ -154,8 +154,7 @@ class SignalJudge:
 
     def floor_estimator(self, region: str) -> str:
         """The estimator whose floor a region is judged against: the activity; S3 (for its signal
-        share) for a region judged on τc. The contrast has none (noise_summary.ESTIMATORS): a
-        region judged on it gets its light judged, its activity not lowered by a floor."""
+        share) for a region judged on τc."""
         return "s3" if self.on_tau(region) else self.config.estimator.activity
 
     def assess(self, patches: Mapping[str, PatchWindow], estimates: Mapping[str, Mapping[str, float]]
@@ -170,7 +169,7 @@ class SignalJudge:
             values = estimates.get(name, {})
             floor_estimator = self.floor_estimator(name)
             above = floor = None
-            # an activity without a noise floor (the temporal contrast) is judged as it is
+            # an activity without a noise floor (not in noise_summary.ESTIMATORS) is judged as it is
             if self.model is not None and floor_estimator in FLOORED \
                     and all(key in values for key in (floor_estimator, "s1")):
                 floor = region_floor(patch.frames, floor_estimator, est.lag, self.model, q=est.q, mask=patch.mask,

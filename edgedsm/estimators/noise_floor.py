@@ -20,6 +20,8 @@ window of N frames; the lag m is in frames.
 * Fujii (BSLTL, 0..200): 200 × S2's floor at q = eps. IM (DN²): E[Δ²] of a static pair. GD (DN):
   E|Δ| as S1's (every pair of frames is two independent noise samples), with a U-statistic's
   spread. Above-noise values are the estimate less the floor, as for S1 and S2.
+* Temporal contrast σ/⟨I⟩: floor E[σ̂]/μ per pixel (σ̂ over N frames of noise σ_n); noise adds in quadrature to
+  the variance, so the signal's contrast is the contrast times sqrt(signal share) (below).
 * τc: white noise lowers the fitted amplitude A (the signal's share of the variance) and not τ;
   the above-noise measure is that share, 1 - (1 - 1/N)·σ̄_n²/σ̄², and τc stands for the signal
   only where it is above noise.
@@ -349,6 +351,45 @@ def gd_floor(model: NoiseModel, means: np.ndarray, n: int, top: float = math.inf
     per_pixel = (4.0 * (n - 2) * GD_ZETA1 * second / 2.0 + 2.0 * (second - first**2)) / (n * (n - 1))
     sampling = math.sqrt(max(float(per_pixel.mean()), 0.0) / _pixels(mu, independent_pixels))
     return Floor(value, math.hypot(sampling, value * model.relative_error / 2.0))
+
+
+def contrast_floor(model: NoiseModel, means: np.ndarray, n: int, top: float = math.inf,
+                   independent_pixels: float | None = None) -> Floor:
+    """The temporal contrast's floor (dimensionless): E[σ̂]/μ of a static pixel, σ̂ the population
+    standard deviation of BSLTL's ``stdcont.m`` over N frames of Gaussian noise of variance σ_n²:
+    E[σ̂] = sqrt(2/N)·Γ(N/2)/Γ((N-1)/2)·σ_n (the chi distribution's mean; sqrt(1 - 1/N)·σ_n would
+    read a spread too high over a region), σ_n² = E[Δ²]/2 of :func:`static_pair_moments`
+    (rounding and clipping included); 0 where μ = 0, as the map. Spread: σ̂ of white noise over N
+    frames scatters by 1/sqrt(2(N - 1)) relative; the model's relative error enters halved."""
+    mu = _means(means)
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
+        raise EstimatorError(f"N must be an integer >= 2, got {n!r}")
+    if not top > 0:
+        raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
+    levels = _representatives(mu)
+    chi_mean = math.sqrt(2.0 / n) * math.exp(math.lgamma(n / 2.0) - math.lgamma((n - 1) / 2.0))
+    sigma = np.sqrt(static_pair_moments(model, levels, 0.0, top)[1] / 2.0)
+    lit = levels > 0
+    per_pixel = np.zeros(levels.shape, np.float64)
+    per_pixel[lit] = chi_mean * sigma[lit] / levels[lit]
+    value = float(per_pixel.mean())
+    sampling = math.sqrt(float((per_pixel**2).mean()) / (2.0 * (n - 1)) / _pixels(mu, independent_pixels))
+    return Floor(value, math.hypot(sampling, value * model.relative_error / 2.0))
+
+
+def contrast_signal(contrast: float, floor: Floor, share: AboveNoise) -> AboveNoise:
+    """The temporal contrast of the signal alone: noise adds in quadrature to the variance, so
+    σ_s/⟨I⟩ = (σ/⟨I⟩)·sqrt(share) with the signal share of :func:`signal_share` (the region's
+    noise share taken as every pixel's, as for S3); 0 and ``low`` where the share is within the
+    noise (the spread: what one spread of share would give), ``no_signal`` where σ̄² = 0."""
+    if not math.isfinite(contrast) or contrast < 0:
+        raise EstimatorError(f"contrast must be finite and >= 0, got {contrast!r}")
+    if share.verdict == NO_SIGNAL:
+        return AboveNoise(0.0, 0.0, floor.value, NO_SIGNAL)
+    if share.verdict == LOW or share.value <= 0.0:
+        return AboveNoise(0.0, contrast * math.sqrt(max(share.spread, 0.0)), floor.value, LOW)
+    value = contrast * math.sqrt(share.value)
+    return AboveNoise(value, value * share.spread / (2.0 * share.value), floor.value, OK)
 
 
 def above_noise(estimate: float, floor: Floor) -> AboveNoise:

@@ -20,7 +20,8 @@ from edgedsm.estimators.batch import s1
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_floor import AboveNoise, Floor
 
-ESTIMATORS = ("s1", "s2", "s3", "fujii", "im", "gd")  # those with a noise floor
+ESTIMATORS = ("s1", "s2", "s3", "fujii", "im", "gd", "contrast")  # those with a noise floor
+SHARED = ("s3", "contrast")  # above the noise through the signal's share of the variance, per window
 
 
 @dataclass(frozen=True)
@@ -58,14 +59,15 @@ def full_scale(frames: np.ndarray, bits: int | None) -> float:
 @dataclass(frozen=True)
 class RegionFloor:
     """What a region's above-noise activity needs beside its current estimates: the judged
-    estimator's noise floor (for S3, S1's floor) and, for S3, the signal's share of the variance.
+    estimator's noise floor (for S3, S1's floor) and, for S3 and the contrast, the signal's share
+    of the variance.
     Taken from one window, it turns later estimates into above-noise values (:func:`above_of`)
     without the frames."""
 
     estimator: str
     floor: Floor
     share: AboveNoise | None = None
-    noise_variance: float | None = None  # S3: a static pixel's variance σ̄_n² (DN²), for the share
+    noise_variance: float | None = None  # S3, contrast: a static pixel's variance σ̄_n² (DN²), for the share
 
 
 def region_noise(frames: np.ndarray, estimate_map: np.ndarray | None, estimator: str, lag: int, *, q: float = 0.0,
@@ -125,7 +127,7 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
     """The :class:`RegionFloor` of ``estimator`` for the (N, H, W) window ``frames`` over ``mask``:
     the floor follows the pixels' window means (docs/noise.md), S3's share their mean variance.
     ``previous``: this region's floor from an earlier window with the same model and about the
-    same pixel means, kept as it is (the costly part); only S3's share follows this window."""
+    same pixel means, kept as it is (the costly part); only the share (S3, contrast) follows this window."""
     stack = np.asarray(frames)
     region = np.ones(stack.shape[1:], bool) if mask is None else np.asarray(mask, bool)
     n = stack.shape[0]
@@ -133,7 +135,7 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
         raise EstimatorError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
     if previous is not None and previous.estimator != estimator:
         raise EstimatorError(f"previous floor is {previous.estimator}'s, not {estimator}'s")
-    if previous is not None and estimator != "s3":
+    if previous is not None and estimator not in SHARED:
         return previous
     means = stack[:, region].mean(axis=0, dtype=np.float64)
     if estimator == "s2":
@@ -148,9 +150,12 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
         return RegionFloor(estimator, noise_floor.gd_floor(model, means, n, top=top))
     if previous is not None and previous.noise_variance is not None:
         floor, static = previous.floor, previous.noise_variance
+    elif estimator == "contrast":
+        floor = noise_floor.contrast_floor(model, means, n, top=top)
+        static = noise_floor.static_variance(model, means, top=top)
     else:
         floor, static = noise_floor.s1_floor_and_static_variance(model, means, n, lag, top=top)
-    # S3 of the signal alone needs the region's mean window variance (Eq. 3-4)
+    # S3 and the contrast of the signal alone need the region's mean window variance (Eq. 3-4)
     variance = float(stack[:, region].astype(np.float64).var(axis=0).mean())
     share = noise_floor.signal_share(model, means, variance, n, top=top, noise_variance=static)
     return RegionFloor(estimator, floor, share, static)
@@ -159,9 +164,11 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
 def above_of(floor: RegionFloor, estimates: Mapping[str, float]) -> AboveNoise:
     """The region's activity above the noise from its current ``estimates`` (the judged
     estimator's region mean; for S3 also "s1") and a :class:`RegionFloor`."""
-    if floor.estimator != "s3":
+    if floor.estimator not in SHARED:
         return noise_floor.above_noise(estimates[floor.estimator], floor.floor)
     assert floor.share is not None
+    if floor.estimator == "contrast":
+        return noise_floor.contrast_signal(estimates["contrast"], floor.floor, floor.share)
     value = noise_floor.s3_signal(estimates["s3"], estimates["s1"], floor.floor, floor.share)
     if not math.isfinite(value.value):
         raise EstimatorError("S3 above noise is not finite")

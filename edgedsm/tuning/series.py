@@ -8,10 +8,9 @@ descriptors contrast, Fujii, IM and (asked for by name) GD (docs/descriptors.md)
 (:func:`~edgedsm.estimators.region_stats.region_moments` on the engine's live sums, the
 daemon's own reduction), τc in seconds (its pooled fit, sliding and tumbling windows) and,
 through the daemon's own :class:`~edgedsm.daemon.signal_judge.SignalJudge` on the same noise
-patches, S1, S2, S3, Fujii, IM and GD above their noise floors, NaN while the daemon would hold the
-state (dark, saturated, not speckle). The judge is the daemon's so that the delays a candidate is
-credited with are the ones the daemon, configured from the snippet, shows. The contrast has no
-noise floor (the daemon judges it as it is): it is given plain only.
+patches, S1, S2, S3, Fujii, IM, the contrast and GD above their noise floors, NaN while the
+daemon would hold the state (dark, saturated, not speckle). The judge is the daemon's so that the
+delays a candidate is credited with are the ones the daemon, configured from the snippet, shows.
 
 Fujii is 200·S2 at q = 0, and the daemon judged on it runs its engine at q = 0
 (``estimator.engine_q``); when the config's q is not 0 (S2 is judged at that q), Fujii comes
@@ -43,7 +42,7 @@ JUDGEABLE = (*PAPER_MAPS, "tau_c", *DESCRIPTOR_ACTIVITIES)
 #: those tried unless asked for by name: all but GD, whose O(N)-per-pixel push makes every pass of
 #: a setting several times longer (docs/commissioning.md), so that a budget would cover fewer settings
 DEFAULT_CANDIDATES = tuple(name for name in JUDGEABLE if name != "gd")
-#: those the daemon judges above a noise floor (the contrast has none; τc is held, not lowered)
+#: those the daemon judges above a noise floor (τc is held, not lowered)
 WITH_FLOOR = tuple(name for name in JUDGEABLE if name in FLOORED)
 
 

@@ -22,13 +22,13 @@ import tempfile
 from pathlib import Path
 
 from edgedsm.estimators.jit import configure_threading
-from edgedsm_lab.bench.e2e import make_recording, parse_size
+from edgedsm_lab.bench.e2e_trial import make_recording, parse_size
 from edgedsm_lab.bench.report import Report, cpu_sample, load_average, machine_use, others_share
 
 
 def child(args: argparse.Namespace) -> int:
     """One daemon's trial, printed as a JSON line."""
-    from edgedsm_lab.bench.e2e import daemon_config, quiet_daemon_logs, run_trial
+    from edgedsm_lab.bench.e2e_trial import daemon_config, quiet_daemon_logs, run_trial
 
     shape = args.size
     config = daemon_config(Path(args.recording), args.port, Path(args.state), args.rate, 8, shape)

@@ -10,18 +10,14 @@ import tempfile
 from pathlib import Path
 
 from edgedsm_lab.bench import e2e
-from edgedsm_lab.bench.e2e import (
+from edgedsm_lab.bench.e2e import PHASE_PAIRS, PHASE_S, PIXEL_FORMATS, SizeResult, measure_size
+from edgedsm_lab.bench.e2e_trial import (
     LAG,
     MAPS_S,
-    PHASE_PAIRS,
-    PHASE_S,
-    PIXEL_FORMATS,
     RECORDED_FRAMES,
     STATS_S,
     WINDOW,
-    SizeResult,
     Trial,
-    measure_size,
     parse_size,
     quiet_daemon_logs,
 )

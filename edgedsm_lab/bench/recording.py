@@ -35,17 +35,15 @@ from pathlib import Path
 
 from edgedsm.config import RecordingSection
 from edgedsm.daemon.recording import Recorder
-from edgedsm_lab.bench.e2e import (
-    PIXEL_FORMATS,
+from edgedsm_lab.bench.e2e import PIXEL_FORMATS, best_zero_drop, search_rate
+from edgedsm_lab.bench.e2e_trial import (
     Trial,
     bare_engine,
-    best_zero_drop,
     daemon_config,
     make_recording,
     parse_size,
     quiet_daemon_logs,
     run_trial,
-    search_rate,
 )
 from edgedsm_lab.bench.report import Report, add_output_argument, cpu_sample, load_average, machine_use, others_share
 

@@ -11,7 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from edgedsm_lab.bench.e2e import Trial, best_zero_drop, latency, make_recording, parse_size, search_rate
+from edgedsm_lab.bench.e2e import best_zero_drop, search_rate
+from edgedsm_lab.bench.e2e_trial import Trial, latency, make_recording, parse_size
 
 
 def _trial(rate: float, drops: int) -> Trial:
@@ -127,7 +128,7 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
 
 
 def test_cadences_are_measured_from_their_intervals() -> None:
-    from edgedsm_lab.bench.e2e import cadence_hz
+    from edgedsm_lab.bench.e2e_trial import cadence_hz
 
     grid = [0.3 + 0.5 * k for k in range(40)]  # states every 0.5 s: 40 in a 20 s trial, or 39 by phase
     assert cadence_hz(grid) == pytest.approx(2.0) and cadence_hz(grid[:-1]) == pytest.approx(2.0)
@@ -226,7 +227,7 @@ def test_alternation_lets_the_pipeline_thread_go_when_the_bare_engine_fails(monk
 def test_the_bench_daemon_config_is_a_valid_config(tmp_path: Path) -> None:
     # built in code (model_validate): a config key moved elsewhere must be caught here, not when
     # someone runs the benchmark
-    from edgedsm_lab.bench.e2e import MAPS_S, STATS_S, daemon_config
+    from edgedsm_lab.bench.e2e_trial import MAPS_S, STATS_S, daemon_config
 
     for covered in (None, 0.25):
         config = daemon_config(tmp_path / "frames.npy", 1883, tmp_path / "state", 30.0, 8, (64, 96), covered)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from edgedsm_lab.bench.e2e import Trial, daemon_config
+from edgedsm_lab.bench.e2e_trial import Trial, daemon_config
 from edgedsm_lab.bench.recording import Recorded
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from edgedsm.cli import main
+from edgedsm.dashboard import commissioning
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.messages import AlertKind
 from edgedsm.publish.sink import RecordingSink
@@ -18,7 +19,10 @@ from tests.unit.daemon.test_pipeline import hold_back, make_pipeline
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO_SCENE = (REPO / "config" / "scenes" / "drying_demo.toml").read_text()
-CONFIG = """[camera]
+CONFIG = """[device]
+commissioning_dir = "last-report"
+
+[camera]
 uri = "sim:scene.toml"
 
 [estimator]
@@ -84,10 +88,23 @@ def test_the_snippet_is_a_daemon_config_with_the_regions_geometry_and_thresholds
     for lag in (5, 10):
         for label in ("S1", "S2 above noise", "τc", "Fujii", "Fujii above noise", "IM", "IM above noise"):
             assert f"| {label}, N=100 m={lag} sliding |" in report, label
-    # the contrast does not depend on the lag: scored once per window; it has no noise floor
-    assert report.count("| contrast, N=100 m=5 sliding |") == 1 and report.count("| contrast") == 1
-    assert "contrast above noise" not in report and "GD" not in report
+    # the contrast does not depend on the lag: scored once per window, plain and above the noise
+    assert report.count("| contrast, N=100 m=5 sliding |") == 1 and report.count("| contrast") == 2
+    assert report.count("| contrast above noise, N=100 m=5 sliding |") == 1 and "GD" not in report
     assert (folder / "report" / "tradeoff.png").stat().st_size > 0
+    # the last report, kept where the dashboard reads it (device.commissioning_dir, relative to the config)
+    last = json.loads((folder / "last-report" / "summary.json").read_text())
+    assert text.splitlines()[1].startswith(f"# {last['recommended']['label']} calls every region dry")
+    assert last["recommended"]["regions"]["plate"]["thresholds"] == {key: region[key] for key in (
+        *pair, "hysteresis", "min_dwell_s")}
+    assert (last["device"], last["config"], last["plots"]) == ("camera1", str(folder / "daemon.toml"),
+                                                              ["activity.png", "tradeoff.png"])
+    assert (folder / "last-report" / "report.md").read_text() == report and not (folder / "last-report" /
+                                                                                 ".partial").exists()
+    shown = commissioning.load("camera1", folder / "last-report")  # what the dashboard makes of it
+    assert shown["message"] is None and shown["report"]["recommended"]["regions"]["plate"]["thresholds"] == \
+        last["recommended"]["regions"]["plate"]["thresholds"] and shown["report"]["candidates"] == len(
+            last["candidates"])
 
 
 def test_the_loop_closes_the_daemon_from_the_snippet_dries_the_scene_drawn_again(demo, tmp_path):

@@ -1,7 +1,7 @@
 """The field's descriptors through the daemon (issue 24): the drying states judged on Fujii and on GD
-(above their noise floors; GD in both window modes) and on the temporal contrast (no floor: as it
-is), their region statistics, maps and metrics in every sink, and the config's rules for them
-(Fujii runs the engine at q = 0, GD needs a window mode)."""
+(above their noise floors; GD in both window modes) and on the temporal contrast (above its floor:
+the signal's contrast), their region statistics, maps and metrics in every sink, and the config's
+rules for them (Fujii runs the engine at q = 0, GD needs a window mode)."""
 
 from __future__ import annotations
 
@@ -81,8 +81,8 @@ def test_drying_judged_on_a_descriptor_above_its_noise_floor(repo, activity, mod
     assert device["maps"][activity]["max"] == pytest.approx(float(maps[-1].values.max()), rel=1e-3)
 
 
-def test_drying_judged_on_the_temporal_contrast_without_a_floor(repo):
-    # σ/⟨I⟩ of the demo scene: ~0.65 while wet, ~0.21 once dry
+def test_drying_judged_on_the_temporal_contrast_above_its_floor(repo):
+    # σ/⟨I⟩ of the demo scene: ~0.65 while wet, ~0.21 once dry; above the noise a little less
     config = _config(repo, {"activity": "contrast"}, [{**PLATE, "wet_above": 0.55, "dry_below": 0.3}])
     assert config.estimator.engine_q == 1.0 and engine_estimators(config) == ("s1", "s2", "s3", "contrast")
     sink, _ = _run(config, repo, 1300)
@@ -91,10 +91,14 @@ def test_drying_judged_on_the_temporal_contrast_without_a_floor(repo):
     last = ready[-1].regions["plate"]["contrast"]
     assert 0.6 < ready[0].regions["plate"]["contrast"].mean < 0.7 and 0.15 < last.mean < 0.3
     signal = ready[-1].signal["plate"]
-    assert signal.signal in ("ok", "low") and signal.noise_floor is None and signal.above_noise is None
+    # the noise adds in quadrature: the signal's contrast is below the plain one, the floor well below both
+    assert signal.signal in ("ok", "low") and signal.noise_floor is not None and signal.above_noise is not None
+    assert 0.0 < signal.noise_floor < 0.5 * signal.above_noise < 0.5 * last.mean
+    assert signal.above_noise > 0.8 * last.mean  # the demo plate's noise is a small share of its fluctuation
     report = sink.states[-1]
     same = [s for s in ready if s.t == report.t]  # the stats evaluated with that report
-    assert same and report.regions["plate"].activity == same[0].regions["plate"]["contrast"].mean  # as it is
+    assert same and report.regions["plate"].activity == pytest.approx(same[0].signal["plate"].above_noise, rel=1e-9)
+    assert report.regions["plate"].activity < same[0].regions["plate"]["contrast"].mean
     assert "contrast" in {m.name for m in sink.maps}
 
 

@@ -70,7 +70,9 @@ def test_fujii_is_200_times_s2_at_q_0_and_its_own_engine_gives_it_when_q_is_not_
     assert judged.sum() >= len(at_0.times) - 6  # NaN until the noise patches hold a window
     np.testing.assert_allclose(above_fujii[judged], 200.0 * above_s2[judged], rtol=1e-6)
     assert np.all(above_fujii[judged] < fujii_0[judged])
-    assert {"contrast", "im", "im@noise"} <= set(at_0.values["plate"]) and "contrast@noise" not in at_0.values["plate"]
+    assert {"contrast", "contrast@noise", "im", "im@noise"} <= set(at_0.values["plate"])
+    contrast, above_contrast = at_0.array("plate", "contrast"), at_0.array("plate", "contrast@noise")
+    assert np.all(above_contrast[judged] < contrast[judged]) and np.all(above_contrast[judged] > 0.5 * contrast[judged])
 
 
 def test_a_snippet_choosing_fujii_above_noise_is_a_daemon_config_with_thresholds_in_fujii_units(plate, passes):
