@@ -136,8 +136,8 @@ class StateReport(Message):
     """Every region's state at once (retained on ``<base>/state``)."""
 
     t: float = Field(description="UTC epoch s")
-    estimator: str = Field(description="estimator the states are judged on (s1, s2, s3, tau_c, contrast, fujii, "
-                                       "im, band_ratio)")
+    estimator: str = Field(description="estimator the states are judged on (s1, s2, s3, tau_c, contrast, fujii, im, "
+                                       "gd, band_ratio)")
     laser: LaserState = Field("off", description="the laser relay as last confirmed")
     regions: dict[str, RegionState] = Field(default_factory=dict, description="by region name")
 

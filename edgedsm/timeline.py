@@ -6,8 +6,9 @@ moves. :func:`timeline` streams frames through a sliding window (:class:`Sliding
 daemon's engine) and, every ``every`` frames once the window is full, records for each region
 the mean of S1, S2 and S3 and the region's τc (from region-averaged correlations), plus the
 histogram of one estimator's map over the whole frame. ``descriptors`` adds the region means of
-the temporal contrast, Fujii and the inertia moment (docs/descriptors.md) as columns after the
-others (the engine keeps their sums only then; Fujii is 200·S2 at q = 0, the timeline's q).
+the temporal contrast, Fujii, the inertia moment and the generalized differences
+(docs/descriptors.md) as columns after the others (the engine keeps their sums only then; Fujii
+is 200·S2 at q = 0, the timeline's q; GD's exact sum costs O(N) per pixel per frame).
 Pure: frames in, arrays out.
 
 When the samples fall on disjoint sets of N frames (``every`` a multiple of N, the paper's
@@ -43,7 +44,7 @@ COLUMNS = ("frame", "time_s", "region", "s1", "s2", "s3", "tau_c_frames", "tau_c
 NOISE_COLUMNS = COLUMNS[9:]
 #: the field's descriptors the engine streams, which ``descriptors`` may add as columns (the bands:
 #: split at ``band_split``, Hz of the timeline's ``dt``)
-DESCRIPTORS = ("contrast", "fujii", "im", "band_low", "band_high", "band_ratio")
+DESCRIPTORS = ("contrast", "fujii", "im", "gd", "band_low", "band_high", "band_ratio")
 
 
 PATCH_SIDE = 64  # the daemon's default estimator.noise_patch

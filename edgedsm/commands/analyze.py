@@ -25,8 +25,8 @@ With --timeline OUT_DIR it follows the activity against time instead (the paper'
 drying this way): a sliding window of N frames is sampled every --every frames, and
 OUT_DIR/timeline.csv gets, per region and sample, the mean S1, S2, S3 and the region's τc
 (frames and seconds), and the region mean of the streaming descriptor --estimator names or
-the config's estimator.activity is (contrast, fujii, im, band_low, band_high or band_ratio, the
-bands split at --split, the ratio at q = 0); OUT_DIR/timeline.png plots them and
+the config's estimator.activity is (contrast, fujii, im, gd, band_low, band_high or band_ratio,
+the bands split at --split, the ratio at q = 0); OUT_DIR/timeline.png plots them and
 OUT_DIR/histogram.png shows the histogram of the S2 map (--histogram) against time. FRAMES may then also be a scene file
 (or 'default'), simulated on the fly (--frames of them). Regions come from a daemon config
 (-c), else the whole frame is one region named 'frame'.

@@ -173,7 +173,7 @@ def _pyplot():
 def plot_activity(path: Path, result: Timeline, title: str) -> None:
     plt = _pyplot()
     names = list(dict.fromkeys(row[2] for row in result.rows))
-    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)",
+    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)", "gd": "GD (grey levels)",
               "band_low": "low band (grey levels²)", "band_high": "high band (grey levels²)",
               "band_ratio": "high / low band"}
     columns = (("s1", "S1 (grey levels)"), ("s2", "S2"), ("s3", "S3"),

@@ -2,18 +2,18 @@
 surface's wet from its dry soonest and at what cost, with thresholds to paste into the daemon
 config (docs/commissioning.md).
 
-RUN is a recording that goes from wet to dry (anything `analyze` reads: an `edgedsm record`
-file, TIFF, video, an image folder, .npy) or a simulated scene (SCENE.toml, `default`); the
-regions and the camera settings come from the daemon config (-c). Before --wet-until the surface
-is wet, after --dry-from it is dry (seconds from the first frame, on the recording's own clock,
+RUN is a recording that goes from wet to dry (anything `analyze` reads: an `edgedsm record` file,
+TIFF, video, an image folder, .npy) or a simulated scene (SCENE.toml, `default`); the regions and
+the camera settings come from the daemon config (-c). Before --wet-until the surface is wet, after
+--dry-from it is dry (seconds from the first frame, on the recording's own clock,
 camera.frame_interval_s, or --dt). Instead of a run and marks, --wet REC and --dry REC take two
 recordings. Every candidate (an activity the daemon judges on: S1, S2, S3, Fujii, IM and the
 temporal contrast plain and above the noise floor, τc; at each window and lag that fits;
---estimators narrows them) is scored on every region: the separation of wet and dry (AUC, d′),
-when the daemon's state machine with the proposed thresholds calls it dry, its false
-transitions, and its cost per frame, measured by the engine on this PC. Exit 65 when the run
-cannot answer (too short, marks outside it, or no candidate separating wet from dry), with the
-best separation found.
+--estimators narrows them, or adds GD, left out by default for its O(N) push) is scored on every
+region: the separation of wet and dry (AUC, d′), when the daemon's state machine with the
+proposed thresholds calls it dry, its false transitions, and its cost per frame, measured by the
+engine on this PC. Exit 65 when the run cannot answer (too short, marks outside it, or no
+candidate separating wet from dry), with the best separation found.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ from edgedsm.commands.common import add_progress_flag
 from edgedsm.config import check_regions, load_config
 from edgedsm.errors import DataError
 from edgedsm.frameio import open_frames
-from edgedsm.tuning.output import report, snippet, summary_json
-from edgedsm.tuning.series import JUDGEABLE
+from edgedsm.tuning.output import keep_last, report, snippet, summary_json
+from edgedsm.tuning.series import DEFAULT_CANDIDATES, JUDGEABLE
 from edgedsm.tuning.session import LAGS, WINDOWS, Run, settings_for, tune
 
 NAME = "tune"
@@ -53,9 +53,6 @@ def _numbers(text: str) -> tuple[int, ...]:
 
 def _estimators(text: str) -> tuple[str, ...]:
     names = tuple(part.strip() for part in text.split(",") if part.strip())
-    if "gd" in names:
-        raise argparse.ArgumentTypeError("gd is not a candidate: the daemon does not judge on it (its streaming "
-                                         "update is O(N) per pixel, sliding mode only; docs/descriptors.md)")
     unknown = [name for name in names if name not in JUDGEABLE]
     if not names or unknown:
         raise argparse.ArgumentTypeError(f"expected some of {','.join(JUDGEABLE)} separated by commas, got {text!r}")
@@ -80,8 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"windows to try (default {','.join(map(str, WINDOWS))})")
     parser.add_argument("--lags", type=_numbers, default=LAGS, metavar="M,M,...",
                         help=f"lags to try (default {','.join(map(str, LAGS))})")
-    parser.add_argument("--estimators", type=_estimators, default=JUDGEABLE, metavar="NAME,NAME,...",
-                        help=f"activities to try (default all the daemon judges on: {','.join(JUDGEABLE)})")
+    parser.add_argument("--estimators", type=_estimators, default=DEFAULT_CANDIDATES, metavar="NAME,NAME,...",
+                        help=f"activities to try, among {','.join(JUDGEABLE)} (default all but gd, whose O(N) "
+                             "push makes every pass several times longer: name it to weigh it)")
     parser.add_argument("--dt", type=float, metavar="SECONDS", help="frame interval (default: the recording's "
                         "clock, the scene's, or camera.frame_interval_s)")
     parser.add_argument("--channel", choices=("red", "green", "blue", "luma"), help="channel of a colour input")
@@ -117,6 +115,12 @@ def _run(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
             bar.close()
     command = "edgedsm tune " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["tune"] else "edgedsm tune"
     written = report(Path(args.report), result, command) if args.report else []
+    last = config.device.commissioning_directory(config.base_dir)
+    try:  # for the dashboard (docs/commissioning.md); this run's answer stands without it
+        keep_last(last, result, command, config)
+    except OSError as exc:
+        print(f"edgedsm: warning: the dashboard will not show this report: cannot write {last}: "
+              f"{exc.strerror or exc} (set device.commissioning_dir)", file=sys.stderr)
     if args.json:
         print(json.dumps(summary_json(result), indent=1, ensure_ascii=False))
     if result.chosen is None:

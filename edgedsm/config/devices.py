@@ -22,6 +22,16 @@ class DeviceSection(StrictModel):
                       description="instance name; the MQTT topics are <prefix>/<name>/...")
     state_dir: Path = Field(default_factory=lambda: Path(os.environ.get("STATE_DIRECTORY", "/var/lib/edgedsm")),
                             description="durable state (alert queue); default: systemd's $STATE_DIRECTORY")
+    commissioning_dir: Path | None = Field(
+        None, description="where `edgedsm tune -c` this file keeps its last commissioning report and the dashboard "
+                          "reads it (relative: to this file's folder); default <state_dir>/commissioning")
+
+    def commissioning_directory(self, base_dir: Path) -> Path:
+        """The last commissioning report's folder (docs/commissioning.md): ``commissioning_dir``
+        resolved against ``base_dir`` (the config file's folder), else ``state_dir/commissioning``."""
+        if self.commissioning_dir is None:
+            return self.state_dir / "commissioning"
+        return self.commissioning_dir if self.commissioning_dir.is_absolute() else base_dir / self.commissioning_dir
 
 
 class CameraNoiseSection(StrictModel):

@@ -9,24 +9,27 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from edgedsm.estimators.correlation_time import default_max_lag, max_lag_problem, tau_mode_problem
 from edgedsm.estimators.dft_bins import band_mode_problem
+from edgedsm.estimators.value_set import gd_mode_problem
 from edgedsm.validation import StrictModel
 
 #: The paper's maps, which the daemon always forms, publishes and reduces per region.
 PAPER_MAPS: tuple[str, ...] = ("s1", "s2", "s3")
 #: The field's descriptors the daemon can judge on (docs/descriptors.md): formed beside S1-S3 when
 #: the activity is one of them (each costs a little per push: docs/descriptors.md).
-DESCRIPTOR_ACTIVITIES: tuple[str, ...] = ("contrast", "fujii", "im", "band_ratio")
+DESCRIPTOR_ACTIVITIES: tuple[str, ...] = ("contrast", "fujii", "im", "gd", "band_ratio")
 
 
 class EstimatorSection(StrictModel):
-    activity: Literal["s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "band_ratio"] = Field(
+    activity: Literal["s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd", "band_ratio"] = Field(
         "s2", description="estimator the drying states are judged on (S3 saturates once τc >> N; tau_c: the "
                           "region's correlation time in seconds, thresholds wet_below_s / dry_above_s; the "
                           "field's descriptors: contrast = temporal σ/⟨I⟩, fujii = 200·S2 at q = 0 (the engine "
                           "then runs at q = 0: an explicit non-zero q is refused), im = mean (I_k - I_{k+m})² in "
-                          "grey levels²; band_ratio = high-band / (low-band power + q) of each pixel's periodogram, "
-                          "split at band_split_hz, mode 'sliding' or 'tumbling', 16 bytes per pixel per DFT bin of "
-                          "the smaller band; docs/descriptors.md)")
+                          "grey levels²; gd = generalized differences Σ_{i<j} |I_i - I_j| / C(N,2) in grey levels, "
+                          "mode 'sliding' or 'tumbling', O(N) a pixel: a push of S1+S2+S3+gd 10-12x one of S1+S2+S3 at "
+                          "N = 64 sliding, ~6x tumbling; band_ratio = high-band / (low-band power + q) of each pixel's "
+                          "periodogram, split at band_split_hz, mode 'sliding' or 'tumbling', 16 bytes per pixel per "
+                          "DFT bin of the smaller band; docs/descriptors.md)")
     window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
     lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
     q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
@@ -80,6 +83,8 @@ class EstimatorSection(StrictModel):
             raise ValueError(problem)
         if (self.activity == "tau_c" or self.tau_c) and (problem := tau_mode_problem(self.mode)):
             raise ValueError(f"{'activity' if self.activity == 'tau_c' else 'tau_c'}: {problem}")
+        if self.activity == "gd" and (problem := gd_mode_problem(self.mode)):
+            raise ValueError(f"activity: {problem}")
         if self.activity == "band_ratio" and (problem := band_mode_problem(self.mode)):
             raise ValueError(f"activity: {problem}")
         return self

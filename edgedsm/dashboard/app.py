@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from edgedsm.dashboard.commissioning import report_dirs
 from edgedsm.dashboard.history import History
 from edgedsm.dashboard.plant import Plant, RegionInfo
 from edgedsm.dashboard.server import DashboardServer, EventHub
@@ -68,7 +69,8 @@ class Dashboard:
             self.subscriber = PlantSubscriber(settings.mqtt, self.plant, password=password)
             self.server = DashboardServer(settings.listen, self.plant, self.history, self.hub, token=settings.token,
                                           send_command=self.subscriber.send_command,
-                                          broker_connected=self.subscriber.connected.is_set)
+                                          broker_connected=self.subscriber.connected.is_set,
+                                          commissioning_dirs=report_dirs(settings.daemon_configs))
         except BaseException:
             self.history.close()
             raise

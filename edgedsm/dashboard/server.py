@@ -17,12 +17,13 @@ from collections.abc import Callable
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
+from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from pydantic import ValidationError
 
-from edgedsm.dashboard import maps
+from edgedsm.dashboard import commissioning, maps
 from edgedsm.dashboard.history import History
 from edgedsm.dashboard.plant import Plant
 from edgedsm.publish.http_server import QuietDisconnects
@@ -112,7 +113,8 @@ class DashboardServer(QuietDisconnects, ThreadingHTTPServer):
 
     def __init__(self, address: tuple[str, int], plant: Plant, history: History, hub: EventHub, *,
                  token: str | None, send_command: SendCommand | None,
-                 broker_connected: Callable[[], bool] = lambda: False) -> None:
+                 broker_connected: Callable[[], bool] = lambda: False,
+                 commissioning_dirs: dict[str, Path] | None = None) -> None:
         super().__init__(address, Handler)
         self.plant = plant
         self.history = history
@@ -120,6 +122,7 @@ class DashboardServer(QuietDisconnects, ThreadingHTTPServer):
         self.token = token
         self.send_command = send_command
         self.broker_connected = broker_connected
+        self.commissioning_dirs = dict(commissioning_dirs or {})  # device -> its last tune report's folder
         self.stopping = threading.Event()
 
     @property
@@ -186,6 +189,16 @@ class Handler(BaseHTTPRequestHandler):
             self._send(HTTPStatus.OK, maps.colour_bar_png(), "image/png", cache=True)
         elif path == "/api/history":
             self._history(query)
+        elif path == "/api/commissioning":
+            device = _required(query, "device")
+            self._json(commissioning.load(device, self.server.commissioning_dirs.get(device)))
+        elif path.startswith("/api/commissioning/"):
+            image = commissioning.plot(self.server.commissioning_dirs.get(_required(query, "device")),
+                                       path[len("/api/commissioning/"):])
+            if image is None:
+                self._error(HTTPStatus.NOT_FOUND, "no such plot")
+            else:
+                self._send(HTTPStatus.OK, image, "image/png")
         else:
             self._error(HTTPStatus.NOT_FOUND, "no such page")
 

@@ -199,7 +199,7 @@ DESCRIPTORS: dict[str, Descriptor] = {
     "fujii": Descriptor(lambda f, *, lag, **_: fujii(f, lag), "1 (0..200)", True, "fujii",
                         "O(1) per pixel per frame (SlidingWindow, q = 0: 200 S2)", True, "200 S2(q = eps)"),
     "gd": Descriptor(lambda f, **_: gd(f), "grey levels", False, "gendiff",
-                     "O(N) per pixel per frame (SlidingWindow, sliding mode only)", True,
+                     "O(N) per pixel per frame (SlidingWindow, sliding and tumbling modes)", True,
                      "Σ_{i<j} |I_i - I_j| / C(N, 2)"),
     "im": Descriptor(lambda f, *, lag, **_: im(f, lag), "grey levels²", True, "graphim (m = 1)",
                      "O(1) per pixel per frame (SlidingWindow, one more sum)", True, "mean (I_k - I_{k+m})²"),

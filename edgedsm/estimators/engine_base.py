@@ -30,7 +30,7 @@ from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_erro
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import Layout, Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
-from edgedsm.estimators.value_set import flags_of, gd_of_sum
+from edgedsm.estimators.value_set import flags_of, gd_mode_problem, gd_of_sum
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
@@ -40,8 +40,8 @@ KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
 #: Names of the maps the engine can keep: the paper's S1-S3 and τc, and the field's descriptors that
 #: stream at O(1) per pixel from the same sums (issue 24, docs/descriptors.md): the temporal
 #: contrast σ/⟨I⟩, Fujii (200·S2 at q = 0) and the inertia moment mean (ΔI)² at lag m; and the
-#: generalized differences (GD), sliding mode only, O(N) per pixel per push; the frequency bands,
-#: O(bins) per pixel per push (edgedsm.estimators.dft_bins).
+#: generalized differences (GD), sliding and tumbling modes, O(N) per pixel per push; the frequency
+#: bands, O(bins) per pixel per push (edgedsm.estimators.dft_bins).
 ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd", *BAND_NAMES, "bands")
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
@@ -84,10 +84,10 @@ class SlidingWindow:
         estimators: which of "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im" ``maps()``
             returns (default: the first three), or "gd"; only their sums are kept. "fujii"
             (200·S2 at q = 0, BSLTL's fujii.m) needs q = 0; "gd" (BSLTL's gendiff.m) needs mode
-            "sliding" and costs O(N) per pixel per push (it reads the whole ring); "band_low",
-            "band_high", "band_ratio" (high/(low + q)): the power below and above ``band_split``
-            (edgedsm.estimators.dft_bins), sliding or tumbling mode, O(bins) per pixel per push;
-            "bands": the power in each of ``bands``, one (K, H, W) map (not in snapshots).
+            "sliding" or "tumbling" and costs O(N) per pixel per push (it reads the window's frames);
+            "band_low", "band_high", "band_ratio" (high/(low + q)): the power below and above
+            ``band_split`` (edgedsm.estimators.dft_bins), sliding or tumbling mode, O(bins) per pixel
+            per push; "bands": the power in each of ``bands``, one (K, H, W) map (not in snapshots).
         mode: "sliding" (default), "exponential" or "tumbling" (docs/engine.md); the engine
             constructed is that mode's subclass.
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
@@ -145,9 +145,8 @@ class SlidingWindow:
         self.q = float(q)
         self.estimators = self._check_estimators(estimators)
         self._do_gd = "gd" in self.estimators
-        if self._do_gd and self.mode != "sliding":
-            raise EstimatorError(f"estimator 'gd' needs mode='sliding' (its update reads the window's frames), "
-                                 f"got {self.mode!r}")
+        if self._do_gd and (problem := gd_mode_problem(self.mode)):
+            raise EstimatorError(f"estimator 'gd': {problem}")
         if self._do_gd and self.window * (self.window - 1) // 2 * 65535 > 2**63 - 1:
             raise EstimatorError(f"estimator 'gd': a window of {self.window} frames overflows its int64 sum")
         if "fujii" in self.estimators and self.q != 0.0:
@@ -359,7 +358,7 @@ class SlidingWindow:
         only_tau = set(wanted) <= {"tau_c", "gd", "bands", *BAND_NAMES}
         flat = {} if only_tau else self._moments.maps(self._sums(), self.shape[0] * self.shape[1])
         if "gd" in wanted:
-            flat["gd"] = gd_of_sum(self._arrays["gd"], self.window)
+            flat["gd"] = gd_of_sum(self._sums()["gd"], self.window)
         if bands := tuple(name for name in wanted if name in BAND_NAMES or name == "bands"):
             flat.update(self._bins.maps(self._sums(), bands, self.q))
         return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape((*flat[name].shape[:-1],
@@ -441,9 +440,9 @@ class SlidingWindow:
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
                      how: str) -> EngineSnapshot:
-        if estimators is not None and (left := [name for name in ("gd", "bands") if name in estimators]):
-            raise EstimatorError(f"a snapshot does not carry {', '.join(map(repr, left))} (maps() gives it)")
-        wanted = tuple(name for name in self.estimators if name not in ("gd", "bands")) if estimators is None \
+        if estimators is not None and "bands" in estimators:
+            raise EstimatorError("a snapshot does not carry 'bands' (maps() gives it)")
+        wanted = tuple(name for name in self.estimators if name != "bands") if estimators is None \
             else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
@@ -451,10 +450,11 @@ class SlidingWindow:
         bands = bool(set(wanted) & set(BAND_NAMES))
         spread = flags[2] or flags[3] or bands  # S3, the contrast and the bands need σ
         needed = {"abs": flags[0], "ratio": flags[1], "total": spread, "total_sq": spread, "m2": spread,
-                  "mean": flags[3], "sq": flags[5], "bins": bands}
+                  "mean": flags[3], "sq": flags[5], "gd": "gd" in wanted, "bins": bands}
         source_sums, old = self._sums(), into.sums if into is not None else {}
         sums = {}
-        for name in (*self._moments.snapshot_names, *(("bins",) if self._bins.on else ())):
+        for name in (*self._moments.snapshot_names, *(("gd",) if self._do_gd else ()),
+                     *(("bins",) if self._bins.on else ())):
             source = source_sums.get(name)
             if not needed[name] or source is None:
                 sums[name] = np.zeros(0, np.int64)

@@ -6,9 +6,12 @@ The S1/S2/S3 sums (:class:`edgedsm.estimators.moment_sums.WindowMoments`) and τ
 and edge sums (:class:`edgedsm.estimators.lag_products.TumblingLagProducts`) of the block in
 progress grow by adding only; at a block's end they become the ``done_`` set that ``maps()``
 reads, and the others start again from zero. The ring keeps the last m frames (m+1 slots;
-K + TAU_BATCH + 1 with τc). With a band map the block's DFT bins are summed directly
-(:class:`edgedsm.estimators.dft_bins.DftBins`; its first frame, the bins' offset, in
-``band_origin``). Bounds and memory: docs/engine.md.
+K + TAU_BATCH + 1 with τc). With "gd" (generalized differences) the ring holds whole blocks (its
+slots rounded up to a multiple of N, so a block's frames sit in N consecutive rows) and each
+frame adds its distance to the block's earlier frames to the exact int64 Σ_{i<j} |I_i - I_j|,
+O(N) per pixel per push as in the sliding engine (``kernels.gd_kernel``). With a band map the
+block's DFT bins are summed directly (:class:`edgedsm.estimators.dft_bins.DftBins`; its first
+frame, the bins' offset, in ``band_origin``). Bounds and memory: docs/engine.md.
 """
 
 from __future__ import annotations
@@ -43,12 +46,15 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
     def _block_layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
         return {**self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits),
-                **self._bins.layout(pixels, bits)}
+                **({"gd": ((pixels,), np.int64)} if self._do_gd else {}), **self._bins.layout(pixels, bits)}
 
     def _layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
         block = self._block_layout(bits)
-        return {"ring": ((self._tau.ring_slots(self.lag), pixels), np.uint8 if bits <= 8 else np.uint16),
+        slots = self._tau.ring_slots(self.lag)
+        if self._do_gd:  # whole blocks: block k's frames in rows (kN mod slots) .. + N-1
+            slots = -(-slots // self.window) * self.window
+        return {"ring": ((slots, pixels), np.uint8 if bits <= 8 else np.uint16),
                 **block, **{DONE + name: spec for name, spec in block.items()},
                 **{name: spec for name, spec in self._bins.layout(pixels, bits, origin=True).items()
                    if name == ORIGIN}}
@@ -56,12 +62,15 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
     def _bind(self, bits: int, parallel: bool) -> None:
         self._moments.bind(self._kernels, self.ratio_kind, self.scale_bits, parallel, slide=False)
         self._tau.bind(self._kernels, parallel, bits)
+        if self._do_gd:
+            self._gd_step = self._kernels.gd_kernel(False, parallel)
         self._bins.bind(self._kernels, parallel, rotate=False)
 
     def _frame_reads(self) -> int:
         # the new frame and frame i-m read, a ring slot written; with τc frame i-k for each lag k;
-        # with the bands the block's first frame
-        return 3 + (self.tau_lags.size if self._do_tau else 0) + (1 if self._bins.on else 0)
+        # with GD the block's earlier frames, (N-1)/2 on average; with the bands the block's first frame
+        return 3 + (self.tau_lags.size if self._do_tau else 0) + ((self.window - 1) // 2 if self._do_gd else 0) \
+            + (1 if self._bins.on else 0)
 
     def _sums(self) -> Mapping[str, np.ndarray]:
         """The sums of the last completed block."""
@@ -80,6 +89,9 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
         # frame i goes to slot i % slots, frame i-m is read from another slot
         lagged = ring[(i - m) % slots] if position >= m else new  # no pair across blocks
         self._tau.push(arrays, new, i)
+        if self._do_gd:  # the block's frames before this one: rows start .. start+position-1
+            start = (i - position) % slots
+            self._gd_step(new, ring[start:start + n], 0, position, arrays["gd"])
         self._bins.add(arrays, new, position)
         self._moments.add(arrays, new, ring[i % slots], lagged)
         self._tau.after_push(arrays, i)

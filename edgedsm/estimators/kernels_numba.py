@@ -384,8 +384,9 @@ def batch_slide_kernel(parallel: bool = True, narrow: bool = False) -> Callable[
 
 @functools.cache
 def gd_kernel(remove: bool, parallel: bool = True) -> Callable[..., None]:
-    """Generalized differences, sliding window (BSLTL's gendiff.m): Σ_{i<j} |I_i - I_j| over
-    the window, exact int64, O(N) per pixel per push (every frame of the window is read).
+    """Generalized differences (BSLTL's gendiff.m), sliding window or tumbling block: Σ_{i<j}
+    |I_i - I_j| over the window, exact int64, O(N) per pixel per push (every frame of the window
+    is read; tumbling: the block's earlier frames, ``remove`` False).
 
     ``kernel(new, ring, old_slot, count, gd_sum)``: ring rows 0..``count``-1 hold the window's
     other frames; frame i (``new``) joins, so Σ_k |I_i - I_k| is added over them; with

@@ -7,7 +7,9 @@ writes 32 bytes per pixel and reads them back per region and map. Here one pass 
 the regions cover (:class:`RegionLayout`) reads the engine's sums once: each pixel of the
 regions' union gets its S1, S2 and S3 (Eq. 1-4), and the contrast, Fujii and IM asked for
 (:data:`MAPS`), computed once into a row buffer, whatever the
-regions holding it, and each region sums its column runs of that buffer. It runs on the
+regions holding it, and each region sums its column runs of that buffer. GD (generalized
+differences), one division of its own exact sum per pixel, is formed over each region's box and
+reduced apart (:func:`region_moments`). It runs on the
 pipeline thread between two pushes, from the live sums (the pushes are on that thread too).
 
 Per region and map (equal to ``maps_from`` + ``RegionBox.stats`` within 1e-12 relative, tested):
@@ -49,7 +51,7 @@ from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.dft_bins import BAND_NAMES
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
-from edgedsm.estimators.value_set import flags_of
+from edgedsm.estimators.value_set import flags_of, gd_of_sum
 
 try:
     import numba
@@ -191,21 +193,29 @@ class Moments:
 
 def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | RegionLayout, maps: Sequence[str],
                    spread: bool = True, parallel: bool = True) -> dict[str, dict[str, Moments]]:
-    """Moments of ``maps`` (among :data:`MAPS`, and the bands) over each region, from a window's sums.
+    """Moments of ``maps`` (among :data:`MAPS`, "gd" and the bands) over each region, from a window's sums.
 
     ``sums``: an engine snapshot, or the live sums (``SlidingWindow.snapshot(live=True)``; then on
     the thread that pushes, before the next push). ``regions``: plans by name, or their
     :class:`RegionLayout` (built once: cheaper per call). Without ``spread`` only the means (std
     0, no sample). ``parallel``: the pass uses numba's threads (the caller's setting).
-    The frequency bands are not in the fused pass (their values come from B DFT bins per pixel):
-    each region's box is formed by the engine's band maps and reduced as without numba.
+    GD (generalized differences) is not in the fused pass (its per-pixel value is one division of
+    its own exact sum, :func:`~edgedsm.estimators.value_set.gd_of_sum`): its values over each
+    region's box are formed and reduced as without numba (same sample, same rounding class). Nor
+    are the frequency bands (their values come from B DFT bins per pixel): each region's box is
+    formed by the engine's band maps and reduced likewise.
     """
     wanted = tuple(name for name in MAPS if name in maps)
     bands = tuple(name for name in BAND_NAMES if name in maps)
-    if sums.mode not in ("sliding", "tumbling", "exponential") or not (wanted or bands):
+    if sums.mode not in ("sliding", "tumbling", "exponential") or not (wanted or "gd" in maps or bands):
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
     layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
     result = _fused_moments(sums, layout, wanted, spread, parallel) if wanted else {name: {} for name in layout.plans}
+    if "gd" in maps:
+        gd_sums = sums.sums["gd"].reshape(sums.shape)
+        for name, plan in layout.plans.items():
+            box = plan.box
+            result[name]["gd"] = _box_moments(gd_of_sum(gd_sums[box.rows, box.cols], sums.window), box, spread)
     if bands:  # from the DFT bins and σ² of each region's box (dft_bins.DftBins.maps)
         assert sums.bands is not None, "a snapshot of the bands carries their maps function"
         height, width = sums.shape

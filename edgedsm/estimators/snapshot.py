@@ -19,7 +19,7 @@ import numpy as np
 
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import tau_lags
-from edgedsm.estimators.value_set import VALUES, flags_of, value_sizes
+from edgedsm.estimators.value_set import VALUES, flags_of, gd_of_sum, value_sizes
 
 
 @dataclass(frozen=True)
@@ -33,7 +33,8 @@ class EngineSnapshot:
     pairs: int
     ratio_unit: float  # 2^-K, the S2 fixed-point unit (window modes)
     frames_seen: int
-    sums: dict[str, np.ndarray]  # window modes: abs, ratio, total, total_sq, sq; exponential: abs, ratio, mean, m2, sq
+    # window modes: abs, ratio, total, total_sq, sq and, with GD, gd; exponential: abs, ratio, mean, m2, sq
+    sums: dict[str, np.ndarray]
     weight_frames: float  # exponential mode: Σλ^k over the frames
     maps_step: Callable[..., None]  # the engine's maps kernel for one thread
     value_names: tuple[str, ...]  # the sums activity.pixel_values reads, in its order (moment_sums)
@@ -90,8 +91,10 @@ def _unshared(arrays: dict[str, np.ndarray]) -> bool:
 
 def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
     """Pixels of each array the maps kernel writes for this snapshot (0: not computed), in the
-    order of :data:`edgedsm.estimators.value_set.VALUES`."""
-    return value_sizes(flags_of(snapshot.estimators), snapshot.shape[0] * snapshot.shape[1])
+    order of :data:`edgedsm.estimators.value_set.VALUES`, and GD's map when the snapshot carries it."""
+    pixels = snapshot.shape[0] * snapshot.shape[1]
+    return {**value_sizes(flags_of(snapshot.estimators), pixels), **({"gd": pixels} if "gd" in snapshot.estimators
+                                                                     else {})}
 
 
 def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> dict[str, np.ndarray]:
@@ -99,8 +102,11 @@ def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> di
     or with ``buffers`` arrays of that pool that nobody holds any more."""
     sizes = map_sizes(snapshot)
     flat = buffers.take(sizes) if buffers is not None else {name: np.empty(size) for name, size in sizes.items()}
-    snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window,
-                       *(flat[name] for name in VALUES), snapshot.weight_frames)
+    if any(sizes[name] for name in VALUES):
+        snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window,
+                           *(flat[name] for name in VALUES), snapshot.weight_frames)
+    if "gd" in snapshot.estimators:  # from its exact sum, as SlidingWindow.maps forms it
+        gd_of_sum(snapshot.sums["gd"], snapshot.window, out=flat["gd"])
     if snapshot.bands is not None:  # new arrays: the band maps' own formulas (dft_bins)
         flat = {**flat, **snapshot.bands(snapshot.sums, tuple(n for n in snapshot.estimators if n not in flat))}
     return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}

@@ -6,7 +6,8 @@ compiled formulas of :mod:`edgedsm.estimators.activity` load with the kernels).
   map names (S3 needs S1's sum, Fujii is formed from S2); :data:`VALUES` and
   :func:`value_sizes`: the arrays the maps kernel writes.
 - :func:`gd_of_sum`: the generalized differences (BSLTL's ``gendiff.m``) from their exact integer
-  sum, written once for the batch reference (``descriptors.gd``) and the sliding engine.
+  sum, written once for the batch reference (``descriptors.gd``), the engine's maps, snapshots
+  and region statistics; :func:`gd_mode_problem`: the window modes that can keep that sum.
 """
 
 from __future__ import annotations
@@ -52,7 +53,16 @@ def window_spreads(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarra
     return spread
 
 
-def gd_of_sum(gd_sum: np.ndarray, n: int) -> np.ndarray:
+def gd_of_sum(gd_sum: np.ndarray, n: int, out: np.ndarray | None = None) -> np.ndarray:
     """Generalized differences, BSLTL ``gendiff.m``: Σ_{i<j} |I_i - I_j| / C(N, 2) over N = ``n``
-    frames, grey levels: the exact integer sum Σ_{i<j} |I_i - I_j| divided once. New array."""
-    return gd_sum.astype(np.float64) / (n * (n - 1) / 2)
+    frames, grey levels: the exact integer sum Σ_{i<j} |I_i - I_j| divided once (each int64 made
+    float64, then one division). A new array, or written into the float64 ``out``."""
+    return np.divide(gd_sum.astype(np.float64), n * (n - 1) / 2, out=out)
+
+
+def gd_mode_problem(mode: str) -> str | None:
+    """Why GD cannot stream in window ``mode`` (None: it can); the one statement of it (engine, config)."""
+    if mode in ("sliding", "tumbling"):
+        return None
+    return (f"gd needs mode 'sliding' or 'tumbling', not {mode!r} (its exact sum reads the window's frames, and "
+            f"the {mode} mode keeps none)")

@@ -1,22 +1,27 @@
 """What ``edgedsm tune`` writes: the config snippet, the JSON summary, and the report (markdown and
 two plots: the chosen activity with its thresholds, and timing error against cost for every
-candidate)."""
+candidate); the last report, kept where the dashboard reads it (``device.commissioning_dir``)."""
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
+import os
+import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from edgedsm.config import DaemonConfig
-from edgedsm.tuning.candidates import Outcome, pareto
+from edgedsm.tuning.candidates import ROBUST_D_PRIME, Outcome, pareto
 from edgedsm.tuning.session import Result
 
 #: the activities that have a unit (docs/descriptors.md; the others are dimensionless)
-UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "tau_c": " (s)"}
+UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "gd": " (grey levels)", "tau_c": " (s)"}
+#: the last report's files in device.commissioning_dir (the dashboard reads them: edgedsm.dashboard.commissioning)
+LAST_SUMMARY, LAST_PLOTS = "summary.json", ("activity.png", "tradeoff.png")
 THRESHOLD_KEYS = {"wet_above", "dry_below", "wet_below_s", "dry_above_s", "hysteresis", "min_dwell_s"}
 
 
@@ -75,7 +80,7 @@ def outcome_json(outcome: Outcome) -> dict[str, Any]:
             "delay_s": outcome.delay_s if math.isfinite(outcome.delay_s) else None,
             "timing_error_s": outcome.timing_error_s if math.isfinite(outcome.timing_error_s) else None,
             "false_per_hour": outcome.false_per_hour, "cost_ms_per_frame": outcome.cost_s * 1e3,
-            "sound": outcome.sound,
+            "sound": outcome.sound, "robust": outcome.robust,
             "regions": {name: {"auc": r.separation.auc, "delay_s": r.replay.delay_s,
                                "false_transitions": r.replay.false_transitions,
                                "transitions": [list(t) for t in r.replay.states],
@@ -132,14 +137,16 @@ def plot_chosen(path: Path, result: Result) -> None:
 
 def plot_tradeoff(path: Path, result: Result) -> None:
     """Timing error against cost per frame for every candidate that calls every region dry; the
-    sound ones filled, the recommended one ringed."""
+    sound and robust ones filled, the sound ones of d′ < ROBUST_D_PRIME filled orange, the
+    recommended one ringed."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for outcome in result.outcomes:
         if not math.isfinite(outcome.timing_error_s):
             continue
-        ax.scatter(outcome.cost_s * 1e3, outcome.timing_error_s, s=18,
-                   facecolors="C0" if outcome.sound else "none", edgecolors="C0")
+        fill = ("C0" if outcome.robust else "C1") if outcome.sound else "none"
+        ax.scatter(outcome.cost_s * 1e3, outcome.timing_error_s, s=18, facecolors=fill,
+                   edgecolors="C0" if fill == "none" else fill)
     if result.chosen is not None:
         ax.scatter(result.chosen.cost_s * 1e3, result.chosen.timing_error_s, s=120, facecolors="none",
                    edgecolors="C3", label=f"recommended: {result.chosen.candidate.label()}")
@@ -147,7 +154,7 @@ def plot_tradeoff(path: Path, result: Result) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("engine push per frame (ms, measured)")
     ax.set_ylabel("worst |dry call - dry mark| (s)")
-    ax.set_title("filled: separates, calls dry, no false transition")
+    ax.set_title(f"filled: separates, calls dry, no false transition; orange: d′ < {ROBUST_D_PRIME:g}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -169,14 +176,38 @@ def report(out: Path, result: Result, command: str) -> list[Path]:
     plot_tradeoff(out / "tradeoff.png", result)
     written.append(out / "tradeoff.png")
     lines += ["![timing error against cost](tradeoff.png)", "",
-              "| candidate | AUC | d′ | dry call vs mark (s) | false /h | ms/frame | sound |",
-              "|---|---|---|---|---|---|---|"]
+              "| candidate | AUC | d′ | dry call vs mark (s) | false /h | ms/frame | sound | robust |",
+              "|---|---|---|---|---|---|---|---|"]
     for outcome in sorted(result.outcomes, key=lambda o: (not o.sound, o.timing_error_s, o.cost_s)):
         delay = f"{outcome.delay_s:+.1f}" if math.isfinite(outcome.delay_s) else "never"
         d_prime = f"{outcome.d_prime:.1f}" if outcome.d_prime < 100 else "> 100"
         lines.append(f"| {outcome.candidate.label()} | {outcome.auc:.3f} | {d_prime} | {delay} | "
-                     f"{outcome.false_per_hour:.1f} | {outcome.cost_s * 1e3:.3f} | {'yes' if outcome.sound else ''} |")
+                     f"{outcome.false_per_hour:.1f} | {outcome.cost_s * 1e3:.3f} | {'yes' if outcome.sound else ''} | "
+                     f"{'yes' if outcome.robust else ''} |")
     if result.excluded:
         lines += ["", "Not scored:", ""] + [f"- {c.label()}: {why}" for c, why in result.excluded]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     return [out / "report.md", *written]
+
+
+def keep_last(folder: Path, result: Result, command: str, config: DaemonConfig) -> Path:
+    """The report (report.md and its plots) and LAST_SUMMARY (:func:`summary_json` with the
+    date, the command, the config and the device) in ``folder``, where the dashboard reads them.
+    Each file is written aside and moved in whole, the summary last, so that a page reading
+    meanwhile gets the old report or the new one, never a torn file."""
+    partial = folder / ".partial"
+    if partial.exists():
+        shutil.rmtree(partial)
+    written = report(partial, result, command)
+    summary = summary_json(result) | {
+        "written_at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "command": command,
+        "config": config.source, "device": config.device.name,
+        "plots": [path.name for path in written if path.suffix == ".png"]}
+    (partial / LAST_SUMMARY).write_text(json.dumps(summary, indent=1, ensure_ascii=False), encoding="utf-8")
+    for name in (*LAST_PLOTS, "report.md", LAST_SUMMARY):
+        if (partial / name).exists():
+            os.replace(partial / name, folder / name)
+        else:  # no recommendation: no activity plot; the last run's must not stay beside this summary
+            (folder / name).unlink(missing_ok=True)
+    partial.rmdir()
+    return folder / LAST_SUMMARY

@@ -4,13 +4,13 @@ over time, plain and as the daemon judges it above the camera's noise (docs/comm
 Frames are pushed one by one into the streaming engine (memory: the engine's window, as
 ``analyze --timeline``); every ``step`` frames once the window is full each region gives the
 activities the daemon can judge on (``estimator.activity``): S1, S2, S3 and the field's
-descriptors contrast, Fujii and IM (docs/descriptors.md), as the daemon's region means
+descriptors contrast, Fujii, IM and (asked for by name) GD (docs/descriptors.md), as the daemon's region means
 (:func:`~edgedsm.estimators.region_stats.region_moments` on the engine's live sums, the
 daemon's own reduction), τc in seconds (its pooled fit, sliding and tumbling windows) and,
 through the daemon's own :class:`~edgedsm.daemon.signal_judge.SignalJudge` on the same noise
-patches, S1, S2, S3, Fujii, IM and the contrast above their noise floors, NaN while the daemon
-would hold the state (dark, saturated, not speckle). The judge is the daemon's so that the delays
-a candidate is credited with are the ones the daemon, configured from the snippet, shows.
+patches, S1, S2, S3, Fujii, IM, the contrast and GD above their noise floors, NaN while the
+daemon would hold the state (dark, saturated, not speckle). The judge is the daemon's so that the
+delays a candidate is credited with are the ones the daemon, configured from the snippet, shows.
 
 Fujii is 200·S2 at q = 0, and the daemon judged on it runs its engine at q = 0
 (``estimator.engine_q``); when the config's q is not 0 (S2 is judged at that q), Fujii comes
@@ -33,12 +33,16 @@ from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.noise_summary import ESTIMATORS as FLOORED
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
+from edgedsm.estimators.value_set import gd_mode_problem
 from edgedsm.noise_patches import NoisePatches
 
 PLAIN = PAPER_MAPS  # S1, S2, S3: always formed (the daemon does; S3's and τc's floors need S1)
 #: every activity the daemon can judge on (``estimator.activity``), in the order candidates are listed;
 #: not the band ratio yet (its split would be one more tuned setting, and the exponential mode has no bands)
 JUDGEABLE = (*PAPER_MAPS, "tau_c", *(name for name in DESCRIPTOR_ACTIVITIES if name != "band_ratio"))
+#: those tried unless asked for by name: all but GD, whose O(N)-per-pixel push makes every pass of
+#: a setting several times longer (docs/commissioning.md), so that a budget would cover fewer settings
+DEFAULT_CANDIDATES = tuple(name for name in JUDGEABLE if name != "gd")
 #: those the daemon judges above a noise floor (τc is held, not lowered)
 WITH_FLOOR = tuple(name for name in JUDGEABLE if name in FLOORED)
 
@@ -73,6 +77,12 @@ class Series:
         return np.asarray(self.values[region][variant], np.float64)
 
 
+def in_mode(estimators: Sequence[str], mode: str) -> tuple[str, ...]:
+    """``estimators`` without those the engine cannot keep in window ``mode`` (GD in the exponential
+    mode; τc is left to ``Setting.has_tau``)."""
+    return tuple(name for name in estimators if not (name == "gd" and gd_mode_problem(mode)))
+
+
 def variants(estimators: Sequence[str], has_tau: bool = True) -> tuple[str, ...]:
     """The series a pass of ``estimators`` (among JUDGEABLE) gives per region: each plain (S1-S3
     always), those with a floor also above it ("@noise"), τc in seconds where the mode has it."""
@@ -84,12 +94,14 @@ def variants(estimators: Sequence[str], has_tau: bool = True) -> tuple[str, ...]
 def run_pass(frames: Iterable[np.ndarray], setting: Setting, config: DaemonConfig,
              masks: dict[str, np.ndarray], dt: float, step: int, bits: int | None = None,
              times_s: Sequence[float] | None = None, max_lag: int | None = None,
-             on_frame: Callable[[], None] | None = None, estimators: Sequence[str] = JUDGEABLE) -> Series:
+             on_frame: Callable[[], None] | None = None, estimators: Sequence[str] = DEFAULT_CANDIDATES) -> Series:
     """Push ``frames`` through an engine at ``setting`` (cropped to the regions' bounding box, as
     the daemon's ``area = "regions"``: the activity does not depend on what lies outside), and
     sample every region every ``step`` frames (module docstring). ``max_lag``: τc's K (default
-    the config's rule for this N and m). ``estimators``: the activities wanted (among JUDGEABLE)."""
+    the config's rule for this N and m). ``estimators``: the activities wanted (among JUDGEABLE;
+    GD only where the mode keeps a window)."""
     started = time.perf_counter()
+    estimators = in_mode(estimators, setting.mode)
     rows, cols = bounding_box(list(masks.values()))
     shape = (rows.stop - rows.start, cols.stop - cols.start)
     boxes = {name: RegionBox.of(mask).shifted(rows, cols) for name, mask in masks.items()}

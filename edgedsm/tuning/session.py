@@ -5,7 +5,7 @@ The settings are tried in order of likelihood (N near 100, m near 5 first: the p
 daemon's defaults), one streaming pass each; a setting's time (its pass, its cost timings and its
 scoring) is measured and no setting is begun that the budget cannot hold if it takes as long as
 the last (the first always runs). The candidates of a setting are every judgeable estimator asked
-for (``estimators``, default all of series.JUDGEABLE): more estimators make each setting longer,
+for (``estimators``, default series.DEFAULT_CANDIDATES: all but GD): more estimators make each setting longer,
 so the same budget covers fewer settings. Each candidate's cost per frame is measured by the
 engine on frames of the run at the camera's size (the whole frame, or the regions' bounding box
 with ``estimator.area = "regions"``), as the daemon would push them; Fujii's at q = 0, the q its
@@ -25,7 +25,7 @@ from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.errors import DataError
 from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, recommend
-from edgedsm.tuning.series import JUDGEABLE, Series, Setting, push_cost, run_pass
+from edgedsm.tuning.series import DEFAULT_CANDIDATES, Series, Setting, push_cost, run_pass
 
 WINDOWS = (100, 200, 50, 400)
 LAGS = (5, 10, 2, 1, 20)
@@ -95,7 +95,7 @@ def check_marks(run: Run) -> None:
 def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s: float,
          settings: Sequence[Setting], on_frame: Callable[[], None] | None = None,
          on_pass: Callable[[Setting, int, int], None] | None = None,
-         estimators: Sequence[str] = JUDGEABLE) -> Result:
+         estimators: Sequence[str] = DEFAULT_CANDIDATES) -> Result:
     """Score every candidate of ``estimators`` at ``settings`` on ``run`` within ``budget_s``
     (module docstring)."""
     check_marks(run)

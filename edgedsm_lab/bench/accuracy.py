@@ -278,7 +278,8 @@ def measure_step(plan: Plan, results: Results) -> None:
 
 def mode_estimators(mode: str) -> tuple[str, ...]:
     """What the engine offers in ``mode``: τc's finite-window bias correction has no exponential
-    counterpart (S1-S3 only there), GD's update reads the window's frames (sliding only)."""
+    counterpart (S1-S3 only there), GD's update reads the window's frames (no exponential form;
+    measured sliding only: tumbling keeps the same exact sum, docs/descriptors.md)."""
     base = ESTIMATORS if mode != "exponential" else ESTIMATORS[:3]
     return base + tuple(name for name in DESCRIPTORS if name != "gd" or mode == "sliding")
 

@@ -287,8 +287,8 @@ def write_report(report: Report, results: Results, load: float | None, command: 
     report.table(["mode", "N", "S1 50 % / 90 %", "S3 50 % / 90 %", "τc 50 % / 90 %", "S1 ms", "τc ms"],
                  delay_rows(results, ("s1", "s3", "tau_c"), ("s1", "tau_c")))
     report.line()
-    report.line("The descriptors through the same step, each in the modes the engine offers it (GD: sliding only), "
-                "and the engine's ms/frame for it alone in that mode.")
+    report.line("The descriptors through the same step, each in the modes the engine offers it (GD: measured "
+                "sliding; tumbling keeps the same exact sum), and the engine's ms/frame for it alone in that mode.")
     report.line()
     report.table(["mode", "N", *(f"{LABELS[e]} 50 % / 90 %" for e in DESCRIPTORS),
                   *(f"{LABELS[e]} ms" for e in DESCRIPTORS)], delay_rows(results, DESCRIPTORS, DESCRIPTORS))
@@ -398,8 +398,8 @@ def descriptor_choices(results: Results) -> list[str]:
         f"(AUC {auc_of('fujii')} (S2 {auc_of('s2')}) at N = {big} clean, {auc_of('fujii', 'noisy')} "
         f"(S2 {auc_of('s2', 'noisy')}) noisy) and S2's sums: {ms('fujii', mid)} ms/frame (S2 {ms('s2', mid)}) at "
         f"N = {mid} (tables 1, 1b) |",
-        f"| GD, the field's most cited descriptor | `gd`, N of a few τc; sliding only | every pair of the window: "
-        f"once N ≫ τc both levels decorrelate inside it and GD reads the intensity spread, so its AUC falls "
+        f"| GD, the field's most cited descriptor | `gd`, N of a few τc; sliding or tumbling | every pair of the "
+        f"window: once N ≫ τc both levels decorrelate inside it and GD reads the intensity spread, so its AUC falls "
         f"with N ({auc_of('gd', n=small)} → {auc_of('gd')} at N = {small} → {big}; S2 {auc_of('s2', n=small)} → "
         f"{auc_of('s2')}); β {beta_of('gd', n=small)} → {beta_of('gd')}; "
         f"its push is O(N): {ms('gd', small)} → {ms('gd', big)} ms/frame, {gd_times:.0f}× S1 "

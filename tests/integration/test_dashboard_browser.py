@@ -5,6 +5,7 @@ process, and Debian's chromium (headless) driven by Selenium.
 Checked: the page lists every device; a state change on MQTT shows on the page within 2 s; the
 map is drawn (the screenshot's pixels match the map the server serves); the history plot holds
 exactly the points the database holds; hostile payloads are shown escaped and break nothing;
+the last `edgedsm tune` report of a device's config is shown with the thresholds it proposed;
 no console errors. Set EDGEDSM_DOCS_SCREENSHOTS=docs to refresh the screenshots in docs/.
 """
 
@@ -14,6 +15,8 @@ import json
 import os
 import re
 import sqlite3
+import subprocess
+import sys
 import time
 import tomllib
 from collections.abc import Iterator
@@ -27,7 +30,7 @@ import paho.mqtt.client as mqtt
 import pytest
 from helpers_daemon import DRYING_SCENE, Daemon, base_config, write_config
 from helpers_dashboard import DashboardProcess, make_browser, severe_console_messages, wait_for
-from helpers_mqtt import REPO, Broker
+from helpers_mqtt import REPO, Broker, child_env
 from paho.mqtt.enums import CallbackAPIVersion
 from pydantic import TypeAdapter
 
@@ -64,6 +67,7 @@ class Plant:
     publisher: mqtt.Client
     shots: Path
     commands: list[tuple[str, bytes]]
+    configs: dict[str, Path]
 
     def publish(self, topic: str, payload: bytes | str | dict, retain: bool = False) -> None:
         data = json.dumps(payload) if isinstance(payload, dict) else payload
@@ -120,7 +124,8 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
         shots = Path(os.environ.get("EDGEDSM_DOCS_SCREENSHOTS") or tmp)
         if not shots.is_absolute():
             shots = REPO / shots
-        yield Plant(broker, daemons, dashboard, browser, database, publisher, shots, replies)
+        yield Plant(broker, daemons, dashboard, browser, database, publisher, shots, replies,
+                    {"plate-a": drying, "plate-b": wet})
     finally:
         if browser is not None:
             browser.quit()
@@ -324,4 +329,68 @@ def test_the_history_plot_has_the_points_the_database_has(plant: Plant) -> None:
     assert plant.js("return window.edgedsmDashboard.thresholds()") == {"wet_above": 0.24, "dry_below": 0.10}
     csv_text = plant.get(f"/api/history?device=plate-a&region=plate&from={time.time() - 3600}&format=csv").decode()
     assert len(csv_text.strip().splitlines()) == len(rows) + 1
+    _no_errors(plant)
+
+
+@pytest.mark.timeout(180)
+def test_the_last_commissioning_report_shows_the_thresholds_tune_proposed(plant: Plant, tmp_path: Path) -> None:
+    from edgedsm.dashboard.commissioning import report_dirs
+
+    wait_for(lambda: "plate: " in plant.card_text("plate-a"), 40, "plate-a on the page")
+    plant.js("window.edgedsmDashboard.select('plate-a')")
+    message = "return document.getElementById('commissioning-message').textContent"
+    wait_for(lambda: plant.js(message).startswith("no commissioning report yet: `edgedsm tune RUN -c CONFIG ...`"),
+             10, "the page to say there is no report yet")
+    assert plant.js("return document.getElementById('commissioning-report').hidden") is True
+    # a real tune with plate-a's config, on the demo plate at 64²: few candidates, about 10 s
+    scene = tmp_path / "reference-plate.toml"
+    scene.write_text(DRYING_SCENE.read_text().replace("size = 128", "size = 64"))
+    tune = subprocess.run([sys.executable, "-m", "edgedsm", "tune", str(scene), "-c", str(plant.configs["plate-a"]),
+                           "--frames", "1300", "--wet-until", "10", "--dry-from", "50", "--windows", "100",
+                           "--lags", "5,10", "--estimators", "s2,s3,contrast", "--no-progress", "--json"],
+                          capture_output=True, text=True, env=child_env(), timeout=150)
+    assert tune.returncode == 0, tune.stderr
+    summary = json.loads(tune.stdout)
+    chosen = summary["recommended"]
+    load = "const done = arguments[arguments.length - 1]; window.edgedsmDashboard.loadCommissioning().then(done);"
+    shown = plant.browser.execute_async_script(load)
+    assert shown["message"] is None and shown["report"]["recommended"]["label"] == chosen["label"]
+
+    def text(element: str) -> str:
+        return plant.js(f"return document.getElementById('commissioning-{element}').textContent")
+
+    assert text("choice") == f"recommended: {chosen['label']}"
+    assert (f'[estimator] activity = "{chosen["estimator"]}", window = {chosen["window"]}, lag = {chosen["lag"]}, '
+            f'mode = "{chosen["mode"]}"') in text("numbers")
+    assert text("reason") == summary["reason"] + "." and "d′" in text("reason")
+    rows = plant.js("return [...document.querySelectorAll('#commissioning-regions tr.commissioning-region')].map(r => "
+                    "[r.dataset.region, r.querySelector('.wet').textContent, r.querySelector('.dry').textContent])")
+    assert [name for name, _, _ in rows] == list(chosen["regions"]) == ["plate"]
+    for name, wet, dry in rows:
+        proposed = chosen["regions"][name]["thresholds"]
+        for shown_text in (wet, dry):  # "wet_above = 0.4887" (τc: "wet_below_s = 0.12 s")
+            key, value = shown_text.removesuffix(" s").split(" = ")
+            assert float(value) == proposed[key], (shown_text, proposed)
+    assert re.match(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC · run " + re.escape(str(scene)) + ": 1300 frames", text("run"))
+    assert text("command").startswith(f"edgedsm tune {scene} -c {plant.configs['plate-a']}")
+    for name in ("activity", "tradeoff"):
+        wait_for(lambda name=name: plant.js(f"const i = document.getElementById('commissioning-{name}'); "
+                                            "return i.complete && i.naturalWidth > 600 && !i.hidden"), 10,
+                 f"the {name} plot")
+    panel = plant.browser.find_element("id", "commissioning")
+    plant.js("arguments[0].scrollIntoView()", panel)
+    panel.screenshot(str(plant.shots / "dashboard-commissioning.png"))
+
+    # the report is another program's file: whatever text it holds is shown, never run
+    hostile = '<img src=x onerror="window.tunePwned=1">'
+    summary_file = report_dirs([plant.configs["plate-a"]])["plate-a"] / "summary.json"
+    data = json.loads(summary_file.read_text())
+    data["run"] = data["reason"] = data["command"] = data["recommended"]["label"] = hostile
+    data["recommended"]["regions"] = {hostile: data["recommended"]["regions"]["plate"]}
+    summary_file.write_text(json.dumps(data))
+    plant.browser.execute_async_script(load)
+    assert text("choice") == f"recommended: {hostile}" and text("command") == hostile and hostile in text("run")
+    assert plant.js("return document.querySelector('#commissioning-regions td').textContent") == hostile
+    assert plant.js("return window.tunePwned === undefined && document.querySelectorAll('img[src=\"x\"]').length "
+                    "=== 0")
     _no_errors(plant)

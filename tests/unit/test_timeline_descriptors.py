@@ -1,5 +1,6 @@
 """`analyze --timeline` with the field's streaming descriptors (issue 24): the temporal contrast,
-Fujii and the inertia moment as region-mean columns, equal to the batch references of each window."""
+Fujii, the inertia moment and the generalized differences as region-mean columns, equal to the
+batch references of each window (sliding) or set (tumbling)."""
 
 from __future__ import annotations
 
@@ -24,8 +25,8 @@ def test_descriptor_columns_are_the_region_means_of_each_windows_maps() -> None:
     left[:, :8] = True
     regions = {"left": left, "right": ~left}
     result = timeline(iter(frames), regions, window=10, lag=2, every=6, with_tau=False, with_noise=False,
-                      descriptors=("im", "contrast", "fujii"), histogram_estimator="contrast")
-    assert result.columns == (*COLUMNS, "contrast", "fujii", "im")  # in the descriptors' own order
+                      descriptors=("gd", "im", "contrast", "fujii"), histogram_estimator="contrast")
+    assert result.columns == (*COLUMNS, "contrast", "fujii", "im", "gd")  # in the descriptors' own order
     assert len(result.rows) == 2 * 6  # frames 9, 15, ..., 39
     for row in result.rows:
         index, name = row[0], row[2]
@@ -35,15 +36,29 @@ def test_descriptor_columns_are_the_region_means_of_each_windows_maps() -> None:
         assert values["im"] == pytest.approx(descriptors.im(window, 2)[mask].mean(), rel=1e-13)
         assert values["fujii"] == pytest.approx(descriptors.fujii(window, 2)[mask].mean(), rel=1e-12)
         assert values["fujii"] == pytest.approx(200 * values["s2"], rel=1e-13)  # the timeline's q is 0
-        assert all(np.isfinite(values[key]) for key in ("contrast", "fujii", "im"))
+        assert values["gd"] == pytest.approx(descriptors.gd(window)[mask].mean(), rel=1e-13)
+        assert all(np.isfinite(values[key]) for key in ("contrast", "fujii", "im", "gd"))
     assert result.histogram_estimator == "contrast" and len(result.histograms) == 6
+
+
+def test_gd_column_of_disjoint_sets_comes_from_the_tumbling_engine() -> None:
+    rng = np.random.default_rng(5)
+    frames = rng.integers(0, 4096, (50, 8, 10), dtype=np.uint16)
+    regions = {"all": np.ones((8, 10), bool)}
+    result = timeline(iter(frames), regions, window=10, lag=1, every=10, bits=12, with_tau=False, with_noise=False,
+                      descriptors=("gd",), histogram_estimator="gd")  # every = N: the paper's sets, tumbling
+    assert [row[0] for row in result.rows] == [9, 19, 29, 39, 49]
+    for row in result.rows:
+        expected = descriptors.gd(frames[row[0] - 9:row[0] + 1]).mean()
+        assert row[-1] == pytest.approx(expected, rel=1e-13) and 1000 < row[-1] < 1700  # ~4096/3 for uniform data
+    assert len(result.histograms) == 5
 
 
 def test_unknown_descriptors_and_histograms_of_maps_not_followed_are_refused() -> None:
     frames = np.zeros((12, 4, 4), np.uint8)
     regions = {"all": np.ones((4, 4), bool)}
-    with pytest.raises(EstimatorError, match="not \\['gd'\\]"):
-        timeline(iter(frames), regions, window=10, lag=1, every=1, descriptors=("gd",))
+    with pytest.raises(EstimatorError, match="not \\['mhi'\\]"):
+        timeline(iter(frames), regions, window=10, lag=1, every=1, descriptors=("mhi",))
     with pytest.raises(EstimatorError, match="histogram estimator must be one of s1, s2, s3, got 'im'"):
         timeline(iter(frames), regions, window=10, lag=1, every=1, histogram_estimator="im")
 
@@ -61,32 +76,36 @@ def test_analyze_timeline_follows_the_estimator_named(tmp_path: Path, capsys: py
     assert 0.5 < early < 0.8 and late < 0.75 * early  # σ/⟨I⟩ falls as the film dries
     assert (out / "timeline.png").stat().st_size > 10_000
     assert main(["analyze", str(scene), "--frames", "60", "--timeline", str(out), "--window", "50",
-                 "--estimator", "gd"]) == 1
-    assert "gd is a batch map only" in capsys.readouterr().err
+                 "--estimator", "mhi"]) == 1
+    assert "mhi is a batch map only" in capsys.readouterr().err
 
 
-def test_the_configs_activity_adds_its_column(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("activity", "reference", "apart"), [
+    ("im", lambda window: descriptors.im(window, 1), 10),  # differences 4x smaller: IM about 16x
+    ("gd", descriptors.gd, 3),  # GD about 4x
+])
+def test_the_configs_activity_adds_its_column(tmp_path: Path, activity, reference, apart) -> None:
     frames = np.random.default_rng(1).integers(0, 256, (30, 16, 16), dtype=np.uint8)
-    frames[:, :, 8:] //= 4  # the right half: differences 4x smaller, IM about 16x
+    frames[:, :, 8:] //= 4  # the right half: differences 4x smaller
     np.save(tmp_path / "frames.npy", frames)
     config = tmp_path / "edgedsm.toml"
     region = '[[regions]]\nname = "{}"\nshape = "rect"\nx = {}\ny = 0\nwidth = 8\nheight = 16\n' \
              'wet_above = 400.0\ndry_below = 50.0\n\n'
-    config.write_text('[camera]\nuri = "sim:default"\n\n[estimator]\nactivity = "im"\n\n'
+    config.write_text(f'[camera]\nuri = "sim:default"\n\n[estimator]\nactivity = "{activity}"\n\n'
                       + region.format("left", 0) + region.format("right", 8))
     out = tmp_path / "out"
     assert main(["analyze", str(tmp_path / "frames.npy"), "--timeline", str(out), "-c", str(config), "--window",
                  "10", "--lag", "1", "--every", "10", "--no-tau-c", "--no-noise-floor"]) == 0
     with (out / "timeline.csv").open(newline="") as handle:
         rows = list(csv.DictReader(handle))
-    assert list(rows[0])[-1] == "im" and len(rows) == 2 * 3  # frames 9, 19, 29
+    assert list(rows[0])[-1] == activity and len(rows) == 2 * 3  # frames 9, 19, 29
     for row in rows:
         index, x = int(row["frame"]), 0 if row["region"] == "left" else 8
-        expected = descriptors.im(frames[index - 9:index + 1, :, x:x + 8], 1).mean()
-        assert float(row["im"]) == pytest.approx(expected, rel=1e-5)  # the CSV keeps 6 digits
-    left = [float(r["im"]) for r in rows if r["region"] == "left"]
-    right = [float(r["im"]) for r in rows if r["region"] == "right"]
-    assert min(left) > 10 * max(right)
+        expected = reference(frames[index - 9:index + 1, :, x:x + 8]).mean()
+        assert float(row[activity]) == pytest.approx(expected, rel=1e-5)  # the CSV keeps 6 digits
+    left = [float(r[activity]) for r in rows if r["region"] == "left"]
+    right = [float(r[activity]) for r in rows if r["region"] == "right"]
+    assert min(left) > apart * max(right)
 
 
 @pytest.mark.parametrize("every", [4, 16])  # sliding, and tumbling (every a multiple of N)

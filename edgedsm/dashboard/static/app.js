@@ -122,6 +122,7 @@ function select(name) {
   renderCards();
   renderDetail();
   loadHistory();
+  loadCommissioning();
 }
 
 // -- one device ---------------------------------------------------------------------------------
@@ -334,6 +335,78 @@ function appendLive(device) {
   plot.setData(plotData());
 }
 
+// -- commissioning: the last `edgedsm tune` report of the device ----------------------------------
+
+let commissioning = null; // the last answer of /api/commissioning for the selected device
+
+const THRESHOLD_NAMES = { wet: ["wet_above", "wet_below_s"], dry: ["dry_below", "dry_above_s"] };
+
+function threshold(thresholds, side) {
+  // "0.4887" or "0.12 s" (τc); the key tells which
+  for (const key of THRESHOLD_NAMES[side]) {
+    if (typeof thresholds[key] === "number") return `${key} = ${thresholds[key]}${key.endsWith("_s") ? " s" : ""}`;
+  }
+  return "–";
+}
+
+function markDelay(delay) {
+  if (typeof delay !== "number" || !isFinite(delay)) return "never";
+  return delay >= 0 ? `${delay.toFixed(1)} s after` : `${(-delay).toFixed(1)} s before`;
+}
+
+async function loadCommissioning() {
+  const device = selected;
+  if (!device) return null;
+  const answer = await fetch(`/api/commissioning?device=${encodeURIComponent(device)}`).then((r) => r.json());
+  if (device !== selected) return answer;
+  commissioning = answer;
+  renderCommissioning(answer);
+  return answer;
+}
+
+function renderCommissioning(answer) {
+  // every string of the report is written by textContent: the file is another program's output
+  const report = answer && answer.report;
+  $("commissioning-message").hidden = !!report;
+  $("commissioning-report").hidden = !report;
+  if (!report) {
+    $("commissioning-message").textContent = (answer && (answer.message || answer.error)) || "no commissioning report";
+    return;
+  }
+  const choice = report.recommended;
+  $("commissioning-choice").textContent = choice ? `recommended: ${choice.label}`
+    : "no recommendation: no candidate separates wet from dry on every region without a false transition";
+  $("commissioning-numbers").textContent = choice ? `dry ${markDelay(choice.delay_s)} the dry mark · AUC `
+    + `${fmt(choice.auc, 4)} · d′ ${choice.d_prime === null ? "∞" : fmt(choice.d_prime, 3)}`
+    + `${choice.robust === false ? " (not robust)" : ""} · ${fmt(choice.cost_ms_per_frame, 3)} ms per frame · `
+    + `[estimator] activity = "${choice.estimator}", window = ${choice.window}, lag = ${choice.lag}, `
+    + `mode = "${choice.mode}"` : "";
+  $("commissioning-reason").textContent = `${report.reason}.`;
+  const regions = choice ? Object.entries(choice.regions) : [];
+  $("commissioning-regions").hidden = !choice;
+  $("commissioning-regions").tBodies[0].replaceChildren(...regions.map(([name, region]) =>
+    el("tr", { class: "commissioning-region", "data-region": name },
+      el("td", {}, name),
+      el("td", { class: "wet" }, threshold(region.thresholds, "wet")),
+      el("td", { class: "dry" }, threshold(region.thresholds, "dry")),
+      el("td", {}, `${region.thresholds.hysteresis ?? "–"}`),
+      el("td", {}, `${region.thresholds.min_dwell_s ?? "–"} s`),
+      el("td", {}, markDelay(region.delay_s)))));
+  const when = String(report.written_at).replace("T", " ").replace(/\+00:00$/, " UTC");
+  $("commissioning-run").textContent = `${when} · run ${report.run}: ${report.frames} frames, Δt ${report.dt_s} s, `
+    + `wet until ${report.wet_until_s} s, dry from ${report.dry_from_s} s · ${report.candidates} candidates in `
+    + `${fmt(report.seconds, 3)} s · config ${report.config}`;
+  $("commissioning-command").textContent = report.command;
+  for (const name of ["activity", "tradeoff"]) {
+    const img = $(`commissioning-${name}`);
+    const shown = report.plots.includes(`${name}.png`);
+    img.hidden = !shown;
+    const src = `/api/commissioning/${name}.png?device=${encodeURIComponent(answer.device)}&at=${encodeURIComponent(report.written_at)}`;
+    if (shown && img.getAttribute("src") !== src) img.setAttribute("src", src);
+    if (!shown) img.removeAttribute("src");
+  }
+}
+
 // -- region editor ---------------------------------------------------------------------------------
 
 function mapPoint(event) {
@@ -469,7 +542,8 @@ async function main() {
 
 // for the browser tests and for curious operators (read-only views of what is drawn)
 window.edgedsmDashboard = {
-  select, loadHistory, measure,
+  select, loadHistory, measure, loadCommissioning,
+  commissioning: () => commissioning,
   plotPoints: () => (plot ? plot.data[0].map((t, i) => [t, plot.data[1][i]]) : []),
   thresholds: () => history.thresholds,
 };

@@ -15,7 +15,7 @@ from edgedsm.messages import Alert, RegionSignal, StateReport, Stats
 from edgedsm.publish.sparkplug.payload import DataType, Value
 
 #: Units of the maps' values (docs/mqtt.md); a map not listed here is published without a unit.
-MAP_UNITS = {"s1": "grey levels", "im": "grey levels²", "tau_c": "s"}
+MAP_UNITS = {"s1": "grey levels", "im": "grey levels²", "gd": "grey levels", "tau_c": "s"}
 
 
 @dataclass(frozen=True)

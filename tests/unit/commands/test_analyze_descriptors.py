@@ -3,6 +3,7 @@ the batch function's, the noise floor is null with a reason, and the options eac
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
@@ -67,5 +68,18 @@ def test_missing_or_bad_options_are_one_line(tmp_path: Path, capsys: pytest.Capt
     assert capsys.readouterr().err.strip() == "edgedsm: error: mhi needs --threshold"
     assert main(["analyze", str(path), "--estimator", "band_ratio", "--dt", "0.1", "--split", "7", "-o", out]) == 1
     assert "Nyquist frequency 5" in capsys.readouterr().err
-    assert main(["analyze", str(path), "--estimator", "gd", "--timeline", str(tmp_path / "t")]) == 1
-    assert "gd is a batch map only" in capsys.readouterr().err
+    assert main(["analyze", str(path), "--estimator", "skewness", "--timeline", str(tmp_path / "t")]) == 1
+    assert "skewness is a batch map only" in capsys.readouterr().err
+
+
+def test_gd_streams_with_timeline(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path, out = _frames(tmp_path), tmp_path / "t"
+    assert main(["analyze", str(path), "--estimator", "gd", "--timeline", str(out), "--window", "10", "--every", "5",
+                 "--no-tau-c", "--no-noise-floor", "--no-progress"]) == 0
+    with (out / "timeline.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    frames = np.load(path)
+    assert [int(row["frame"]) for row in rows] == [9, 14, 19] and list(rows[0])[-1] == "gd"
+    for row in rows:  # the whole frame is one region; the CSV keeps 6 digits
+        end = int(row["frame"]) + 1
+        assert float(row["gd"]) == pytest.approx(gd(frames[end - 10:end]).mean(), rel=1e-5)

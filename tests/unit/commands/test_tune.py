@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from edgedsm.cli import main
+from edgedsm.dashboard import commissioning
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.messages import AlertKind
 from edgedsm.publish.sink import RecordingSink
@@ -18,7 +19,10 @@ from tests.unit.daemon.test_pipeline import hold_back, make_pipeline
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO_SCENE = (REPO / "config" / "scenes" / "drying_demo.toml").read_text()
-CONFIG = """[camera]
+CONFIG = """[device]
+commissioning_dir = "last-report"
+
+[camera]
 uri = "sim:scene.toml"
 
 [estimator]
@@ -88,6 +92,19 @@ def test_the_snippet_is_a_daemon_config_with_the_regions_geometry_and_thresholds
     assert report.count("| contrast, N=100 m=5 sliding |") == 1 and report.count("| contrast") == 2
     assert report.count("| contrast above noise, N=100 m=5 sliding |") == 1 and "GD" not in report
     assert (folder / "report" / "tradeoff.png").stat().st_size > 0
+    # the last report, kept where the dashboard reads it (device.commissioning_dir, relative to the config)
+    last = json.loads((folder / "last-report" / "summary.json").read_text())
+    assert text.splitlines()[1].startswith(f"# {last['recommended']['label']} calls every region dry")
+    assert last["recommended"]["regions"]["plate"]["thresholds"] == {key: region[key] for key in (
+        *pair, "hysteresis", "min_dwell_s")}
+    assert (last["device"], last["config"], last["plots"]) == ("camera1", str(folder / "daemon.toml"),
+                                                              ["activity.png", "tradeoff.png"])
+    assert (folder / "last-report" / "report.md").read_text() == report and not (folder / "last-report" /
+                                                                                 ".partial").exists()
+    shown = commissioning.load("camera1", folder / "last-report")  # what the dashboard makes of it
+    assert shown["message"] is None and shown["report"]["recommended"]["regions"]["plate"]["thresholds"] == \
+        last["recommended"]["regions"]["plate"]["thresholds"] and shown["report"]["candidates"] == len(
+            last["candidates"])
 
 
 def test_the_loop_closes_the_daemon_from_the_snippet_dries_the_scene_drawn_again(demo, tmp_path):
@@ -194,10 +211,10 @@ def test_marks_outside_the_run_and_a_run_too_short_are_one_line_exit_65(tmp_path
     assert code == 65 and "the marks must satisfy 0 < --wet-until" in err
     code, _, err = _tune(tmp_path, capsys, "--wet-until", "2", "--dry-from", "50")
     assert code == 65 and "too short for a window: the wet part holds 41 frames" in err
-    with pytest.raises(SystemExit) as refused:  # GD is no candidate: the daemon does not judge on it
-        _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50", "--estimators", "s2,gd")
+    with pytest.raises(SystemExit) as refused:  # a batch map is no candidate: the daemon does not judge on it
+        _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50", "--estimators", "s2,mhi")
     assert refused.value.code == 2
-    assert "gd is not a candidate: the daemon does not judge on it" in capsys.readouterr().err
+    assert "expected some of s1,s2,s3,tau_c,contrast,fujii,im,gd separated by commas" in capsys.readouterr().err
 
 
 def test_a_surface_that_never_dries_is_refused_with_the_best_separation_found(tmp_path, capsys):

@@ -1,7 +1,8 @@
-"""The field's descriptors through the daemon (issue 24): the drying states judged on Fujii (above its
-noise floor) and on the temporal contrast (above its floor: the signal's contrast), their region statistics, maps and
-metrics in every sink, and the config's rules for them (Fujii runs the engine at q = 0); the band
-ratio (no floor) likewise, and its split's and mode's config rules."""
+"""The field's descriptors through the daemon (issue 24): the drying states judged on Fujii and on GD
+(above their noise floors; GD in both window modes), on the temporal contrast (above its floor:
+the signal's contrast) and on the band ratio (no floor), their region statistics, maps and metrics
+in every sink, and the config's rules for them (Fujii runs the engine at q = 0, GD and the band
+ratio need a window mode, the band split lies below Nyquist)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import math
 
 import pytest
 
-from edgedsm.config import DaemonConfig
+from edgedsm.cli import main
+from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.engine_budget import engine_bytes_per_pixel
 from edgedsm.daemon.tau import engine_estimators
 from edgedsm.dashboard.plant import Plant
@@ -31,39 +33,56 @@ def _moves(sink) -> list[tuple[str, str]]:
     return [(a.from_state, a.to_state) for a in sink.alerts if a.kind != "warning"]
 
 
-def test_drying_judged_on_fujii_above_its_noise_floor(repo):
+@pytest.mark.parametrize(("activity", "mode", "thresholds", "wet", "dry", "top"), [
     # the demo scene at 64²: Fujii ~58 while wet, ~13 (4 above its floor of ~9) once dry
-    config = _config(repo, {"activity": "fujii"}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
-    assert config.estimator.engine_q == 0.0 and config.estimator.q == 1.0  # q left out: the engine runs at 0
-    assert engine_estimators(config) == ("s1", "s2", "s3", "fujii")
+    ("fujii", "sliding", (40.0, 8.0), (50, 70), (10, 16), 200.0),
+    # GD ~34.5 grey levels while wet, ~11.2 (7.4 above its floor of ~3.8) once dry
+    ("gd", "sliding", (25.0, 9.0), (30, 40), (9, 14), 255.0),
+    ("gd", "tumbling", (25.0, 9.0), (30, 40), (9, 14), 255.0),  # the maps of each completed block
+])
+def test_drying_judged_on_a_descriptor_above_its_noise_floor(repo, activity, mode, thresholds, wet, dry, top):
+    config = _config(repo, {"activity": activity, "mode": mode},
+                     [{**PLATE, "wet_above": thresholds[0], "dry_below": thresholds[1]}])
+    if activity == "fujii":
+        assert config.estimator.engine_q == 0.0 and config.estimator.q == 1.0  # q left out: the engine runs at 0
+    assert engine_estimators(config) == ("s1", "s2", "s3", activity)
     sink, pipeline = _run(config, repo, 1300)
     assert pipeline.counters["dropped_queue"] == 0
     assert _moves(sink) == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")], sink.alerts
     ready = [s for s in sink.stats if s.ready]
-    assert all(s.estimator == "fujii" and set(s.regions["plate"]) == {"s1", "s2", "s3", "fujii"} for s in ready)
-    for stats in ready:  # 200·S2 of the same q = 0 sums, region by region (means of a map scaled by 200)
+    assert all(s.estimator == activity and set(s.regions["plate"]) == {"s1", "s2", "s3", activity} for s in ready)
+    for stats in ready if activity == "fujii" else ():  # 200·S2 of the same q = 0 sums, region by region
         plate = stats.regions["plate"]
         assert plate["fujii"].mean == pytest.approx(200 * plate["s2"].mean, rel=1e-12)
         assert plate["fujii"].p95 == pytest.approx(200 * plate["s2"].p95, rel=1e-12)
-    first, last = ready[0].regions["plate"]["fujii"], ready[-1].regions["plate"]["fujii"]
-    assert 50 < first.mean < 70 and 10 < last.mean < 16, (first, last)
+    first, last = ready[0].regions["plate"][activity], ready[-1].regions["plate"][activity]
+    assert wet[0] < first.mean < wet[1] and dry[0] < last.mean < dry[1], (first, last)
+    assert 0 < first.p05 <= first.median <= first.p95 and first.std > 0  # the region's spread, not only its mean
     signal = ready[-1].signal["plate"]
     assert signal.noise_floor is not None and signal.above_noise == pytest.approx(last.mean - signal.noise_floor)
     report = sink.states[-1]
-    assert report.estimator == "fujii" and report.regions["plate"].state == "dry"
+    assert report.estimator == activity and report.regions["plate"].state == "dry"
     assert report.regions["plate"].activity == pytest.approx(signal.above_noise, rel=0.05)
-    maps = [m for m in sink.maps if m.name == "fujii"]
-    assert maps and {m.name for m in sink.maps} == {"s1", "s2", "s3", "fujii"}
-    assert math.isfinite(maps[-1].values.max()) and maps[-1].values.min() >= 0 and maps[-1].values.max() <= 200
+    maps = [m for m in sink.maps if m.name == activity]
+    assert maps and {m.name for m in sink.maps} == {"s1", "s2", "s3", activity}
+    assert math.isfinite(maps[-1].values.max()) and maps[-1].values.min() >= 0 and maps[-1].values.max() <= top
     # every sink that enumerates metrics carries it
     readings = stats_readings(ready[-1])
-    assert readings["regions/plate/fujii/mean"].value == last.mean
-    assert "regions/plate/fujii/mean" in declared_readings(["plate"], engine_estimators(config))
+    assert readings[f"regions/plate/{activity}/mean"].value == last.mean
+    assert f"regions/plate/{activity}/mean" in declared_readings(["plate"], engine_estimators(config))
     families = {family.name: family for family in _stats_families(ready[-1])}
     samples = {s.labels["estimator"]: s.value for s in families["edgedsm_region_activity"].samples}
-    assert samples == {name: ready[-1].regions["plate"][name].mean for name in ("s1", "s2", "s3", "fujii")}
-    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").activity_entity("plate", "fujii")
-    assert "'fujii'" in entity.config["value_template"] and entity.config["state_topic"] == "edgedsm/test/stats"
+    assert samples == {name: ready[-1].regions["plate"][name].mean for name in ("s1", "s2", "s3", activity)}
+    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").activity_entity("plate", activity)
+    assert f"'{activity}'" in entity.config["value_template"] and entity.config["state_topic"] == "edgedsm/test/stats"
+    dashboard = Plant("edgedsm", None, lambda kind, data: None)
+    dashboard.handle("edgedsm/cam/stats", ready[-1].to_bytes())
+    png, meta = encode_map(maps[-1].values, estimator=activity)
+    dashboard.handle(f"edgedsm/cam/map/{activity}/meta", json.dumps(meta).encode())
+    dashboard.handle(f"edgedsm/cam/map/{activity}", png)
+    (device,) = dashboard.snapshot()
+    assert device["stats"]["activity"] == {"plate": last.mean} and device["stats"]["estimator"] == activity
+    assert device["maps"][activity]["max"] == pytest.approx(float(maps[-1].values.max()), rel=1e-3)
 
 
 def test_drying_judged_on_the_temporal_contrast_above_its_floor(repo):
@@ -91,12 +110,25 @@ def test_the_config_takes_the_descriptors_and_refuses_fujii_with_a_q(repo):
     inertia = _config(repo, {"activity": "im"}, [{**PLATE, "wet_above": 400.0, "dry_below": 50.0}])
     assert engine_estimators(inertia) == ("s1", "s2", "s3", "im") and inertia.estimator.engine_q == 1.0
     assert map_reading("plate", "im", 120.0)[1].unit == "grey levels²"  # Sparkplug's engineering unit
+    assert map_reading("plate", "gd", 30.0)[1].unit == "grey levels"
     assert _config(repo, {"activity": "fujii", "q": 0}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
     with pytest.raises(ConfigError, match=r"estimator.q: Value error, q = 2.0 with estimator.activity = .fujii."):
         _config(repo, {"activity": "fujii", "q": 2.0}, [{**PLATE, "wet_above": 40.0, "dry_below": 8.0}])
-    with pytest.raises(ConfigError, match="activity"):
-        validate(DaemonConfig, {"camera": {"uri": "sim:x"}, "estimator": {"activity": "gd"},
-                                "regions": [{**PLATE, "wet_above": 1.0, "dry_below": 0.5}]}, "<gd>")
+    generalized = _config(repo, {"activity": "gd", "mode": "tumbling"},
+                          [{**PLATE, "wet_above": 25.0, "dry_below": 9.0}])
+    assert engine_estimators(generalized) == ("s1", "s2", "s3", "gd") and generalized.estimator.engine_q == 1.0
+
+
+def test_gd_in_the_exponential_mode_is_a_config_error_naming_its_key(tmp_path, capsys):
+    path = tmp_path / "gd.toml"
+    path.write_text('[camera]\nuri = "sim:default"\n\n[estimator]\nactivity = "gd"\nmode = "exponential"\n\n'
+                    '[[regions]]\nname = "plate"\nwet_above = 25.0\ndry_below = 9.0\n')
+    with pytest.raises(ConfigError, match=r"gd\.toml"):
+        load_config(path)
+    assert main(["check-config", str(path)]) == 78
+    assert ("estimator: Value error, activity: gd needs mode 'sliding' or 'tumbling', not 'exponential' (its exact "
+            "sum reads the window's frames, and the exponential mode keeps none)") in capsys.readouterr().err
+
 
 
 def test_drying_judged_on_the_band_ratio(repo):

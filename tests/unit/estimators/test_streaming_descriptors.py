@@ -1,7 +1,8 @@
-"""The field's descriptors in the streaming engine (issue 24): temporal contrast, Fujii and the
-inertia moment equal their batch references (edgedsm.estimators.descriptors) in the window modes
-(contrast and IM bit for bit, Fujii within the S2 fixed-point bound), follow a direct weighted
-reference in the exponential mode, and are never NaN on dark, saturated or constant pixels."""
+"""The field's descriptors in the streaming engine (issue 24): temporal contrast, Fujii, the
+inertia moment and the generalized differences equal their batch references
+(edgedsm.estimators.descriptors) in the window modes (contrast, IM and GD bit for bit, Fujii within
+the S2 fixed-point bound), follow a direct weighted reference in the exponential mode (GD: none),
+and are never NaN on dark, saturated or constant pixels."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from edgedsm.analysis import RegionBox
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow, descriptors
 from edgedsm.estimators.fixed_point import s2_error_bound
+from edgedsm.estimators.lag_products import TAU_BATCH
 from edgedsm.estimators.region_stats import RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 
@@ -156,19 +158,25 @@ def test_degenerate_pixels_are_zero_never_nan(mode):
 def test_snapshots_and_region_statistics_carry_the_new_maps(mode):
     frames = stream("adversarial", 8, 30, seed=3)
     shape = SHAPE
-    engine = SlidingWindow(shape, 9, 2, q=0, bits=8, estimators=("s1", "s3", *NEW), mode=mode)
+    new = NEW if mode == "exponential" else (*NEW, "gd")  # GD needs a window
+    engine = SlidingWindow(shape, 9, 2, q=0, bits=8, estimators=("s1", "s3", *new), mode=mode)
     for frame in frames:
         engine.push(frame)
     maps = engine.maps()
-    copied = maps_from(engine.snapshot(NEW))
-    assert set(copied) == set(NEW)
-    for name in NEW:
+    copied = maps_from(engine.snapshot(new))
+    assert set(copied) == set(new)
+    for name in new:
         np.testing.assert_array_equal(copied[name], maps[name])
     mask = np.zeros(shape, bool)
     mask[1:5, 2:9] = True
     plan = {"r": RegionPlan.of(RegionBox.of(mask), shape)}
-    stats = region_moments(engine.snapshot(live=True), plan, NEW)["r"]
-    for name in NEW:
+    stats = region_moments(engine.snapshot(live=True), plan, new)["r"]
+    assert set(stats) == set(new)
+    if mode != "exponential":  # GD alone, means only (what the states need between two stats)
+        alone = region_moments(engine.snapshot(["gd"], live=True), plan, ["gd"], spread=False)["r"]
+        assert set(alone) == {"gd"} and alone["gd"].mean == stats["gd"].mean and alone["gd"].std == 0.0
+        assert stats["gd"].mean > 0
+    for name in new:
         expected = RegionBox.of(mask).stats(maps[name])
         assert stats[name].mean == pytest.approx(expected.mean, rel=1e-12, abs=1e-12)
         assert stats[name].std == pytest.approx(expected.std, rel=1e-9, abs=1e-9)
@@ -205,7 +213,7 @@ def test_fujii_needs_q_zero():
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
-@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("bits", [8, 12, 16])
 @pytest.mark.parametrize("kind", ["random", "adversarial"])
 def test_sliding_gd_equals_the_batch_reference_bit_for_bit(kernel, bits, kind):
     n = 11
@@ -226,16 +234,46 @@ def test_sliding_gd_equals_the_batch_reference_bit_for_bit(kernel, bits, kind):
     np.testing.assert_array_equal(engine._snapshot()["gd"], before)
 
 
-def test_gd_streams_in_sliding_mode_only_and_not_in_snapshots():
-    for mode in ("tumbling", "exponential"):
-        with pytest.raises(EstimatorError, match="'gd' needs mode='sliding'"):
-            SlidingWindow(SHAPE, 10, 2, estimators=("gd",), mode=mode)
-    engine = SlidingWindow(SHAPE, 4, 1, bits=8, estimators=("s2", "gd"))
-    for frame in stream("random", 8, 5):
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("bits", [8, 12, 16])
+@pytest.mark.parametrize("kind", ["random", "adversarial"])
+@pytest.mark.parametrize("tau", [False, True])
+def test_tumbling_gd_equals_the_batch_reference_of_the_last_block_bit_for_bit(kernel, bits, kind, tau):
+    # with τc the ring has K + TAU_BATCH + 1 = 21 rows, rounded up to 3 blocks of N = 9: block k
+    # starts at row 9k mod 27
+    n = 9
+    assert 4 + TAU_BATCH + 1 == 21
+    frames = stream(kind, bits, 61, seed=11)
+    engine = SlidingWindow(SHAPE, n, 2, bits=bits, estimators=("s1", "gd", *(("tau_c",) if tau else ())),
+                           mode="tumbling", kernel=kernel, max_lag=4 if tau else None)
+    assert engine.array_bytes()["ring"] == (3 * n if tau else n) * SHAPE[0] * SHAPE[1] * (1 if bits <= 8 else 2)
+    for i, frame in enumerate(frames, 1):
         engine.push(frame)
-    assert set(maps_from(engine.snapshot())) == {"s2"}  # the default snapshot leaves gd out
-    with pytest.raises(EstimatorError, match="does not carry 'gd'"):
-        engine.snapshot(["gd"])
+        if i >= n:  # every push: the last completed block's map, whatever the block in progress
+            done = i // n * n
+            gd = engine.maps(["gd"])["gd"]
+            np.testing.assert_array_equal(gd, descriptors.gd(frames[done - n:done]))
+            np.testing.assert_array_equal(maps_from(engine.snapshot(["gd"]))["gd"], gd)
+    assert np.isfinite(gd).all()
+    if kind == "adversarial":  # the last block, frames 45..53: the flash at 30 is in no block of it
+        top = (1 << bits) - 1
+        assert (gd[:3] == 0).all() and (gd[4] == 0).all()  # dark, saturated, constant, unlit
+        assert (gd[3] == top * 5 * 4 / (n * (n - 1) / 2)).all()  # 0/top alternating: 5·4 pairs differ by top
+
+
+def test_gd_streams_in_the_window_modes_and_in_snapshots():
+    with pytest.raises(EstimatorError, match="estimator 'gd': gd needs mode 'sliding' or 'tumbling', not 'expon"):
+        SlidingWindow(SHAPE, 10, 2, estimators=("gd",), mode="exponential")
+    engine = SlidingWindow(SHAPE, 4, 1, bits=8, estimators=("s2", "gd"))
+    frames = stream("random", 8, 5)
+    for frame in frames:
+        engine.push(frame)
+    copied = engine.snapshot()
+    assert set(maps_from(copied)) == {"s2", "gd"} and copied.sums["gd"].dtype == np.int64
+    np.testing.assert_array_equal(maps_from(copied)["gd"], descriptors.gd(frames[1:]))
+    only = engine.snapshot(["gd"])  # GD alone: no maps kernel runs, the other sums are not copied
+    assert set(maps_from(only)) == {"gd"} and only.nbytes == 8 * SHAPE[0] * SHAPE[1]
+    assert "gd" not in maps_from(engine.snapshot(["s2"])) and engine.snapshot(["s2"]).sums["gd"].size == 0
     assert engine.array_bytes()["gd"] == 8 * SHAPE[0] * SHAPE[1]
 
 
@@ -250,14 +288,15 @@ def test_a_long_adversarial_run_leaves_no_drift(bits):
     frames = adversarial_stream(COUNT, bits)[-200_000:]
     n, m = 200, 10
     engine = SlidingWindow((2, 4), n, m, q=0, bits=bits, estimators=(*NEW, "gd"))
-    tumbling = SlidingWindow((2, 4), n, m, q=0, bits=bits, estimators=NEW, mode="tumbling")
+    tumbling = SlidingWindow((2, 4), n, m, q=0, bits=bits, estimators=(*NEW, "gd"), mode="tumbling")
     for frame in frames:
         engine.push(frame)
         tumbling.push(frame)
     window = frames[-n:]
     check_window_maps(engine.maps(NEW), window, m, bits)
-    check_window_maps(tumbling.maps(), window, m, bits)  # 200 000 is a whole number of blocks
+    check_window_maps(tumbling.maps(NEW), window, m, bits)  # 200 000 is a whole number of blocks
     np.testing.assert_array_equal(engine.maps(["gd"])["gd"], descriptors.gd(window))
+    np.testing.assert_array_equal(tumbling.maps(["gd"])["gd"], descriptors.gd(window))
     assert engine.maps(["contrast"])["contrast"][1, 2] == 0.0  # constant pixel: σ = 0
 
 

@@ -65,10 +65,11 @@ def test_replay_finds_the_dry_call_and_counts_moves_back_as_false():
     assert replay(times, held, th, 30.0, 60.0).delay_s is None
 
 
-def _outcome(label: str, delay: float | None, cost: float, auc: float = 1.0, false: int = 0) -> Outcome:
+def _outcome(label: str, delay: float | None, cost: float, auc: float = 1.0, false: int = 0,
+             d_prime: float = 20.0, lag: int = 5) -> Outcome:
     th = Thresholds(0.6, 0.3)
-    region = RegionOutcome(Separation(auc, 5.0, 10, 10), th, Replay([], delay, false, 3600.0))
-    return Outcome(Candidate(label, True, Setting(100, 5)), {"r": region}, cost)
+    region = RegionOutcome(Separation(auc, d_prime, 10, 10), th, Replay([], delay, false, 3600.0))
+    return Outcome(Candidate(label, True, Setting(100, lag)), {"r": region}, cost)
 
 
 def test_the_choice_is_the_most_timely_sound_candidate_unless_a_cheaper_one_is_as_timely():
@@ -84,6 +85,32 @@ def test_the_choice_is_the_most_timely_sound_candidate_unless_a_cheaper_one_is_a
     assert none is None and why.startswith("no candidate separates wet from dry")
 
 
+def test_at_equal_timing_and_cost_the_better_separated_candidate_is_recommended():
+    # both separate (AUC >= 0.95), both dry at the mark, same cost: d′ decides, whichever comes first
+    for low, high in ((2.5, 4.0), (6.0, 40.0)):  # neither robust (d′ < 5); both
+        touching = _outcome("contrast", 0.5, 1e-3, auc=0.96, d_prime=low)
+        apart = _outcome("s3", 0.5, 1e-3, auc=0.99, d_prime=high, lag=10)
+        for order in ([touching, apart], [apart, touching]):
+            assert pareto(order) == [apart]  # the other is beaten on robustness alone
+            chosen, reason = recommend(order)
+            assert chosen is apart and f"d′ {high:.1f}" in reason
+            assert ("no candidate reaches d′ 5 on every region" in reason) == (high < 5)
+    # a robust candidate is preferred to a more timely one whose wet and dry samples touch
+    touching = _outcome("contrast", 0.5, 1e-3, auc=0.96, d_prime=2.5)
+    robust = _outcome("s3", 4.0, 2e-3, d_prime=25.0, lag=10)
+    chosen, reason = recommend([touching, robust])
+    assert chosen is robust and pareto([touching, robust]) == [robust]
+    assert "contrast above noise, N=100 m=5 sliding calls it 0.5 s after the dry mark but with d′ 2.5 < 5" in reason
+    # among the timely robust ones the cheaper is chosen, d′ beyond the bar does not buy cost
+    cheaper = _outcome("s2", 4.0, 1e-3, d_prime=12.0)
+    assert recommend([robust, cheaper])[0] is cheaper
+    # none robust: among the timely ones the better separated, though it costs more
+    fast = _outcome("s1", 0.5, 1e-3, d_prime=3.0)
+    near = _outcome("s2", 0.52, 2e-3, d_prime=4.5)
+    chosen, reason = recommend([fast, near])
+    assert chosen is near and "but separates less (d′ 3.0)" in reason
+
+
 def test_the_candidates_are_the_activities_the_daemon_judges_above_the_noise_where_it_has_a_floor():
     sliding, exponential = Setting(100, 5), Setting(100, 5, "exponential")
     labels = [c.label() for c in candidates([sliding])]
@@ -93,6 +120,10 @@ def test_the_candidates_are_the_activities_the_daemon_judges_above_the_noise_whe
     assert len(candidates([exponential])) == 12  # no τc without a window
     other_lag = candidates([sliding, Setting(100, 10)])  # the contrast does not depend on m: scored once
     assert [c.setting.lag for c in other_lag if c.estimator == "contrast"] == [5, 5] and len(other_lag) == 24
+    assert not any(c.estimator == "gd" for c in candidates([sliding]))  # GD only when asked for: its O(N) push
+    with_gd = candidates([sliding, exponential], ("s2", "gd"))  # and only where the mode keeps a window
+    assert [c.label() for c in with_gd if c.estimator == "gd"] == [
+        "GD above noise, N=100 m=5 sliding", "GD, N=100 m=5 sliding"] and len(with_gd) == 6
     only = candidates([sliding, exponential], ("fujii", "contrast"))
     assert [(c.estimator, c.noise_floor, c.setting.mode, c.variant) for c in only] == [
         ("contrast", True, "sliding", "contrast@noise"), ("contrast", False, "sliding", "contrast"),

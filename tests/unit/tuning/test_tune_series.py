@@ -1,6 +1,7 @@
 """One pass of ``edgedsm tune`` (edgedsm.tuning.series) with the field's descriptors as the daemon
 judges them: Fujii is 200·S2 at q = 0 (its own engine at q = 0 when the config's q is not), its
-above-noise value in the same units, and a snippet choosing it is a daemon config."""
+above-noise value in the same units, and a snippet choosing it is a daemon config; GD, when asked
+for, is the region mean of each window's GD, in the window modes only."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ import numpy as np
 import pytest
 
 from edgedsm.config import DaemonConfig
+from edgedsm.estimators import descriptors
 from edgedsm.sim import Simulator, load_scene
-from edgedsm.tuning.candidates import Candidate, evaluate
+from edgedsm.tuning.candidates import Candidate, candidates, evaluate
 from edgedsm.tuning.output import snippet
 from edgedsm.tuning.series import Setting, run_pass
 from edgedsm.tuning.session import Result, Run
@@ -96,3 +98,24 @@ def test_a_snippet_choosing_fujii_above_noise_is_a_daemon_config_with_thresholds
     assert np.percentile(dry, 95) < region.dry_below < region.wet_above < np.percentile(wet, 5)
     assert region.wet_above > 2.0  # S2's would be below 1
     assert outcome.auc == 1.0 and outcome.delay_s is not None and abs(outcome.delay_s) < 10.0
+
+
+def test_gd_asked_for_is_judged_like_the_daemon_in_the_window_modes_only(plate):
+    scene, frames, masks = plate
+    config = _config(scene)
+    step, mask = 50, masks["plate"]
+    series = run_pass(iter(frames), SETTING, config, masks, DT, step=step, bits=8, estimators=("gd",))
+    gd = series.array("plate", "gd")
+    ends = SETTING.window - 1 + step * np.arange(len(series.times))
+    expected = [descriptors.gd(frames[end - SETTING.window + 1:end + 1])[mask].mean() for end in ends]
+    np.testing.assert_allclose(gd, expected, rtol=1e-12)  # the daemon's region mean of the window's GD
+    assert gd[0] > 2.0 * gd[-1] > 0  # wet to dry
+    above = series.array("plate", "gd@noise")
+    judged = np.isfinite(above)
+    assert judged.sum() >= len(gd) - 1 and np.all(above[judged] < gd[judged])  # its floor taken off
+    outcome = evaluate(Candidate("gd", True, SETTING), series, WET_UNTIL, DRY_FROM, {"plate": 2.0}, DT, 1e-3)
+    assert not isinstance(outcome, str) and outcome.candidate.label() == "GD above noise, N=50 m=5 sliding"
+    exponential = Setting(50, 5, "exponential")  # no window to read: GD is no candidate there
+    assert [c.variant for c in candidates([SETTING, exponential], ("gd",))] == ["gd@noise", "gd"]
+    other = run_pass(iter(frames[:120]), exponential, config, masks, DT, step=step, bits=8, estimators=("s2", "gd"))
+    assert "gd" not in other.values["plate"] and "s2@noise" in other.values["plate"]
