@@ -17,7 +17,7 @@ from hypothesis.extra.numpy import arrays
 
 from edgedsm.analysis import RegionBox
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import SlidingWindow, bands
+from edgedsm.estimators import SlidingWindow, bands, descriptors
 from edgedsm.estimators.dft_bins import BIN_BYTES, BOUND_FACTOR, BandPlan, error_bound
 from edgedsm.estimators.region_stats import RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
@@ -295,3 +295,20 @@ def test_custom_bands_need_their_list_and_stay_out_of_snapshots():
     with pytest.raises(EstimatorError, match="does not carry 'bands'"):
         engine.snapshot(["bands"])
     assert engine.snapshot().estimators == ("s1",)
+
+
+@pytest.mark.parametrize("mode", ["sliding", "tumbling"])
+def test_bands_beside_gd_and_tau(mode):
+    """The bands beside the other accumulators that read the ring (GD, τc): each still equals
+    its batch reference (the tumbling ring then holds whole blocks, the bins their own origin)."""
+    n = 10
+    frames = stream("adversarial", 12, 6 * n, seed=2)
+    engine = SlidingWindow(SHAPE, n, 2, q=1.0, bits=12, estimators=("s3", "gd", "tau_c", *BANDS), mode=mode,
+                           max_lag=4)
+    for i, frame in enumerate(frames, 1):
+        engine.push(frame)
+        if i >= n and i % n == 0:
+            maps = engine.maps()
+            window = frames[i - n:i]
+            check_bands(maps, window, spread(frames, i, n), 1.0)
+            np.testing.assert_array_equal(maps["gd"], descriptors.gd(window))
