@@ -222,11 +222,11 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
         bins, total, total_sq = sums.sums["bins"], sums.sums["total"], sums.sums["total_sq"]
         for name, plan in layout.plans.items():
             box = plan.box
-            part = {"bins": bins.reshape(2, -1, height, width)[:, :, box.rows, box.cols].reshape(2, bins.shape[1], -1),
-                    "total": total.reshape(height, width)[box.rows, box.cols].ravel(),
-                    "total_sq": total_sq.reshape(height, width)[box.rows, box.cols].ravel()}
+            part = {"bins": bins.reshape(2, -1, height, width)[:, :, box.rows, box.cols],  # views: no copy
+                    "total": total.reshape(height, width)[box.rows, box.cols],
+                    "total_sq": total_sq.reshape(height, width)[box.rows, box.cols]}
             for key, values in sums.bands(part, bands).items():
-                result[name][key] = _box_moments(values.reshape(box.mask.shape), box, spread)
+                result[name][key] = _box_moments(values, box, spread)
     return result
 
 
