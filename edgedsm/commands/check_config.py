@@ -86,8 +86,13 @@ def run(args: argparse.Namespace) -> int:
 def noise_floor_setup(config: DaemonConfig) -> dict[str, Any]:
     """How the drying states meet the camera's noise (docs/noise.md, §5c)."""
     est, noise = config.estimator, config.camera.noise
-    return {"on": est.noise_floor, "model": ("datasheet" if noise is not None else "frames") if est.noise_floor
-            else None, "patch_px": est.noise_patch, "intensity_change": est.intensity_change}
+    from edgedsm.estimators.noise_summary import ESTIMATORS as FLOORED
+
+    setup = {"on": est.noise_floor, "model": ("datasheet" if noise is not None else "frames") if est.noise_floor
+             else None, "patch_px": est.noise_patch, "intensity_change": est.intensity_change}
+    if est.activity not in (*FLOORED, "tau_c"):  # an activity without a floor (band_ratio) is judged as it is
+        setup["floorless"] = est.activity
+    return setup
 
 
 def noise_line(setup: dict[str, Any]) -> str:
@@ -95,7 +100,9 @@ def noise_line(setup: dict[str, Any]) -> str:
         return "noise floor: off (the states are judged on the plain activity; no signal quality published)"
     model = ("the [camera.noise] datasheet" if setup["model"] == "datasheet"
              else "the frames (until found: the plain activity)")
-    return (f"noise floor: on, states judged above it; noise model from {model}; {setup['patch_px']} px patch per "
+    judged = f"{setup['floorless']} has none: states judged on it as it is, the light still judged" \
+        if setup.get("floorless") else "states judged above it"
+    return (f"noise floor: on, {judged}; noise model from {model}; {setup['patch_px']} px patch per "
             f"region; light change warning beyond {setup['intensity_change']:g}×")
 
 

@@ -192,6 +192,19 @@ def test_the_band_ratio_config_rules(repo):
     assert config({"mode": "tumbling"}).estimator.maps == ("s1", "s2", "s3", "band_ratio")
 
 
+def test_check_config_says_the_band_ratio_has_no_floor(tmp_path, capsys):
+    path = tmp_path / "bands.toml"
+    path.write_text('[camera]\nuri = "sim:default"\nframe_interval_s = 0.02\n\n[estimator]\nactivity = "band_ratio"\n'
+                    'window = 64\nlag = 1\nband_split_hz = 5.0\n\n[[regions]]\nname = "plate"\nwet_above = 0.2\n'
+                    'dry_below = 0.1\n')
+    assert main(["check-config", str(path)]) == 0
+    assert "noise floor: on, band_ratio has none: states judged on it as it is" in capsys.readouterr().out
+    path.write_text(path.read_text().replace("band_split_hz = 5.0", "band_split_hz = 25.0"))
+    assert main(["check-config", str(path)]) == 78
+    assert "estimator.band_split_hz: the band split must lie between 0 and the Nyquist frequency 25 Hz" \
+        in capsys.readouterr().err
+
+
 def test_the_memory_check_counts_the_band_bins():
     # N = 64, default split: 16 bins of 16 B kept, and copied once for the maps; one more float map
     plain = SlidingWindow((1, 64), 64, 1, bits=8)
