@@ -1,5 +1,6 @@
 """The frequency-band accumulator of the streaming engine: a few DFT bins per pixel, and from them
-the band powers of :mod:`edgedsm.estimators.bands` ("band_low", "band_high", "band_ratio").
+the band powers of :mod:`edgedsm.estimators.bands` ("band_low", "band_high", "band_ratio" about a
+split; "bands": any bands (lo, hi], the bins of each kept).
 
 Definition (the batch reference, :mod:`edgedsm.estimators.bands`): X_j = Σ_k I_k e^{-2πi jk/N} over
 the window's N frames (k = 0 oldest), P_j = c_j |X_j|²/N² with c_j = 2 below N/2, 1 at N/2, f_j =
@@ -8,9 +9,10 @@ For j >= 1, X_j does not change when a constant is added to every I_k (Σ_k e^{-
 the bins are kept of the intensities minus any per-pixel offset: only differences of intensities
 ever enter them (|X_j| <= N·D, D the spread of the values, whatever their mean).
 
-Only the bins of the smaller band are kept; the other band is σ² minus it (clamped at 0), σ² from
-the exact integer sums ΣI and ΣI² the S1/S2/S3 accumulator keeps: 16 bytes (re, im float64) per
-kept bin per pixel, about half of ⌊N/2⌋ bins or fewer.
+Of the split only the bins of the smaller band are kept; the other band is σ² minus it (clamped at
+0), σ² from the exact integer sums ΣI and ΣI² the S1/S2/S3 accumulator keeps: 16 bytes (re, im
+float64) per kept bin per pixel, about half of ⌊N/2⌋ bins or fewer. Any bands keep their own bins
+(a bin shared with another band or the split's side once).
 
 - sliding: the sliding DFT, X_j ← W_j (X_j - I_{i-N} + I_i), W_j = e^{2πij/N} (Jacobsen & Lyons,
   "The sliding DFT", IEEE Signal Processing Magazine 20(2), 2003). While the window fills, the
