@@ -5,8 +5,9 @@
 ``engine_exponential``, registered by :mod:`edgedsm.estimators.streaming`), which keeps a ring of
 frames and feeds them to its accumulators, one per descriptor family: the S1/S2/S3 sums
 (:mod:`edgedsm.estimators.moment_sums`), τc's lag products (:mod:`edgedsm.estimators.lag_products`)
-and the frequency bands' DFT bins (:mod:`edgedsm.estimators.dft_bins`). This class holds what does not depend on the mode:
-argument checks, frame checks, maps, snapshots, τc results and memory accounting. A mode engine
+and the frequency bands' DFT bins (:mod:`edgedsm.estimators.dft_bins`). This class holds what
+does not depend on the mode: argument checks, frame checks, maps, snapshots, τc results and
+memory accounting. A mode engine
 provides ``_layout`` (its arrays), ``_bind`` (its kernels), ``_push`` (one frame) and
 ``_sums`` (the sums ``maps()`` reads). Modes, bounds and memory: docs/engine.md.
 """

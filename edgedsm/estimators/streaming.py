@@ -17,7 +17,8 @@ How it is built (docs/engine.md, "Structure"): ``SlidingWindow(..., mode=...)`` 
 engine of its mode (:mod:`edgedsm.estimators.engine_sliding`, ``engine_tumbling``,
 ``engine_exponential``; the shared part in :mod:`edgedsm.estimators.engine_base`), each over the
 accumulators of the descriptor families: S1/S2/S3 (:mod:`edgedsm.estimators.moment_sums`), τc
-(:mod:`edgedsm.estimators.lag_products`) and the frequency bands (:mod:`edgedsm.estimators.dft_bins`). A pixel's values from the sums are written once, in
+(:mod:`edgedsm.estimators.lag_products`) and the frequency bands
+(:mod:`edgedsm.estimators.dft_bins`). A pixel's values from the sums are written once, in
 :mod:`edgedsm.estimators.activity`. Importing this module registers the three modes.
 
 Degenerate cases are those of the batch reference: a pair with a+b+q = 0 contributes 0 to
