@@ -30,7 +30,7 @@ from edgedsm.commands import broker_options
 from edgedsm.commands.broker_options import add_credential_options, host_port
 from edgedsm.errors import ConfigError
 from edgedsm.publish.settings import MqttSettings, resolve_password
-from edgedsm.signals import handling
+from edgedsm.signals import handling, wait_for
 
 NAME = "dashboard"
 HELP = "serve the live plant dashboard (maps, regions, drying curves, alerts) for every daemon on a broker"
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         thread = threading.Thread(target=dashboard.serve_forever, name="dashboard-http", daemon=True)
         thread.start()
         try:
-            stop.wait()
+            wait_for(stop)  # in slices: a signal taken by another thread still sets it
         finally:
             dashboard.stop()
     return 0

@@ -32,6 +32,7 @@ from edgedsm.errors import EdgedsmError
 from edgedsm.estimators import ESTIMATORS, all_maps
 from edgedsm.imageio import save_map_png
 from edgedsm.resources import data_file
+from edgedsm.signals import wait_for
 
 if TYPE_CHECKING:
     from edgedsm.dashboard.app import Dashboard
@@ -162,7 +163,7 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
             if sys.stdout.isatty():
                 print("edgedsm demo: the dashboard stays up until Ctrl-C", flush=True)
                 with contextlib.suppress(KeyboardInterrupt):
-                    threading.Event().wait()
+                    wait_for(threading.Event())  # until Ctrl-C (in slices: whichever thread takes it)
     return 0
 
 

@@ -42,14 +42,14 @@ from pathlib import Path
 
 from edgedsm.devices.laser import LaserRelay, LaserSafety, RelayStatus, SignalExit, open_relay
 from edgedsm.errors import ConfigError, DeviceError
+from edgedsm.signals import SIGNAL_SLICE_S
 
 NAME = "laser"
 HELP = "switch the laser relay on/off or read its state; 'off --config FILE' after the service"
 
-#: The hold sleeps in slices this long (s). The kernel may hand a process-directed signal (Ctrl-C,
-#: SIGTERM) to any thread; taken by another one it only flags Python's handler, which the main
-#: thread runs when its sleep ends: the slice bounds how late the laser goes off.
-HOLD_SLICE_S = 0.25
+#: The hold sleeps in slices this long (s): a signal taken by another thread runs its handler when
+#: the main thread's sleep ends (edgedsm.signals), so the slice bounds how late the laser goes off.
+HOLD_SLICE_S = SIGNAL_SLICE_S
 EXIT_UNAVAILABLE = 69  # EX_UNAVAILABLE: the relay cannot be reached or did not do as told
 OFF_ATTEMPTS = 3       # --config: a board busy for a moment gets a second and third chance
 OFF_RETRY_S = 0.5
