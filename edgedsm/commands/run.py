@@ -12,6 +12,7 @@ Example:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import faulthandler
 import logging
 import sys
@@ -53,4 +54,5 @@ def _name_threads_holding_exit() -> None:
     if holding:
         logging.getLogger(__name__).error("stopped, but threads still running hold the exit: %s (stacks on stderr)",
                                           ", ".join(thread.name for thread in holding))
-        faulthandler.dump_traceback(sys.stderr, all_threads=True)
+        with contextlib.suppress(ValueError, OSError, AttributeError):  # a stderr with no file descriptor
+            faulthandler.dump_traceback(sys.stderr, all_threads=True)
