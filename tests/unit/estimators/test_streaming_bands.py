@@ -21,31 +21,24 @@ from edgedsm.estimators import SlidingWindow, bands, descriptors
 from edgedsm.estimators.dft_bins import BIN_BYTES, BOUND_FACTOR, BandPlan, error_bound
 from edgedsm.estimators.region_stats import RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
+from tests.unit.estimators.test_streaming_descriptors import SHAPE
+from tests.unit.estimators.test_streaming_descriptors import stream as descriptor_stream
 
 KERNELS = ["numpy"] + (["numba"] if importlib.util.find_spec("numba") else [])
 BANDS = ("band_low", "band_high", "band_ratio")
-SHAPE = (6, 10)
 EPS = 2.0**-53
 
 
 def stream(kind: str, bits: int, frames: int, seed: int = 0) -> np.ndarray:
-    """(frames, 6, 10) of ``bits``-bit data: random, or adversarial (rows: dark, saturated, a
-    constant level, 0/top alternating (all power at Nyquist), a single flash, a full-scale slow
-    tone (all power in the low band))."""
-    rng = np.random.default_rng(seed + bits)
-    top = (1 << bits) - 1
-    data = rng.integers(0, top + 1, (frames, *SHAPE), dtype=np.int64)
+    """(frames, 6, 10) of ``bits``-bit data: the descriptors' streams (random, or adversarial:
+    dark, saturated, a constant level, 0/top alternating (all power at Nyquist), a single flash),
+    the adversarial one with a full-scale slow tone in its last row (all power in the low band)."""
+    data = descriptor_stream(kind, bits, frames, seed)
     if kind == "adversarial":
-        data[:, 0] = 0
-        data[:, 1] = top
-        data[:, 2] = top // 3
-        data[::2, 3] = top
-        data[1::2, 3] = 0
-        data[:, 4] = 0
-        data[frames // 2, 4] = top
+        top = (1 << bits) - 1
         t = np.arange(frames)[:, None]
         data[:, 5] = np.round(top / 2 * (1 + np.cos(2 * np.pi * t * np.linspace(0.01, 0.12, SHAPE[1]))))
-    return data.astype(np.uint8 if bits <= 8 else np.uint16)
+    return data
 
 
 def spread(frames: np.ndarray, i: int, n: int) -> np.ndarray:
