@@ -355,12 +355,20 @@ def gd_floor(model: NoiseModel, means: np.ndarray, n: int, top: float = math.inf
 
 def contrast_floor(model: NoiseModel, means: np.ndarray, n: int, top: float = math.inf,
                    independent_pixels: float | None = None) -> Floor:
+    """The temporal contrast's floor (:func:`contrast_floor_and_static_variance`)."""
+    return contrast_floor_and_static_variance(model, means, n, top, independent_pixels)[0]
+
+
+def contrast_floor_and_static_variance(model: NoiseModel, means: np.ndarray, n: int, top: float = math.inf,
+                                       independent_pixels: float | None = None) -> tuple[Floor, float]:
     """The temporal contrast's floor (dimensionless): E[σ̂]/μ of a static pixel, σ̂ the population
     standard deviation of BSLTL's ``stdcont.m`` over N frames of Gaussian noise of variance σ_n²:
     E[σ̂] = sqrt(2/N)·Γ(N/2)/Γ((N-1)/2)·σ_n (the chi distribution's mean; sqrt(1 - 1/N)·σ_n would
     read a spread too high over a region), σ_n² = E[Δ²]/2 of :func:`static_pair_moments`
     (rounding and clipping included); 0 where μ = 0, as the map. Spread: σ̂ of white noise over N
-    frames scatters by 1/sqrt(2(N - 1)) relative; the model's relative error enters halved."""
+    frames scatters by 1/sqrt(2(N - 1)) relative; the model's relative error enters halved. With it
+    :func:`static_variance` (the contrast above the noise needs both; they share the static pair
+    moments, the costly part)."""
     mu = _means(means)
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
         raise EstimatorError(f"N must be an integer >= 2, got {n!r}")
@@ -368,13 +376,14 @@ def contrast_floor(model: NoiseModel, means: np.ndarray, n: int, top: float = ma
         raise EstimatorError(f"top must be a grey level > 0, got {top!r}")
     levels = _representatives(mu)
     chi_mean = math.sqrt(2.0 / n) * math.exp(math.lgamma(n / 2.0) - math.lgamma((n - 1) / 2.0))
-    sigma = np.sqrt(static_pair_moments(model, levels, 0.0, top)[1] / 2.0)
+    variance = static_pair_moments(model, levels, 0.0, top)[1] / 2.0
+    sigma = np.sqrt(variance)
     lit = levels > 0
     per_pixel = np.zeros(levels.shape, np.float64)
     per_pixel[lit] = chi_mean * sigma[lit] / levels[lit]
     value = float(per_pixel.mean())
     sampling = math.sqrt(float((per_pixel**2).mean()) / (2.0 * (n - 1)) / _pixels(mu, independent_pixels))
-    return Floor(value, math.hypot(sampling, value * model.relative_error / 2.0))
+    return Floor(value, math.hypot(sampling, value * model.relative_error / 2.0)), float(variance.mean())
 
 
 def contrast_signal(contrast: float, floor: Floor, share: AboveNoise) -> AboveNoise:

@@ -151,8 +151,7 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
     if previous is not None and previous.noise_variance is not None:
         floor, static = previous.floor, previous.noise_variance
     elif estimator == "contrast":
-        floor = noise_floor.contrast_floor(model, means, n, top=top)
-        static = noise_floor.static_variance(model, means, top=top)
+        floor, static = noise_floor.contrast_floor_and_static_variance(model, means, n, top=top)
     else:
         floor, static = noise_floor.s1_floor_and_static_variance(model, means, n, lag, top=top)
     # S3 and the contrast of the signal alone need the region's mean window variance (Eq. 3-4)

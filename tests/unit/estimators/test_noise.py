@@ -80,12 +80,13 @@ def test_pure_noise_reads_within_its_spread_of_zero(level, gain, dark_sd, bits, 
     s1, s2, s3 = (float(maps[k].mean()) for k in ("s1", "s2", "s3"))
     share = nf.signal_share(model, means, float((batch.temporal_sigma(frames) ** 2).mean()), n, top=top)
     s1_floor = nf.s1_floor(model, means, n, lag, top=top)
+    contrast = float(descriptors.contrast(frames).mean())
+    contrast_floor, static = nf.contrast_floor_and_static_variance(model, means, n, top=top)
+    assert static == pytest.approx(nf.static_variance(model, means, top=top), rel=1e-12)
     field_floors = ((descriptors.fujii(frames, lag), nf.fujii_floor(model, means, n, lag, top=top)),
                     (descriptors.im(frames, lag), nf.im_floor(model, means, n, lag, top=top)),
                     (descriptors.gd(frames), nf.gd_floor(model, means, n, top=top)),
-                    (descriptors.contrast(frames), nf.contrast_floor(model, means, n, top=top)))
-    contrast = float(descriptors.contrast(frames).mean())
-    contrast_floor = nf.contrast_floor(model, means, n, top=top)
+                    (descriptors.contrast(frames), contrast_floor))
     for above in (nf.above_noise(s1, s1_floor), nf.above_noise(s2, nf.s2_floor(model, means, n, lag, top=top)),
                   share, nf.s3_signal(s3, s1, s1_floor, share), nf.contrast_signal(contrast, contrast_floor, share),
                   *(nf.above_noise(float(values.mean()), floor) for values, floor in field_floors)):
