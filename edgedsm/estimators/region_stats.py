@@ -379,60 +379,6 @@ if numba is not None:
         _neumaier(partials, block, r, k, 0, first)
         _neumaier(partials, block, r, k, 2, squares)
 
-    @numba.njit(inline="always", nogil=True, cache=True)
-    def _block(kind, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, want_s1, block, abs_sum, ratio_sum,
-               second, fourth, sq_sum, pairs, ratio_unit, n,
-               weight, geometry, cover_ptr, cover, run_ptr, runs, shift, partials, spread, sample_ptr, sample_index,
-               samples):  # pragma: no cover - compiled
-        """One block of rows: the union's values into row buffers, each region's runs summed, and
-        with ``spread`` the exact values of the sample pixels on these rows (in cache now).
-        ``do_*``: activity.pixel_values' flags; S2 is summed with ``do_s2`` (Fujii's maps alone
-        sum S2 too, unread), S1 with ``want_s1``. ``geometry``: (width, row0, col0, cols,
-        block_rows) of the layout (one argument: CPython passes a call of 30 arguments or more as
-        *args, which numba cannot inline)."""
-        exponential = kind == "exponential"
-        width, row0, col0, cols, block_rows = geometry
-        buffer1 = np.empty(cols if do_abs else 0)
-        buffer2 = np.empty(cols if do_s2 else 0)
-        buffer3 = np.empty(cols if do_s3 else 0)
-        buffer4 = np.empty(cols if do_contrast else 0)
-        buffer5 = np.empty(cols if do_fujii else 0)
-        buffer6 = np.empty(cols if do_im else 0)
-        rows = cover_ptr.size - 1
-        for i in range(block * block_rows, min((block + 1) * block_rows, rows)):
-            base = (row0 + i) * width + col0
-            for c in range(cover_ptr[i], cover_ptr[i + 1]):
-                start, stop = cover[c, 0], cover[c, 1]
-                first, last = base + start, base + stop
-                _row_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, stop - start,
-                            abs_sum[first:last] if do_abs else abs_sum, ratio_sum[first:last] if do_s2 else ratio_sum,
-                            second[first:last] if do_s3 or do_contrast else second,
-                            fourth[first:last] if do_s3 or do_contrast else fourth,
-                            sq_sum[first:last] if do_im else sq_sum, buffer1[start:stop] if do_abs else buffer1,
-                            buffer2[start:stop] if do_s2 else buffer2, buffer3[start:stop] if do_s3 else buffer3,
-                            buffer4[start:stop] if do_contrast else buffer4,
-                            buffer5[start:stop] if do_fujii else buffer5, buffer6[start:stop] if do_im else buffer6,
-                            pairs, ratio_unit, n, weight)
-            for r in range(run_ptr.shape[0]):
-                if spread:
-                    for q in range(sample_ptr[r, i], sample_ptr[r, i + 1]):
-                        v1, v2, v3, _, vc, vf, vi = pixel_values(exponential, do_abs, do_s2, do_s3, do_contrast,
-                                                                 do_fujii, do_im, sample_index[q], abs_sum, ratio_sum,
-                                                                 second, fourth, sq_sum, pairs, ratio_unit, n, weight)
-                        _store(samples, q, v1, v2, v3, vc, vf, vi, True, True, True, True, True, True)
-                if want_s1:
-                    _region_row(buffer1, 0, r, i, run_ptr, runs, shift, partials, block)
-                if do_s2:
-                    _region_row(buffer2, 1, r, i, run_ptr, runs, shift, partials, block)
-                if do_s3:
-                    _region_row(buffer3, 2, r, i, run_ptr, runs, shift, partials, block)
-                if do_contrast:
-                    _region_row(buffer4, 3, r, i, run_ptr, runs, shift, partials, block)
-                if do_fujii:
-                    _region_row(buffer5, 4, r, i, run_ptr, runs, shift, partials, block)
-                if do_im:
-                    _region_row(buffer6, 5, r, i, run_ptr, runs, shift, partials, block)
-
 
 @functools.cache
 def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str, parallel: bool, want_contrast: bool = False,
@@ -461,10 +407,55 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str, parallel: b
     def block_sums(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, weight, width, row0, col0, cols,
                    block_rows, cover_ptr, cover, run_ptr, runs, shift, partials, spread, sample_ptr, sample_index,
                    samples):  # pragma: no cover - compiled
+        """Per block of rows (in parallel): the union's values into row buffers, each region's runs
+        summed, and with ``spread`` the exact values of the sample pixels on these rows (in cache
+        now). ``do_*``: activity.pixel_values' flags; S2 is summed with ``do_s2`` (Fujii's maps
+        alone sum S2 too, unread), S1 with ``want_s1``. Written out here rather than inlined from
+        a helper: numba copies an inlined function's IR block by block with its whole scope, in
+        time that grows with blocks × variables, and this body was most of every variant's
+        compile time (docs/engine.md)."""
         for block in numba.prange(partials.shape[0]):
-            _block(kind, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, want_s1, block, abs_sum, ratio_sum,
-                   second, fourth, sq_sum, pairs, ratio_unit, n,
-                   weight, (width, row0, col0, cols, block_rows), cover_ptr, cover, run_ptr, runs, shift, partials,
-                   spread, sample_ptr, sample_index, samples)
+            buffer1 = np.empty(cols if do_abs else 0)
+            buffer2 = np.empty(cols if do_s2 else 0)
+            buffer3 = np.empty(cols if do_s3 else 0)
+            buffer4 = np.empty(cols if do_contrast else 0)
+            buffer5 = np.empty(cols if do_fujii else 0)
+            buffer6 = np.empty(cols if do_im else 0)
+            rows = cover_ptr.size - 1
+            for i in range(block * block_rows, min((block + 1) * block_rows, rows)):
+                base = (row0 + i) * width + col0
+                for c in range(cover_ptr[i], cover_ptr[i + 1]):
+                    start, stop = cover[c, 0], cover[c, 1]
+                    first, last = base + start, base + stop
+                    _row_values(exponential, do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im, stop - start,
+                                abs_sum[first:last] if do_abs else abs_sum,
+                                ratio_sum[first:last] if do_s2 else ratio_sum,
+                                second[first:last] if do_s3 or do_contrast else second,
+                                fourth[first:last] if do_s3 or do_contrast else fourth,
+                                sq_sum[first:last] if do_im else sq_sum, buffer1[start:stop] if do_abs else buffer1,
+                                buffer2[start:stop] if do_s2 else buffer2, buffer3[start:stop] if do_s3 else buffer3,
+                                buffer4[start:stop] if do_contrast else buffer4,
+                                buffer5[start:stop] if do_fujii else buffer5,
+                                buffer6[start:stop] if do_im else buffer6, pairs, ratio_unit, n, weight)
+                for r in range(run_ptr.shape[0]):
+                    if spread:
+                        for q in range(sample_ptr[r, i], sample_ptr[r, i + 1]):
+                            v1, v2, v3, _, vc, vf, vi = pixel_values(exponential, do_abs, do_s2, do_s3, do_contrast,
+                                                                     do_fujii, do_im, sample_index[q], abs_sum,
+                                                                     ratio_sum, second, fourth, sq_sum, pairs,
+                                                                     ratio_unit, n, weight)
+                            _store(samples, q, v1, v2, v3, vc, vf, vi, True, True, True, True, True, True)
+                    if want_s1:
+                        _region_row(buffer1, 0, r, i, run_ptr, runs, shift, partials, block)
+                    if do_s2:
+                        _region_row(buffer2, 1, r, i, run_ptr, runs, shift, partials, block)
+                    if do_s3:
+                        _region_row(buffer3, 2, r, i, run_ptr, runs, shift, partials, block)
+                    if do_contrast:
+                        _region_row(buffer4, 3, r, i, run_ptr, runs, shift, partials, block)
+                    if do_fujii:
+                        _region_row(buffer5, 4, r, i, run_ptr, runs, shift, partials, block)
+                    if do_im:
+                        _region_row(buffer6, 5, r, i, run_ptr, runs, shift, partials, block)
 
     return block_sums, sample_values
