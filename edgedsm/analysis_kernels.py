@@ -11,10 +11,13 @@ gives the same sample and agrees within that rounding.
 from __future__ import annotations
 
 import functools
+import importlib.util
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
+from edgedsm.estimators.jit import compiled
 
 
 def _moments_numpy(values: np.ndarray, mask: np.ndarray, samples: int) -> tuple[int, float, float, np.ndarray]:
@@ -64,11 +67,9 @@ def _moments_source(values, mask, samples):  # pragma: no cover - compiled
 @functools.cache
 def _moments() -> Callable[..., Any]:
     """The compiled pass (numba imported on first use), or numpy without numba."""
-    try:
-        import numba
-    except ImportError:  # numba is the optional 'fast' extra
+    if importlib.util.find_spec("numba") is None:  # numba is the optional 'fast' extra
         return _moments_numpy
-    return numba.njit(nogil=True, cache=True)(_moments_source)
+    return compiled(nogil=True)(_moments_source)
 
 
 def masked_moments(values: np.ndarray, mask: np.ndarray, samples: int) -> tuple[int, float, float, np.ndarray]:

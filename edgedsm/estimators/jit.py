@@ -1,4 +1,5 @@
-"""numba's ``njit`` for kernels that factories build as closures, cached on disk per variant.
+"""numba's ``njit`` for the engine's kernels, cached on disk per variant and compiled once by
+all the processes that want it at the same time.
 
 numba keys its disk cache on a function's code and closure constants, not on the decorator's
 options: the parallel and the serial variant of one factory's kernel shared one cache entry, and
@@ -7,11 +8,20 @@ first on a small frame; at 4096×2168 that serial code then ran where the parall
 for, 4x slower). :func:`kernel_variant` names each variant, and so its cache file, after its
 options.
 
+Processes that start together (one daemon per camera at boot, the test suite's workers) want the
+same kernels at the same moment, and numba's cache lets each of them compile every kernel: the
+same seconds of CPU spent once per process, on the cores the measurement needs. :func:`compiled`
+and :func:`kernel_variant` take a lock file beside the cache entry while they compile or load
+(``flock``: released by the kernel if the process dies): the first process compiles and saves,
+the others then load its entry from disk.
+
 Importing this module does not import numba (the optional extra ``fast``); decorating does.
 """
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import os
 from collections.abc import Callable
 from typing import Any
@@ -32,13 +42,60 @@ def configure_threading() -> None:
     os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY)
 
 
-def kernel_variant(parallel: bool, **options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+def kernel_variant(parallel: bool, **options: Any) -> Callable[[Callable[..., Any]], Any]:
     """``numba.njit(parallel=parallel, cache=True, nogil=True, **options)``, the compiled
-    function's qualified name (which names its cache file) ending in ``.parallel`` or ``.serial``."""
-    import numba
+    function's qualified name (which names its cache file) ending in ``.parallel`` or ``.serial``,
+    compiled once across processes (:func:`compile_once`)."""
 
-    def compile_variant(function: Callable[..., Any]) -> Callable[..., Any]:
+    def compile_variant(function: Callable[..., Any]) -> Any:
         function.__qualname__ = f"{function.__qualname__}.{'parallel' if parallel else 'serial'}"
-        return numba.njit(parallel=parallel, cache=True, nogil=True, **options)(function)
+        return compiled(parallel=parallel, nogil=True, **options)(function)
 
     return compile_variant
+
+
+def compiled(**options: Any) -> Callable[[Callable[..., Any]], Any]:
+    """``numba.njit(cache=True, **options)``, compiled once across processes (:func:`compile_once`)."""
+    import numba
+
+    def compile_function(function: Callable[..., Any]) -> Any:
+        return compile_once(numba.njit(cache=True, **options)(function))
+
+    return compile_function
+
+
+def compile_once(dispatcher: Any) -> Any:
+    """``dispatcher`` (a numba dispatcher with ``cache=True``), changed to compile or load each
+    signature under a lock file beside its cache entry, one per function and closure constants:
+    a process that finds another compiling the same kernel waits, then loads the saved entry.
+
+    The lock is taken inside numba's compiler lock (the order is the same in every thread, so a
+    thread of the same process never holds the file while waiting for numba's lock). Without a
+    writable cache folder the dispatcher compiles as numba does alone.
+    """
+    from numba.core.compiler_lock import global_compiler_lock
+
+    folder = getattr(getattr(dispatcher, "_cache", None), "cache_path", None)
+    if not folder:
+        return dispatcher
+    function = dispatcher.py_func
+    constants = repr([cell.cell_contents for cell in function.__closure__ or ()])
+    digest = hashlib.sha256(f"{function.__module__}.{function.__qualname__}:{constants}".encode()).hexdigest()[:16]
+    lock_path = os.path.join(folder, f"{function.__qualname__}-{digest}.lock")
+    compile_here = dispatcher.compile
+
+    def compile_locked(signature: Any) -> Any:
+        with global_compiler_lock:
+            try:
+                os.makedirs(folder, exist_ok=True)  # numba makes it at its first save
+                handle = os.open(lock_path, os.O_CREAT | os.O_RDWR, 0o666)
+            except OSError:  # a read-only cache folder: numba does not save there either
+                return compile_here(signature)
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX)
+                return compile_here(signature)
+            finally:
+                os.close(handle)  # releases the lock
+
+    dispatcher.compile = compile_locked
+    return dispatcher

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.estimators.correlation_time import covariances_from_sums
+from edgedsm.estimators.jit import compiled
 from edgedsm.estimators.tau_stream import edges_of
 
 try:
@@ -40,7 +41,7 @@ def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., An
     """numba.njit(**options), or the plain function without numba (never called then)."""
     if numba is None:
         return lambda function: function
-    return numba.njit(cache=True, **options)
+    return compiled(**options)
 
 
 #: Pixels handled lag by lag at a time: each of the L + 2K sum rows is then read as one short

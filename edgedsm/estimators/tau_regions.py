@@ -40,6 +40,7 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators.correlation_time import TauC, _check_mask, fit_pooled, max_lag_problem, tau_lags
+from edgedsm.estimators.jit import compiled
 
 try:
     import numba
@@ -56,7 +57,7 @@ CHUNK = 1 << 12
 def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     if numba is None:
         return lambda function: function
-    return numba.njit(cache=True, **options)
+    return compiled(**options)
 
 
 @_compiled(parallel=True, nogil=True)

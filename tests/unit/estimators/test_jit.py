@@ -1,0 +1,80 @@
+"""Kernels compiled once across processes (edgedsm.estimators.jit.compile_once): processes that
+want the same kernel at the same moment (a daemon per camera at boot, the suite's workers) share
+one compile through numba's disk cache instead of each compiling it."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba (extra 'fast') absent")
+
+REPO = Path(__file__).resolve().parents[3]
+
+KERNEL_MODULE = textwrap.dedent('''
+    import numpy as np
+    from edgedsm.estimators.jit import {decorator}
+
+    def build(scale):
+        @{decorator}({options})
+        def kernel(values, out):
+            for i in range(values.size):  # enough code that compiling takes a while
+                x = values[i] * scale
+                out[i] = np.sqrt(abs(x)) + np.log1p(abs(x)) + np.sin(x) * np.cos(x) + np.tanh(x)
+        return kernel
+''')
+
+PROCESS = textwrap.dedent('''
+    import json, os, sys, time
+    from pathlib import Path
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    import kernels
+    kernel = kernels.build(float(sys.argv[3]))
+    folder = Path(sys.argv[1])
+    (folder / f"ready-{sys.argv[2]}").touch()
+    deadline = time.monotonic() + 60
+    while len(list(folder.glob("ready-*"))) < 2 and time.monotonic() < deadline:  # start together
+        time.sleep(0.001)
+    kernel(np.arange(5.0), np.empty(5))
+    print(json.dumps({"misses": sum(kernel.stats.cache_misses.values()),
+                      "hits": sum(kernel.stats.cache_hits.values())}))
+''')
+
+
+def run_two_processes(folder: Path, decorator: str, options: str, scales: tuple[str, str]) -> list[dict[str, int]]:
+    """Two processes that build the kernel and call it at the same moment: numba's cache counts."""
+    (folder / "kernels.py").write_text(KERNEL_MODULE.format(decorator=decorator, options=options))
+    (folder / "process.py").write_text(PROCESS)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(folder / "cache"), "PYTHONPATH": str(REPO)}
+    started = [subprocess.Popen([sys.executable, str(folder / "process.py"), str(folder), str(i), scales[i]],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+               for i in range(2)]
+    counts = []
+    for process in started:
+        out, err = process.communicate(timeout=120)
+        assert process.returncode == 0, err[-2000:]
+        counts.append(json.loads(out.strip().splitlines()[-1]))
+    return counts
+
+
+@pytest.mark.parametrize(("decorator", "options"), [("compiled", "nogil=True"), ("kernel_variant", "False")])
+def test_two_processes_wanting_one_kernel_compile_it_once(tmp_path: Path, decorator: str, options: str) -> None:
+    counts = run_two_processes(tmp_path, decorator, options, ("2.0", "2.0"))
+    assert sorted(c["misses"] for c in counts) == [0, 1], counts  # one compiled it ...
+    assert sorted(c["hits"] for c in counts) == [0, 1], counts  # ... the other loaded it
+
+
+def test_variants_of_one_factory_do_not_wait_for_each_other(tmp_path: Path) -> None:
+    """Other closure constants, another kernel: each process compiles its own, under its own lock."""
+    counts = run_two_processes(tmp_path, "compiled", "nogil=True", ("2.0", "3.0"))
+    assert [c["misses"] for c in counts] == [1, 1], counts
+    locks = sorted(p.name for p in (tmp_path / "cache").rglob("*.lock"))
+    assert len(locks) == 2 and all(name.startswith("build.<locals>.kernel-") for name in locks), locks
