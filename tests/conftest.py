@@ -4,6 +4,7 @@ import contextlib
 import fcntl
 import os
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -32,10 +33,12 @@ def warm_daemon_kernels(paths: list[str]) -> None:
     """Fill numba's disk cache before the first daemon process starts, when the daemon-process
     suites (integration, faults) run: on a fresh checkout a daemon's first start compiles its
     kernels (tens of seconds on 2 cores), longer than the tests wait for a daemon to answer; each
-    later start loads them (tests/unit/daemon/test_warm_start.py). Here, outside any test's timeout."""
+    later start loads them (tests/unit/daemon/test_warm_start.py). Here, outside any test's timeout,
+    one process per estimator setting at once: the kernels they share are compiled once
+    (edgedsm.estimators.jit.compile_once), the others on both cores."""
     if any({"integration", "faults"} & set(Path(path).parts) for path in paths):
-        for estimator in ESTIMATORS:
-            warm_start(estimator)
+        with ThreadPoolExecutor(len(ESTIMATORS)) as pool:
+            list(pool.map(warm_start, ESTIMATORS))
 
 
 @pytest.hookimpl(wrapper=True)
