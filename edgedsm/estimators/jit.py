@@ -23,6 +23,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -32,6 +33,13 @@ from typing import Any
 #: sinks): passive waiting sustained more frames and shorter evaluations in A/B trials of the
 #: daemon at its capacity (docs/bench-design.md).
 OMP_WAIT_POLICY = "PASSIVE"
+
+#: Longest wait, in seconds, for another process's compile of the same kernel: a first compile
+#: takes up to tens of seconds on a loaded 2-core machine; past this (a process stopped while
+#: compiling) this process compiles on its own, as numba does without the lock.
+COMPILE_WAIT_S = 180.0
+#: Seconds between two tries of a lock another process holds.
+LOCK_POLL_S = 0.05
 
 
 def configure_threading() -> None:
@@ -66,8 +74,9 @@ def compiled(**options: Any) -> Callable[[Callable[..., Any]], Any]:
 
 def compile_once(dispatcher: Any) -> Any:
     """``dispatcher`` (a numba dispatcher with ``cache=True``), changed to compile or load each
-    signature under a lock file beside its cache entry, one per function and closure constants:
-    a process that finds another compiling the same kernel waits, then loads the saved entry.
+    signature under a lock file beside its cache entry (:func:`lock_path`): a process that finds
+    another compiling the same kernel waits (at most :data:`COMPILE_WAIT_S`), then loads the saved
+    entry.
 
     The lock is taken inside numba's compiler lock (the order is the same in every thread, so a
     thread of the same process never holds the file while waiting for numba's lock). Without a
@@ -75,27 +84,48 @@ def compile_once(dispatcher: Any) -> Any:
     """
     from numba.core.compiler_lock import global_compiler_lock
 
-    folder = getattr(getattr(dispatcher, "_cache", None), "cache_path", None)
-    if not folder:
+    path = lock_path(dispatcher)
+    if path is None:
         return dispatcher
-    function = dispatcher.py_func
-    constants = repr([cell.cell_contents for cell in function.__closure__ or ()])
-    digest = hashlib.sha256(f"{function.__module__}.{function.__qualname__}:{constants}".encode()).hexdigest()[:16]
-    lock_path = os.path.join(folder, f"{function.__qualname__}-{digest}.lock")
     compile_here = dispatcher.compile
 
     def compile_locked(signature: Any) -> Any:
         with global_compiler_lock:
             try:
-                os.makedirs(folder, exist_ok=True)  # numba makes it at its first save
-                handle = os.open(lock_path, os.O_CREAT | os.O_RDWR, 0o666)
+                os.makedirs(os.path.dirname(path), exist_ok=True)  # numba makes it at its first save
+                handle = os.open(path, os.O_CREAT | os.O_RDWR, 0o666)
             except OSError:  # a read-only cache folder: numba does not save there either
                 return compile_here(signature)
             try:
-                fcntl.flock(handle, fcntl.LOCK_EX)
+                _lock(handle, COMPILE_WAIT_S)
                 return compile_here(signature)
             finally:
                 os.close(handle)  # releases the lock
 
     dispatcher.compile = compile_locked
     return dispatcher
+
+
+def lock_path(dispatcher: Any) -> str | None:
+    """The lock file of a cached dispatcher: in its cache folder, one per function and closure
+    constants (the variants of one factory do not wait for each other); None without a disk cache."""
+    folder = getattr(getattr(dispatcher, "_cache", None), "cache_path", None)
+    if not folder:
+        return None
+    function = dispatcher.py_func
+    constants = repr([cell.cell_contents for cell in function.__closure__ or ()])
+    digest = hashlib.sha256(f"{function.__module__}.{function.__qualname__}:{constants}".encode()).hexdigest()[:16]
+    return os.path.join(folder, f"{function.__qualname__}-{digest}.lock")
+
+
+def _lock(handle: int, wait_s: float) -> bool:
+    """Take the exclusive ``flock`` of ``handle``, waiting up to ``wait_s``; whether it was taken."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(LOCK_POLL_S)

@@ -12,6 +12,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba (extra 'fast') absent")
@@ -78,3 +79,39 @@ def test_variants_of_one_factory_do_not_wait_for_each_other(tmp_path: Path) -> N
     assert [c["misses"] for c in counts] == [1, 1], counts
     locks = sorted(p.name for p in (tmp_path / "cache").rglob("*.lock"))
     assert len(locks) == 2 and all(name.startswith("build.<locals>.kernel-") for name in locks), locks
+
+
+STUCK_HOLDER = textwrap.dedent('''
+    import fcntl, json, os, sys, time
+    import numpy as np
+    sys.path.insert(0, sys.argv[1])
+    import kernels
+    from edgedsm.estimators import jit
+    kernel = kernels.build(2.0)
+    path = jit.lock_path(kernel)
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    holder = os.open(path, os.O_CREAT | os.O_RDWR)
+    fcntl.flock(holder, fcntl.LOCK_EX)  # another open file: to flock, another process holding it
+    jit.COMPILE_WAIT_S = 0.5
+    started = time.monotonic()
+    out = np.empty(3)
+    kernel(np.array([0.0, 1.0, -2.0]), out)
+    print(json.dumps({"waited_s": time.monotonic() - started, "misses": sum(kernel.stats.cache_misses.values()),
+                      "out": out.tolist()}))
+''')
+
+
+def test_a_holder_that_never_finishes_delays_the_compile_only_up_to_the_wait_limit(tmp_path: Path) -> None:
+    """A process stopped while compiling must not stop the others: past COMPILE_WAIT_S they
+    compile on their own (as numba does without the lock), with the same result."""
+    (tmp_path / "kernels.py").write_text(KERNEL_MODULE.format(decorator="compiled", options="nogil=True"))
+    (tmp_path / "holder.py").write_text(STUCK_HOLDER)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, str(tmp_path / "holder.py"), str(tmp_path)], capture_output=True,
+                          text=True, env=env, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["waited_s"] >= 0.5 and result["misses"] == 1, result
+    x = np.array([0.0, 2.0, -4.0])  # the inputs times the scale 2.0
+    expected = np.sqrt(abs(x)) + np.log1p(abs(x)) + np.sin(x) * np.cos(x) + np.tanh(x)
+    assert np.allclose(result["out"], expected, rtol=1e-12, atol=0.0), result
