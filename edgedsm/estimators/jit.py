@@ -63,8 +63,13 @@ def kernel_variant(parallel: bool, **options: Any) -> Callable[[Callable[..., An
 
 
 def compiled(**options: Any) -> Callable[[Callable[..., Any]], Any]:
-    """``numba.njit(cache=True, **options)``, compiled once across processes (:func:`compile_once`)."""
-    import numba
+    """``numba.njit(cache=True, **options)``, compiled once across processes (:func:`compile_once`);
+    without numba (the optional extra ``fast``) the plain function, which callers then do not run
+    (they take their NumPy path)."""
+    try:
+        import numba
+    except ImportError:
+        return lambda function: function
 
     def compile_function(function: Callable[..., Any]) -> Any:
         return compile_once(numba.njit(cache=True, **options)(function))

@@ -20,8 +20,6 @@ in chunks (numpy; the slower path).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
@@ -37,19 +35,13 @@ except ImportError:  # the 'fast' extra is not installed: numpy below
 _CHUNK = 1 << 14  # pixels per numpy chunk
 
 
-def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """numba.njit(**options), or the plain function without numba (never called then)."""
-    if numba is None:
-        return lambda function: function
-    return compiled(**options)
-
 
 #: Pixels handled lag by lag at a time: each of the L + 2K sum rows is then read as one short
 #: sequential run per chunk (pixel by pixel over all rows, the 60 streams defeat the prefetcher).
 CHUNK = 256
 
 
-@_compiled(inline="always")
+@compiled(inline="always")
 def _add_chunk(n: int, lag_values: np.ndarray, pixels: np.ndarray, slots: np.ndarray, count: int, total: np.ndarray,
                total_sq: np.ndarray, products: np.ndarray, edges: np.ndarray, ends: np.ndarray, use_ends: bool,
                cov: np.ndarray, var: np.ndarray, scratch: np.ndarray, head: np.ndarray, tail: np.ndarray) -> None:
@@ -93,7 +85,7 @@ def _add_chunk(n: int, lag_values: np.ndarray, pixels: np.ndarray, slots: np.nda
         done = k
 
 
-@_compiled(parallel=True, nogil=True)
+@compiled(parallel=True, nogil=True)
 def _pooled_indices(n: int, lag_values: np.ndarray, pixels: np.ndarray, total: np.ndarray, total_sq: np.ndarray,
                     products: np.ndarray, edges: np.ndarray, ends: np.ndarray, use_ends: bool,
                     parts: int) -> tuple[np.ndarray, np.ndarray]:
@@ -114,7 +106,7 @@ def _pooled_indices(n: int, lag_values: np.ndarray, pixels: np.ndarray, total: n
     return cov, var
 
 
-@_compiled(parallel=True, nogil=True)
+@compiled(parallel=True, nogil=True)
 def _pooled_blocks(n: int, lag_values: np.ndarray, width: int, block: int, total: np.ndarray, total_sq: np.ndarray,
                    products: np.ndarray, edges: np.ndarray, ends: np.ndarray,
                    use_ends: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -33,8 +33,7 @@ leave it, i.e. a ring of N frames, which the engine already keeps.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -54,13 +53,8 @@ MAX_REGIONS = 62  # a pixel's membership is packed into the bits of one int64
 CHUNK = 1 << 12
 
 
-def _compiled(**options: Any) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    if numba is None:
-        return lambda function: function
-    return compiled(**options)
 
-
-@_compiled(parallel=True, nogil=True)
+@compiled(parallel=True, nogil=True)
 def _frame_kernel(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, uniform: np.ndarray, slots: np.ndarray,
                   pairs: int, write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
                   head: np.ndarray, chunk: int, out: np.ndarray) -> None:
@@ -113,7 +107,7 @@ def _frame_kernel(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, unifo
             ring[write, p] = x
 
 
-@_compiled(parallel=True, nogil=True)
+@compiled(parallel=True, nogil=True)
 def _window_kernel(total: np.ndarray, head: np.ndarray, ring: np.ndarray, labels: np.ndarray,
                    last_slots: np.ndarray, lag_values: np.ndarray, chunk: int, out: np.ndarray) -> None:
     """The window's end: out[c, a, j] += Σ T·E_{k_j}, out[c, a, L] += Σ T² (last_slots[s]: the ring
