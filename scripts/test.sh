@@ -19,10 +19,22 @@ if [ $# -gt 0 ]; then
     exec "${parallel[@]}" "$@"
 fi
 # The whole suite in two phases. The tests marked `alone` bound wall-clock times that tests beside
-# them would push over: first they run one after the other with nothing beside them, then the rest
-# in parallel. (Under xdist an `alone` test waits for every running test to end while the other
-# workers wait for it: the suite's cores sat idle for minutes.)
+# them would push over: first they run one after the other with no other test of theirs beside
+# them, then the rest in parallel. (Under xdist an `alone` test waits for every running test to end
+# while the other workers wait for it: the suite's cores sat idle for minutes.) The `alone` tests
+# mostly wait on timers, daemons and cameras: beside them the tests that only compute (marker
+# `compute`, tests/conftest.py) run at idle priority (SCHED_IDLE), which takes a core only while
+# nothing else wants it, so the `alone` tests keep their cores whenever they need them. Their
+# report comes after the `alone` tests' one.
 status=0
+compute_log="$(mktemp "${TMPDIR:-/tmp}/edgedsm-compute-tests.XXXXXX")"
+chrt --idle 0 "$VENV/bin/python" -m pytest -n 2 --dist load -m "compute and not alone" \
+    >"$compute_log" 2>&1 &
+compute=$!
+trap 'kill "$compute" 2>/dev/null; rm -f "$compute_log"' EXIT
 "$VENV/bin/python" -m pytest -n 0 -m alone || status=$?
-"${parallel[@]}" -m "not alone" || status=$?
+echo "edgedsm: the alone tests are done; waiting for the compute tests that ran beside them" >&2
+wait "$compute" || status=$?
+cat "$compute_log"
+"${parallel[@]}" -m "not alone and not compute" || status=$?
 exit "$status"

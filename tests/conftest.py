@@ -23,6 +23,20 @@ FAKE_GIGE_FIXTURES = {"gv_factory", "fake_gige"}
 #: take both cores from the daemons and brokers whose timing other workers' tests check.
 CPU_BOUND_GROUP = "cpu_bound"
 
+#: Tests that only compute (estimators, tuning, reports, the simulator, the slow unit tests): no
+#: daemon, broker, camera or wall-clock bound, so a test beside them taking the cores only makes
+#: them wait. Marked ``compute``: ./scripts/test.sh runs them at idle priority beside the ``alone``
+#: tests, on the cores those leave idle while they wait on timers, and the rest after.
+COMPUTE_PATHS = ("tests/unit/estimators/", "tests/unit/tuning/", "tests/unit/report/", "tests/unit/sim/",
+                 "tests/unit/test_timeline")
+
+
+def computes_only(item: pytest.Item) -> bool:
+    path = item.path.relative_to(REPO).as_posix()
+    unit = path.startswith("tests/unit/")
+    return item.get_closest_marker("alone") is None and (
+        path.startswith(COMPUTE_PATHS) or (unit and item.get_closest_marker("slow") is not None))
+
 
 @pytest.fixture
 def repo() -> Path:
@@ -49,6 +63,8 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
             item.add_marker(pytest.mark.xdist_group("fake_gige"))
         if item.get_closest_marker("slow") and "unit" in item.path.parts:
             item.add_marker(pytest.mark.xdist_group(CPU_BOUND_GROUP))
+        if computes_only(item):
+            item.add_marker(pytest.mark.compute)
     yield
     if getattr(config.option, "loadgroup", False):
         keep_xdist_groups(items)
