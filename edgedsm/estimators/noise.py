@@ -230,28 +230,24 @@ def white_variance(structure: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray,
     scaled = k[None, None, :] / _TAU_GRID[None, :, None]
     rise = (1.0 - np.exp(-scaled ** np.array(_STRETCH)[:, None, None])).reshape(-1, k.size)  # (P·T, L)
     taus = np.tile(_TAU_GRID, len(_STRETCH))
-    ones = np.ones_like(k)
-    best = np.full(d.shape[0], np.inf)
-    noise = np.zeros(d.shape[0])
-    tau = np.zeros(d.shape[0])
-    for t in range(taus.size):
-        basis = np.stack([ones, rise[t]], axis=1)  # (L, 2)
-        coef, *_ = np.linalg.lstsq(basis, d.T, rcond=None)  # (2, G)
-        white, slope = coef
-        # a bound active: the other parameter alone, by least squares
-        flat = slope < 0
-        white = np.where(flat, d.mean(axis=1), white)
-        slope = np.where(flat, 0.0, slope)
-        through = white < 0
-        if through.any():
-            slope = np.where(through, d @ rise[t] / float(rise[t] @ rise[t]), slope)
-            white = np.where(through, 0.0, white)
-        resid = ((d - white[:, None] - slope[:, None] * rise[t][None, :]) ** 2).sum(axis=1)
-        better = resid < best
-        best = np.where(better, resid, best)
-        noise = np.where(better, white / 2.0, noise)
-        tau = np.where(better, taus[t], tau)
-    return noise, tau
+    # every grid point at once: the least-squares solution of each (L, 2) basis [1, rise] is its
+    # pseudo-inverse times D (SVD, the same cut-off as lstsq's; the bases at the shortest τ are
+    # singular, rise ≈ 1 at every lag)
+    basis = np.stack([np.ones_like(rise), rise], axis=2)  # (P·T, L, 2)
+    white, slope = np.moveaxis(np.linalg.pinv(basis) @ d.T, 1, 0)  # each (P·T, G)
+    # a bound active: the other parameter alone, by least squares
+    flat = slope < 0
+    white = np.where(flat, d.mean(axis=1)[None, :], white)
+    slope = np.where(flat, 0.0, slope)
+    through = white < 0
+    slope = np.where(through, (rise @ d.T) / (rise * rise).sum(axis=1)[:, None], slope)
+    white = np.where(through, 0.0, white)
+    resid = ((d[None, :, :] - white[:, :, None] - slope[:, :, None] * rise[:, None, :]) ** 2).sum(axis=2)
+    resid = np.where(np.isnan(resid), np.inf, resid)
+    best = np.argmin(resid, axis=0)  # the first of equal minima, as a scan in grid order keeps
+    columns = np.arange(d.shape[0])
+    found = np.isfinite(resid[best, columns])
+    return np.where(found, white[best, columns] / 2.0, 0.0), np.where(found, taus[best], 0.0)
 
 
 def from_frames(frames: np.ndarray, max_lag: int = DEFAULT_LAGS, saturation: float | None = None,

@@ -296,3 +296,40 @@ def test_the_gd_spread_constant_is_the_conditional_variance_of_a_gaussian_mean_d
     first = np.trapezoid(conditional * density, z)
     assert first == pytest.approx(2 / math.sqrt(math.pi), rel=1e-9)
     assert pytest.approx(np.trapezoid(conditional**2 * density, z) - first**2, rel=1e-7) == nf.GD_ZETA1
+
+
+def scan_white_variance(structure: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """white_variance's definition, one grid point at a time: lstsq of [1, rise], the bounds, the
+    first best residual."""
+    k = lags.astype(np.float64)
+    best, white_best, tau_best = np.full(len(structure), np.inf), np.zeros(len(structure)), np.zeros(len(structure))
+    for p in noise._STRETCH:
+        for tau in noise._TAU_GRID:
+            rise = 1.0 - np.exp(-(k / tau) ** p)
+            (white, slope), *_ = np.linalg.lstsq(np.stack([np.ones_like(k), rise], axis=1), structure.T, rcond=None)
+            flat = slope < 0
+            white, slope = np.where(flat, structure.mean(axis=1), white), np.where(flat, 0.0, slope)
+            through = white < 0
+            slope = np.where(through, structure @ rise / (rise @ rise), slope)
+            white = np.where(through, 0.0, white)
+            resid = ((structure - white[:, None] - slope[:, None] * rise) ** 2).sum(axis=1)
+            better = resid < best
+            best, white_best, tau_best = np.where(better, resid, best), np.where(better, white, white_best), \
+                np.where(better, tau, tau_best)
+    return white_best / 2.0, tau_best
+
+
+def test_white_variance_is_the_grid_scan_of_least_squares_fits() -> None:
+    """All grid points at once (pseudo-inverses) equal the scan of one lstsq per point: the same
+    white noise, and the same τ where D(k) rises (where it is flat, fits at every τ tie to
+    rounding and τ is arbitrary, as from_frames says)."""
+    rng = np.random.default_rng(5)
+    lags = np.arange(1, 7)
+    white = rng.uniform(0.5, 20.0, 40)
+    tau, p = np.exp(rng.uniform(np.log(1.5), np.log(300.0), 40)), rng.choice(noise._STRETCH, 40)
+    rise = 1 - np.exp(-(lags / tau[:, None]) ** p[:, None])
+    structure = (2 * white[:, None] + rng.uniform(20, 400, 40)[:, None] * rise) * (1 + rng.normal(0.0, 0.01, (40, 6)))
+    structure[:5] = structure[:5, :1]  # flat
+    got, expected = noise.white_variance(structure, lags), scan_white_variance(structure, lags)
+    assert np.allclose(got[0], expected[0], rtol=1e-12, atol=0.0)
+    assert np.array_equal(got[1][5:], expected[1][5:])
