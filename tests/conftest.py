@@ -68,40 +68,10 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     yield
     if getattr(config.option, "loadgroup", False):
         keep_xdist_groups(items)
-        items[:] = interleave_modules(items)
     # Under pytest-xdist the controller warms the cache once, before it hands out any test
     # (pytest_xdist_node_collection_finished); the workers do not race to compile the same kernels.
     if not config.option.collectonly and "PYTEST_XDIST_WORKER" not in os.environ:
         warm_daemon_kernels([str(item.path) for item in items])
-
-
-#: Test kinds that mostly wait (on brokers, daemons, cameras and timeouts) rather than compute.
-WAITING_KINDS = {"integration", "faults"}
-
-
-def interleave_modules(items: list[pytest.Item]) -> list[pytest.Item]:
-    """The waiting kinds' modules spread evenly among the others', each module's tests together
-    (its module fixtures are set up once). pytest-xdist hands tests out in this order: in
-    collection order every worker ran integration and fault tests first, their waits leaving a
-    core idle for minutes, and the computing unit tests after them."""
-    modules: dict[Path, list[pytest.Item]] = {}
-    for item in items:
-        modules.setdefault(item.path, []).append(item)
-    waiting = [tests for path, tests in modules.items() if WAITING_KINDS & set(path.parts)]
-    others = [tests for path, tests in modules.items() if not WAITING_KINDS & set(path.parts)]
-    total_waiting, total_others = sum(map(len, waiting)), sum(map(len, others))
-    merged: list[pytest.Item] = []
-    done_waiting = done_others = 0
-    while waiting or others:
-        # the stream that is behind its share of the tests handed out so far goes next
-        if others and (not waiting or done_waiting * total_others >= done_others * total_waiting):
-            module = others.pop(0)
-            done_others += len(module)
-        else:
-            module = waiting.pop(0)
-            done_waiting += len(module)
-        merged += module
-    return merged
 
 
 def keep_xdist_groups(items: list[pytest.Item]) -> None:
