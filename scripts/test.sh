@@ -24,11 +24,12 @@ fi
 # while the other workers wait for it: the suite's cores sat idle for minutes.) The `alone` tests
 # mostly wait on timers, daemons and cameras: beside them the tests that only compute (marker
 # `compute`, tests/conftest.py) run at idle priority (SCHED_IDLE), which takes a core only while
-# nothing else wants it, so the `alone` tests keep their cores whenever they need them. Their
-# report comes after the `alone` tests' one.
+# nothing else wants it, so the `alone` tests keep their cores whenever they need them; each
+# module's tests on one worker (loadscope), so a module fixture (a benchmark's quick run) is
+# computed once. Their report comes after the `alone` tests' one.
 status=0
 compute_log="$(mktemp "${TMPDIR:-/tmp}/edgedsm-compute-tests.XXXXXX")"
-chrt --idle 0 "$VENV/bin/python" -m pytest -n 2 --dist load -m "compute and not alone" \
+chrt --idle 0 "$VENV/bin/python" -m pytest -n 2 --dist loadscope -m "compute and not alone" \
     >"$compute_log" 2>&1 &
 compute=$!
 trap 'kill "$compute" 2>/dev/null; rm -f "$compute_log"' EXIT
