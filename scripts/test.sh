@@ -36,6 +36,7 @@ trap 'kill "$compute" 2>/dev/null; rm -f "$compute_log"' EXIT
 "$VENV/bin/python" -m pytest -n 0 -m alone || status=$?
 echo "edgedsm: the alone tests are done; waiting for the compute tests that ran beside them" >&2
 wait "$compute" || status=$?
+trap 'rm -f "$compute_log"' EXIT  # reaped: its process id may be another's now
 cat "$compute_log"
 "${parallel[@]}" -m "not alone and not compute" || status=$?
 exit "$status"
