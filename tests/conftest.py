@@ -31,11 +31,14 @@ COMPUTE_PATHS = ("tests/unit/estimators/", "tests/unit/tuning/", "tests/unit/rep
                  "tests/unit/test_timeline")
 
 
+def slow_unit(item: pytest.Item) -> bool:
+    """A unit test marked ``slow`` (a long computation, often on every core)."""
+    return item.get_closest_marker("slow") is not None and "unit" in item.path.relative_to(REPO).parts
+
+
 def computes_only(item: pytest.Item) -> bool:
-    path = item.path.relative_to(REPO).as_posix()
-    unit = path.startswith("tests/unit/")
     return item.get_closest_marker("alone") is None and (
-        path.startswith(COMPUTE_PATHS) or (unit and item.get_closest_marker("slow") is not None))
+        item.path.relative_to(REPO).as_posix().startswith(COMPUTE_PATHS) or slow_unit(item))
 
 
 @pytest.fixture
@@ -61,7 +64,7 @@ def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config
     for item in items:  # before pytest-xdist reads the marks (inside the yield)
         if FAKE_GIGE_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.xdist_group("fake_gige"))
-        if item.get_closest_marker("slow") and "unit" in item.path.parts:
+        if slow_unit(item):
             item.add_marker(pytest.mark.xdist_group(CPU_BOUND_GROUP))
         if computes_only(item):
             item.add_marker(pytest.mark.compute)
