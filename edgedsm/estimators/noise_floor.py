@@ -124,7 +124,13 @@ def _gaussian_moments(mu: np.ndarray, variance: np.ndarray, q: float,
 def _rounded_moments(mu: np.ndarray, sigma: np.ndarray, q: float, top: float) -> tuple[np.ndarray, ...]:
     """The same for round(ν + n), n ~ N(0, σ²), clipped to [0, top], summed exactly over the
     levels within 6σ + 2 of ν, where ν is the analog mean whose rounded frames average μ
-    (:func:`_analog_means`)."""
+    (:func:`_analog_means`).
+
+    For the levels' values v_k (non-decreasing in k) and probabilities p_k: E|Δ| =
+    2 Σ_k P(I <= v_k)·P(I > v_k)·(v_{k+1} - v_k) (Gini's mean difference of a distribution on a
+    lattice: non-negative terms only) and E[Δ²] = 2·Σp·Σ p_k (v_k - v̄)², both in one pass over
+    the levels; the ratio's moments need the pairs, Σ_jk p_j p_k r(v_j, v_k) as a product of a
+    matrix that depends only on the pixel's base level (computed once per base) with p."""
     mu = _analog_means(mu, sigma, top)
     out = [np.empty(mu.size) for _ in range(4)]
     reach = math.ceil(6.0 * float(sigma.max(initial=0.0))) + 2
@@ -133,15 +139,23 @@ def _rounded_moments(mu: np.ndarray, sigma: np.ndarray, q: float, top: float) ->
     for start in range(0, mu.size, chunk):
         part = slice(start, start + chunk)
         m, s = mu[part, None], np.maximum(sigma[part, None], 1e-9)
-        level = np.floor(m) + offsets[None, :]  # (P, J)
-        prob = ndtr((level + 0.5 - m) / s) - ndtr((level - 0.5 - m) / s)
-        value = np.clip(level, 0.0, top)
-        diff = np.abs(value[:, :, None] - value[:, None, :])
-        total = value[:, :, None] + value[:, None, :] + q
-        ratio = np.divide(diff, total, out=np.zeros_like(diff), where=total > 0)
-        weight = prob[:, :, None] * prob[:, None, :]
-        for index, term in enumerate((diff, diff * diff, ratio, ratio * ratio)):
-            out[index][part] = (weight * term).sum(axis=(1, 2))
+        base = np.floor(m)
+        prob = ndtr((base + offsets + 0.5 - m) / s) - ndtr((base + offsets - 0.5 - m) / s)  # (P, J)
+        centred = np.clip(base + offsets, 0.0, top) - base  # small numbers: no cancellation below
+        below = np.cumsum(prob, axis=1)[:, :-1]
+        above = np.cumsum(prob[:, ::-1], axis=1)[:, ::-1][:, 1:]
+        out[0][part] = 2.0 * (below * above * np.diff(centred, axis=1)).sum(axis=1)
+        mass = prob.sum(axis=1)
+        mean = (prob * centred).sum(axis=1) / np.where(mass > 0, mass, 1.0)
+        out[1][part] = 2.0 * mass * (prob * (centred - mean[:, None]) ** 2).sum(axis=1)
+        bases, which = np.unique(base[:, 0], return_inverse=True)
+        values = np.clip(bases[:, None] + offsets, 0.0, top)  # (B, J)
+        total = values[:, :, None] + values[:, None, :] + q
+        ratio = np.divide(np.abs(values[:, :, None] - values[:, None, :]), total,
+                          out=np.zeros_like(total), where=total > 0)[which]  # (P, J, J)
+        column = prob[:, :, None]
+        out[2][part] = (prob * np.matmul(ratio, column)[:, :, 0]).sum(axis=1)
+        out[3][part] = (prob * np.matmul(ratio * ratio, column)[:, :, 0]).sum(axis=1)
     return tuple(out)
 
 
@@ -185,14 +199,17 @@ def _invert_means(mu: np.ndarray, sigma: np.ndarray, top: float) -> np.ndarray:
         m, s, half = mu[index, None], np.maximum(sigma[index, None], 1e-9), span[index, None]
         value, rows = mu[index], np.arange(index.size)
         reach = math.ceil(float((half + 6.0 * s).max())) + 2
-        levels = np.floor(m)[:, :, None] + np.arange(-reach, reach + 1.0)[None, None, :]  # (P, 1, J)
+        levels = np.floor(m) + np.arange(-reach, reach + 1.0)[None, :]  # (P, J)
+        clipped = np.clip(levels, 0.0, top)
+        # E[clip(round(ν + n))] = v_first + Σ_k (v_{k+1} - v_k)·P(ν + n > k + 1/2): one Φ per
+        # edge between two levels, not two per level
+        rise = np.diff(clipped, axis=1)[:, None, :]  # (P, 1, J - 1)
+        edges = (levels[:, :-1] + 0.5)[:, None, :]
         low, high = m - half, m + half
         # a coarse grid of ν brackets the solution, a fine one across the bracket finds it
         for _ in range(2):
             grid = low + (high - low) * steps  # candidate ν, (P, V)
-            gap = levels - grid[:, :, None]
-            prob = ndtr((gap + 0.5) / s[:, :, None]) - ndtr((gap - 0.5) / s[:, :, None])
-            expected = (prob * np.clip(levels, 0.0, top)).sum(axis=2)  # (P, V), non-decreasing in ν
+            expected = clipped[:, :1] + (rise * ndtr((grid[:, :, None] - edges) / s[:, :, None])).sum(axis=2)
             expected += 1e-9 * np.arange(grid.shape[1])[None, :]  # strictly increasing for the inversion
             above = np.clip((expected < value[:, None]).sum(axis=1), 1, grid.shape[1] - 1)
             low, high = grid[rows, above - 1][:, None], grid[rows, above][:, None]

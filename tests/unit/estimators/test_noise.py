@@ -207,6 +207,35 @@ def test_exact_rounding_meets_sheppard_where_the_sums_hand_over():
     assert exact[2][0] == pytest.approx(sheppard[2][0], rel=1e-3)
 
 
+def _pair_moments_by_definition(nu, sigma, reach, q, top):
+    """E|Δ|, E[Δ²], E[r], E[r²] of two rounded, clipped frames of analog mean ν, summed over every
+    pair of the levels within ``reach`` of floor(ν) (the definition _rounded_moments sums in
+    fewer steps)."""
+    levels = np.floor(nu) + np.arange(-reach, reach + 1)
+    prob = ndtr((levels + 0.5 - nu) / sigma) - ndtr((levels - 0.5 - nu) / sigma)
+    value = np.clip(levels, 0.0, top)
+    diff = np.abs(value[:, None] - value[None, :])
+    total = value[:, None] + value[None, :] + q
+    ratio = np.divide(diff, total, out=np.zeros_like(diff), where=total > 0)
+    weight = prob[:, None] * prob[None, :]
+    return [float((weight * term).sum()) for term in (diff, diff**2, ratio, ratio**2)]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0.0, 300.0), st.floats(0.001, 3.99)), min_size=1, max_size=12),
+       st.sampled_from([0.0, 0.5, 7.0]), st.sampled_from([255.0, 4095.0, math.inf]))
+def test_rounded_moments_are_the_sums_over_pairs_of_levels(pixels, q, top):
+    mu = np.array([min(m, top) for m, _ in pixels])
+    sigma = np.array([s for _, s in pixels])
+    got = nf._rounded_moments(mu, sigma, q, top)
+    nu = nf._analog_means(mu, sigma, top)
+    reach = math.ceil(6 * sigma.max()) + 2  # every pixel is summed over the widest σ's levels
+    for index in range(mu.size):
+        expected = _pair_moments_by_definition(nu[index], sigma[index], reach, q, top)
+        for part, value in zip(got, expected, strict=True):
+            assert part[index] == pytest.approx(value, rel=1e-12, abs=1e-20)  # far below any floor
+
+
 #: DN: below, σ̂ of a pixel a few grey levels bright is too discrete for the chi distribution the
 #: contrast's floor assumes (its floor then reads about a spread high; docs/noise.md)
 CONTRAST_CALIBRATED_FROM = 5.0
