@@ -17,7 +17,7 @@ from edgedsm.config import DaemonConfig
 from edgedsm.daemon.engine_budget import warm_up
 from edgedsm.validation import validate
 config = validate(DaemonConfig, json.loads(sys.argv[1]), "<warm start>")
-warm_up(config)
+warm_up(config)  # no frame size: the kernels of small and large frames (the fake GigE camera's are large)
 missed = sorted({obj.py_func.__qualname__ for obj in gc.get_objects()
                  if isinstance(obj, CPUDispatcher) and obj._cache.__class__.__name__ != "NullCache"
                  and obj.stats.cache_misses})

@@ -90,6 +90,15 @@ class Capture:
         self.camera.open()
         apply_camera_settings(self.camera, self.settings)
 
+    def frame_shape(self) -> tuple[int, int] | None:
+        """The open camera's frame (rows, columns), None where only a frame tells (or the camera
+        could not say: the size is a hint, the first frame decides)."""
+        try:
+            return self.camera.frame_shape()
+        except DeviceError as exc:
+            log.debug("%s: frame size unknown until the first frame: %s", self.camera.description, exc)
+            return None
+
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="edgedsm-capture", daemon=True)
         self._thread.start()

@@ -15,7 +15,7 @@ from edgedsm.errors import ConfigError
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
-from edgedsm.estimators.streaming import TAU_BATCH
+from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
 from edgedsm.estimators.tau_pooled import pooled_covariances
 from edgedsm.frames import Frame
 
@@ -26,9 +26,9 @@ PROBE_PIXELS = 8
 #: Bytes per pixel of the float maps: two sets of S1, S2, S3 and σ (float64; a second set while
 #: a sink still holds the first).
 MAP_BYTES_PER_PIXEL = 2 * 4 * 8
-#: Side of the warm-up engine: at least PARALLEL_MIN_PIXELS, so the parallel kernels that real
-#: frames use are loaded too.
-WARM_UP_SIDE = 256
+#: Sides of the warm-up engines: one at least PARALLEL_MIN_PIXELS (the parallel kernels of large
+#: frames), one below (the serial kernels of small ones).
+WARM_UP_SIDES = {True: 256, False: 64}
 
 
 def kernel_threads(config: DaemonConfig, pixels: int) -> int | None:
@@ -77,14 +77,34 @@ def check_engine_memory(frame: Frame, bytes_per_pixel: float, pixels: int | None
                           "or 'exponential', or area = 'regions')")
 
 
-def warm_up(config: DaemonConfig) -> None:
-    """Load every compiled kernel an evaluation of ``config`` uses, on a small engine, before
-    frames flow: loading them later (hundreds of ms, holding the GIL) would stall the pipeline
-    thread and overflow the queue at the first push and the first evaluation."""
+def kernel_variants(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> tuple[bool, ...]:
+    """Which variants of the kernels (parallel or not: PARALLEL_MIN_PIXELS) the engine for frames
+    of ``frame_shape`` (rows, columns) runs: both while the size is unknown (None), and where
+    ``estimator.area = 'regions'`` crops a large frame to a box that may be small."""
+    if frame_shape is None:
+        return (False, True)
+    if frame_shape[0] * frame_shape[1] < PARALLEL_MIN_PIXELS:
+        return (False,)  # an engine never sees more than the frame
+    return (False, True) if config.estimator.area == "regions" and config.regions else (True,)
+
+
+def warm_up(config: DaemonConfig, frame_shape: tuple[int, int] | None = None) -> None:
+    """Load every compiled kernel an evaluation of ``config`` on frames of ``frame_shape`` (rows,
+    columns; None: not known yet) uses, on small engines, before frames flow: loading them later
+    (hundreds of ms, holding the GIL) would stall the pipeline thread and overflow the queue at the
+    first push and the first evaluation; compiling them (seconds, on a fresh install) even more."""
+    for parallel in kernel_variants(config, frame_shape):
+        _warm_up(config, parallel)
+    if config.estimator.noise_floor:
+        warm_up_noise()
+
+
+def _warm_up(config: DaemonConfig, parallel: bool) -> None:
+    """Load the ``parallel`` or the serial variants of the kernels (:func:`warm_up`)."""
     est = config.estimator
     tau = TauRegions(config)
     deep = config.camera.pixel_format not in (None, "Mono8")
-    side = WARM_UP_SIDE
+    side = WARM_UP_SIDES[parallel]
     window = est.lag + 2
     if tau.on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
         window = max(window, est.lags + TAU_BATCH + 2)
@@ -101,14 +121,10 @@ def warm_up(config: DaemonConfig) -> None:
     maps = est.maps
     maps_from(engine.snapshot(maps))
     wanted = [maps] + ([(est.activity,)] if est.activity in maps else [])
-    for parallel in (False, True):  # which one runs depends on the frame's size, not known yet
-        for names in wanted:
-            region_moments(engine.snapshot(names, live=True), layout, names, spread=names is maps,
-                           parallel=parallel)
+    for names in wanted:
+        region_moments(engine.snapshot(names, live=True), layout, names, spread=names is maps, parallel=parallel)
     if tau.on:  # the pooled-covariance kernels of the regions and the block map
         sums = engine.tau_snapshot()
         tau.map_seconds(sums, 1.0, block=2)
         pooled_covariances(sums.window, sums.total, sums.total_sq, sums.products, sums.edges, sums.ends,
                            np.flatnonzero(mask), sums.lags)
-    if est.noise_floor:
-        warm_up_noise()

@@ -117,7 +117,6 @@ class Pipeline:
         self.probes = probes or PipelineProbes()
         self.counters: Counter[str] = Counter()
         self.capture = Capture(camera, config.camera, config.acquisition, self.counters, self.probes)
-        warm_up(config)
         tau = TauRegions(config)  # τc: frame interval, region pixels (edgedsm.daemon.tau); both threads read it
         self.evaluator = Evaluator(config, tau, sink, self.clock, self.counters, self.probes)
         self.measurement = Measurement(config, tau, self.evaluator.map_buffers, self.counters, self.probes)
@@ -315,6 +314,11 @@ class Pipeline:
         grab_timeout_s = self.config.camera.grab_timeout_s
         acq.switch_off("start")
         capture.open()
+        try:
+            warm_up(self.config, capture.frame_shape())  # the kernels this size of frame runs, before frames flow
+        except BaseException:
+            capture.stop(timeout_s=0.0)  # closes the camera
+            raise
         capture.start()
         try:
             acq.take_dark_frames(self._take, grab_timeout_s)

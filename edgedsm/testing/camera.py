@@ -79,11 +79,26 @@ def check_frames_after_reopen(make: CameraFactory) -> None:
           f"{camera!r}: 2 frames before and after reopening, got {len(first)} and {len(second)}")
 
 
+def check_frame_shape(make: CameraFactory) -> None:
+    """``frame_shape()`` is refused while closed; once open it is None or the shape of the frames
+    that come."""
+    camera = make()
+    with expect_error(DeviceError, "not open", f"{camera!r}: frame_shape() before open()"):
+        camera.frame_shape()
+    with camera:
+        said = camera.frame_shape()
+        frames = list(camera.frames(2))
+    shapes = {frame.pixels.shape for frame in frames}
+    check(said is None or shapes == {tuple(said)},
+          f"{camera!r}: frame_shape() said {said}, the frames came as {sorted(shapes)}")
+
+
 CAMERA_CHECKS: dict[str, Callable[[CameraFactory], None]] = {
     "lifecycle": check_lifecycle,
     "frames": check_frames,
     "bad_settings_refused": check_bad_settings_refused,
     "frames_after_reopen": check_frames_after_reopen,
+    "frame_shape": check_frame_shape,
 }
 """Every camera check by name, in the order :func:`check_camera_contract` runs them."""
 

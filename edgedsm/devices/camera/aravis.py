@@ -458,15 +458,17 @@ class AravisCamera(Camera):
         self._call("set frame rate", camera.set_frame_rate, rate)
         return 1.0 / float(self._call("frame rate", camera.get_frame_rate))
 
+    def _do_frame_shape(self) -> tuple[int, int]:
+        _, _, width, height = self._call("region", self.camera.get_region)  # a buffer's image is the region
+        return height, width
+
     def _do_set_region(self, region: Region) -> Region:
         camera = self.camera
-        sensor_width, sensor_height = self._call("sensor size", camera.get_sensor_size)
-        if region.x + region.width > sensor_width or region.y + region.height > sensor_height:
-            raise DeviceError(f"{self.description}: region {region} does not fit the "
-                              f"{sensor_width}x{sensor_height} sensor")
+        width, height = self._call("sensor size", camera.get_sensor_size)
+        if region.x + region.width > width or region.y + region.height > height:
+            raise DeviceError(f"{self.description}: region {region} does not fit the {width}x{height} sensor")
         self._call("set region", camera.set_region, region.x, region.y, region.width, region.height)
-        x, y, width, height = self._call("region", camera.get_region)
-        return Region(x, y, width, height)
+        return Region(*self._call("region", camera.get_region))
 
     def _do_set_pixel_format(self, pixel_format: str) -> str:
         camera = self.camera

@@ -191,6 +191,13 @@ class Camera(abc.ABC):
             raise DeviceError(f"{self.description}: stop streaming before changing the pixel format")
         return self._remember("pixel_format", self._do_set_pixel_format(pixel_format))
 
+    def frame_shape(self) -> tuple[int, int] | None:
+        """(rows, columns) of the frames the open camera will deliver with its settings now, or
+        None where only a frame tells. The daemon loads the kernels that size of frame runs before
+        frames flow (a small frame runs none of the parallel ones)."""
+        self._check_open()
+        return self._do_frame_shape()
+
     def _remember(self, name: str, value: T) -> T:
         self._settings[name] = value
         return value
@@ -311,6 +318,9 @@ class Camera(abc.ABC):
 
     @abc.abstractmethod
     def _do_grab(self, timeout_s: float) -> Frame | None: ...
+
+    def _do_frame_shape(self) -> tuple[int, int] | None:
+        return None
 
     def _do_set_exposure(self, microseconds: float) -> float:
         raise DeviceError(f"{self.description}: exposure cannot be set on this camera")

@@ -147,6 +147,9 @@ class ReplayCamera(Camera):
         t_ns = round(seq * self._timestamp_dt * 1e9) if self._timestamp_dt else time.monotonic_ns()
         return seq, t_ns
 
+    def _do_frame_shape(self) -> tuple[int, int] | None:
+        return self._reader.shape if self._reader is not None else None
+
     def _do_set_frame_interval(self, seconds: float) -> float:
         self._interval = seconds
         return seconds

@@ -82,6 +82,9 @@ class SimulatedCamera(Camera):
             return None
         return Frame(pixels, seq, round(seq * self._dt * 1e9), self.bits)
 
+    def _do_frame_shape(self) -> tuple[int, int]:
+        return (self.scene.scene.size, self.scene.scene.size)
+
     def _do_set_exposure(self, microseconds: float) -> float:
         self._exposure_us = microseconds  # the model has no motion blur: recorded only
         return microseconds

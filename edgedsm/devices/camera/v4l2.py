@@ -257,6 +257,10 @@ class V4L2Camera(Camera):
         fps = capture.get(cv2.CAP_PROP_FPS)
         return 1.0 / fps if fps > 0 else seconds
 
+    def _do_frame_shape(self) -> tuple[int, int]:
+        width, height = self._size  # every frame is cut to the negotiated format (to_mono)
+        return (height, width)
+
     def _do_set_region(self, region: Region) -> Region:
         if region.x or region.y:
             raise DeviceError(f"{self.description}: V4L2 sets the resolution only; the region must start at 0, 0")

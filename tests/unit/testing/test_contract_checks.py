@@ -86,7 +86,8 @@ class WriteOnlyBoardRelay(BoardRelay):
 
 def test_a_minimal_camera_driver_passes_the_camera_contract() -> None:
     check_camera_contract(CountingCamera)
-    assert list(CAMERA_CHECKS) == ["lifecycle", "frames", "bad_settings_refused", "frames_after_reopen"]
+    assert list(CAMERA_CHECKS) == ["lifecycle", "frames", "bad_settings_refused", "frames_after_reopen",
+                                 "frame_shape"]
 
 
 def test_camera_checks_catch_seq_going_backwards_and_pixels_beyond_their_bits() -> None:
@@ -94,6 +95,18 @@ def test_camera_checks_catch_seq_going_backwards_and_pixels_beyond_their_bits() 
         check_frames(lambda: CountingCamera(step=-1))
     with pytest.raises(AssertionError, match="pixel value 1500 beyond 10 bits"):
         check_frames(lambda: CountingCamera(value=1500))
+
+
+class MisleadingCamera(CountingCamera):
+    """Says its frames are 5x5; they come 4x6."""
+
+    def _do_frame_shape(self) -> tuple[int, int]:
+        return (5, 5)
+
+
+def test_the_camera_contract_catches_a_frame_shape_the_frames_do_not_have() -> None:
+    with pytest.raises(AssertionError, match=r"frame_shape\(\) said \(5, 5\), the frames came as \[\(4, 6\)\]"):
+        CAMERA_CHECKS["frame_shape"](MisleadingCamera)
 
 
 def test_a_minimal_relay_driver_passes_the_relay_contract() -> None:
