@@ -55,7 +55,7 @@ def warm_daemon_kernels(paths: list[str]) -> None:
     (edgedsm.estimators.jit.compile_once), the others on both cores."""
     if any({"integration", "faults"} & set(Path(path).parts) for path in paths):
         with ThreadPoolExecutor(len(ESTIMATORS)) as pool:
-            list(pool.map(warm_start, ESTIMATORS))
+            list(pool.map(lambda case: warm_start(*case), ESTIMATORS))
 
 
 @pytest.hookimpl(wrapper=True)
