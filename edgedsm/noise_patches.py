@@ -33,6 +33,11 @@ class PatchWindow:
     mask: np.ndarray
     top: float
 
+    def region_mean(self) -> float:
+        """The region's mean over the window (DN): of its pixels' window means, which numpy sums
+        straight along time (a copy of the region's pixels first took several times as long)."""
+        return float(self.frames.mean(axis=0, dtype=np.float64)[self.mask].mean())
+
 
 def patch_of(box: RegionBox, side: int) -> tuple[slice, slice, np.ndarray]:
     """The rows, columns and region mask of the square of up to ``side`` pixels centred on the

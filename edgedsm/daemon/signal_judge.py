@@ -179,7 +179,7 @@ class SignalJudge:
                     assert floor.share is not None
                     above = floor.share
                 if floor is not self._floors.get(name):
-                    self._basis[name] = (self.model, float(patch.frames[:, patch.mask].mean()), self._assessments)
+                    self._basis[name] = (self.model, patch.region_mean(), self._assessments)
                 self._floors[name] = floor
             light = signal_quality.light_stats(patch.frames, self.model or noise.from_datasheet(0.0, 0.0),
                                                patch.top, patch.mask)
@@ -223,7 +223,7 @@ class SignalJudge:
         if floor is None or basis is None or floor.estimator != estimator:
             return None
         model, mean, when = basis
-        now = float(patch.frames[:, patch.mask].mean())
+        now = patch.region_mean()
         if model is not self.model or self._assessments - when >= REFRESH_EVERY or abs(now - mean) > FLOOR_KEPT * mean:
             return None
         return floor

@@ -137,7 +137,7 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
         raise EstimatorError(f"previous floor is {previous.estimator}'s, not {estimator}'s")
     if previous is not None and estimator not in SHARED:
         return previous
-    means = stack[:, region].mean(axis=0, dtype=np.float64)
+    means = stack.mean(axis=0, dtype=np.float64)[region]  # per pixel along time: no copy of the region
     if estimator == "s2":
         return RegionFloor(estimator, noise_floor.s2_floor(model, means, n, lag, q=q, top=top))
     if estimator == "s1":
@@ -155,7 +155,7 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
     else:
         floor, static = noise_floor.s1_floor_and_static_variance(model, means, n, lag, top=top)
     # S3 and the contrast of the signal alone need the region's mean window variance (Eq. 3-4)
-    variance = float(stack[:, region].astype(np.float64).var(axis=0).mean())
+    variance = float(stack.var(axis=0, dtype=np.float64)[region].mean())
     share = noise_floor.signal_share(model, means, variance, n, top=top, noise_variance=static)
     return RegionFloor(estimator, floor, share, static)
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from edgedsm.analysis import RegionBox
-from edgedsm.noise_patches import MAX_PATCH_FRAMES, NoisePatches, patch_of
+from edgedsm.noise_patches import MAX_PATCH_FRAMES, NoisePatches, PatchWindow, patch_of
 
 
 @pytest.mark.parametrize("side", [16, 64])
@@ -40,3 +40,12 @@ def test_the_patch_rings_give_the_last_frames_in_time_order():
     window.frames[:] = 0  # a copy: the ring is untouched
     assert patches.take()["a"].frames[:, 0, 0].tolist() == [3, 4, 5, 6]
     assert NoisePatches({"a": RegionBox.of(square)}, 10_000, 8, np.dtype(np.uint8), 8).frames == MAX_PATCH_FRAMES
+
+
+def test_the_region_mean_is_the_mean_of_the_regions_samples() -> None:
+    rng = np.random.default_rng(3)
+    frames = rng.integers(0, 4096, (40, 24, 30), dtype=np.uint16)
+    mask = rng.random((24, 30)) < 0.6
+    window = PatchWindow(frames, mask, 4095.0)
+    assert window.region_mean() == pytest.approx(float(frames[:, mask].mean()), rel=1e-14)
+    assert window.region_mean() != pytest.approx(float(frames.mean()), rel=1e-6)  # the mask is applied
