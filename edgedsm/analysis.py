@@ -71,9 +71,16 @@ def percentiles(sample: np.ndarray) -> tuple[float, float, float]:
     gamma = virtual - below
     lower = below.astype(np.intp)
     low, high = ordered[lower], ordered[np.minimum(lower + 1, ordered.size - 1)]
-    step = high - low
-    # numpy's _lerp: from the nearer end, so that gamma = 0 and 1 give the values exactly
-    values = np.where(gamma >= 0.5, high - step * (1 - gamma), low + step * gamma)
+    with np.errstate(over="ignore"):
+        step = high - low
+    if np.isinf(step).any() and np.isfinite(ordered[[0, -1]]).all():
+        # two finite values more than the float range apart (numpy's formula overflows there and
+        # reads +-inf): the step in halves, each within range, and so is every point between them
+        half = high / 2 - low / 2
+        values = np.where(gamma >= 0.5, high - half * (1 - gamma) - half * (1 - gamma),
+                          low + half * gamma + half * gamma)
+    else:  # numpy's _lerp: from the nearer end, so that gamma = 0 and 1 give the values exactly
+        values = np.where(gamma >= 0.5, high - step * (1 - gamma), low + step * gamma)
     return float(values[0]), float(values[1]), float(values[2])
 
 
