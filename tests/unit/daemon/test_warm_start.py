@@ -94,3 +94,14 @@ class SizeUnknownCamera(SimulatedCamera):
 
     def _do_frame_shape(self) -> None:
         return None
+
+
+def test_a_warm_up_that_fails_closes_the_camera(monkeypatch) -> None:
+    def broken(config, parallel):
+        raise MemoryError("no room for the warm-up engine")
+
+    monkeypatch.setattr(engine_budget, "_warm_up", broken)
+    camera = SimulatedCamera(load_scene(SCENE), time_scale=0)
+    with pytest.raises(MemoryError, match="warm-up engine"):
+        Pipeline(_config(), camera, RecordingSink()).run(lambda: True)
+    assert not camera.is_open
