@@ -34,8 +34,6 @@ except ImportError:  # the 'fast' extra is not installed: numpy below
 
 _CHUNK = 1 << 14  # pixels per numpy chunk
 
-
-
 #: Pixels handled lag by lag at a time: each of the L + 2K sum rows is then read as one short
 #: sequential run per chunk (pixel by pixel over all rows, the 60 streams defeat the prefetcher).
 CHUNK = 256

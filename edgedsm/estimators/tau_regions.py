@@ -53,7 +53,6 @@ MAX_REGIONS = 62  # a pixel's membership is packed into the bits of one int64
 CHUNK = 1 << 12
 
 
-
 @compiled(parallel=True, nogil=True)
 def _frame_kernel(frame: np.ndarray, ring: np.ndarray, labels: np.ndarray, uniform: np.ndarray, slots: np.ndarray,
                   pairs: int, write: int, first: bool, head_from: int, lag_values: np.ndarray, total: np.ndarray,
