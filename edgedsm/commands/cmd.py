@@ -18,6 +18,11 @@ Examples:
 
 Connection settings come from the config's [mqtt] table (-c) and/or the options; options win.
 The password comes from $EDGEDSM_MQTT_PASSWORD (or $CREDENTIALS_DIRECTORY/mqtt-password).
+
+Every command but publish_maps is signed with a command key (docs/security.md): from
+--command-key-file, else $EDGEDSM_COMMAND_KEY, else the config's [mqtt] command_key_file, else
+$CREDENTIALS_DIRECTORY/command-key; the first key of the file unless --key-id names another.
+Without a key they are sent unsigned and the daemon refuses them.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -37,11 +43,12 @@ from pydantic import ValidationError
 
 from edgedsm import _json
 from edgedsm.commands.broker_options import add_credential_options, host_port, mqtt_settings, seconds
-from edgedsm.errors import DataError
-from edgedsm.publish.commands import CommandReply
+from edgedsm.errors import ConfigError, DataError
+from edgedsm.publish.command_auth import sign, signing_key
+from edgedsm.publish.commands import COMMANDS, CommandReply
 from edgedsm.publish.connection import build_ssl_context, connect_in_background, describe_refusal, make_client
 from edgedsm.publish.errors import PublishError
-from edgedsm.publish.settings import MqttSettings, resolve_password
+from edgedsm.publish.settings import MqttSettings, resolve_command_keys, resolve_password
 from edgedsm.publish.topics import Topics
 
 NAME = "cmd"
@@ -63,6 +70,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=seconds, default=10.0, metavar="S",
                         help="longest wait for the reply (default 10)")
     parser.add_argument("--json", action="store_true", help="print the reply as one JSON object")
+    parser.add_argument("--command-key-file", type=Path, metavar="FILE",
+                        help="the command key(s) to sign with ('KEY_ID SECRET' lines); "
+                             "default: as the daemon finds its own")
+    parser.add_argument("--key-id", metavar="ID", help="which key of the file signs (default: the first)")
     add_credential_options(parser.add_argument_group("credentials and TLS (as the daemon's [mqtt])"))
 
 
@@ -70,7 +81,8 @@ def settings_of(args: argparse.Namespace) -> MqttSettings:
     """Broker settings as ``edgedsm watch`` builds them (config, then options)."""
     host, port = args.broker if args.broker is not None else (None, None)
     return mqtt_settings(args.config, args, {"host": host, "port": port, "topic_prefix": args.topic_prefix,
-                                             "device": args.device})
+                                             "device": args.device,
+                                             "command_key_file": getattr(args, "command_key_file", None)})
 
 
 def parse_arguments(text: str) -> dict[str, Any]:
@@ -86,10 +98,32 @@ def parse_arguments(text: str) -> dict[str, Any]:
     return value
 
 
+def signed(topic: str, name: str, arguments: dict[str, Any], keys: Mapping[str, bytes],
+           key_id: str | None) -> dict[str, Any]:
+    """The payload of ``name`` for ``topic``: signed when it needs to be or when a key is at hand."""
+    command = COMMANDS.get(name)
+    if not keys:
+        return dict(arguments)  # the daemon will say why it refuses (read-only, or not signed)
+    if command is not None and not command.requires_authorisation and key_id is None:
+        return dict(arguments)
+    try:
+        chosen, key = signing_key(keys, key_id)
+    except KeyError as exc:
+        raise ConfigError(f"--key-id: {exc.args[0]}") from None
+    try:
+        return sign(chosen, key, topic, arguments, now=time.time())
+    except ValueError as exc:
+        raise DataError(f"--args: {exc}") from None
+
+
 def send(settings: MqttSettings, name: str, arguments: dict[str, Any], timeout_s: float,
-         password: str | None = None) -> CommandReply | None:
-    """Publish the command and wait for the reply carrying its request id (None: no reply in time)."""
+         password: str | None = None, keys: Mapping[str, bytes] | None = None,
+         key_id: str | None = None) -> CommandReply | None:
+    """Publish the command (signed with ``keys``, default :func:`resolve_command_keys`) and wait
+    for the reply carrying its request id (None: no reply in time)."""
     topics = Topics.from_settings(settings)
+    payload = signed(topics.command(name), name, arguments,
+                     resolve_command_keys(settings) if keys is None else keys, key_id)
     request_id = f"cli-{uuid.uuid4().hex[:12]}"
     reply_topic = topics.reply(name)
     subscribed, answered = threading.Event(), threading.Event()
@@ -126,7 +160,7 @@ def send(settings: MqttSettings, name: str, arguments: dict[str, Any], timeout_s
             if time.monotonic() > deadline:
                 raise PublishError(f"no connection to the MQTT broker {settings.host}:{settings.port} "
                                    f"within {CONNECT_WAIT_S:g} s")
-        client.publish(topics.command(name), _json.dumps({**arguments, "request_id": request_id}), qos=1)
+        client.publish(topics.command(name), _json.dumps({**payload, "request_id": request_id}), qos=1)
         answered.wait(timeout_s)
     finally:
         client.disconnect()
@@ -137,7 +171,10 @@ def send(settings: MqttSettings, name: str, arguments: dict[str, Any], timeout_s
 def run(args: argparse.Namespace) -> int:
     arguments = parse_arguments(args.args)
     settings = settings_of(args)
-    reply = send(settings, args.name, arguments, args.timeout, password=resolve_password())
+    # an explicit --command-key-file wins over the environment
+    keys = resolve_command_keys(settings, environ={} if args.command_key_file is not None else None)
+    reply = send(settings, args.name, arguments, args.timeout, password=resolve_password(), keys=keys,
+                 key_id=args.key_id)
     base = Topics.from_settings(settings).base
     if reply is None:
         if args.json:

@@ -1,9 +1,12 @@
 """Commands accepted on ``<prefix>/<device>/cmd/<name>``: a small, documented set.
 
 Payload: a JSON object. The optional key ``request_id`` (string or integer) is echoed in the
-reply; every other key must belong to the command. A zero-length payload is ignored without a
-reply: that is what clearing a retained message delivers. Retained commands are refused when
-the broker replays them (they would run again after every reconnection).
+reply; ``issued``, ``nonce``, ``key_id`` and ``sig`` sign it (``edgedsm.publish.command_auth``);
+every other key must belong to the command. Every command but ``publish_maps`` changes the
+laser or the measurement and is executed only when signed with a command key the daemon holds
+(docs/security.md). A zero-length payload is ignored without a reply: that is what clearing a
+retained message delivers. Retained commands are refused (with MQTT 5 also on their first,
+live delivery: the daemon subscribes with retain-as-published).
 
 =================  ==========================  ===============================================
 name               payload                     effect
@@ -21,9 +24,9 @@ name               payload                     effect
 =================  ==========================  ===============================================
 
 Bounds: at most 16 KiB and 8 levels of nesting, checked before parsing. Reply (JSON, QoS 1, not
-retained) on ``<prefix>/<device>/cmd/<name>/reply``, or on the MQTT v5 Response Topic of the
-request (with its Correlation Data) when that is this same reply topic or a topic outside
-``<prefix>/`` without wildcards; any other Response Topic is refused on the default one::
+retained) always on ``<prefix>/<device>/cmd/<name>/reply`` (an MQTT v5 Response Topic is
+ignored: a requester must not make the daemon publish anywhere else; its Correlation Data is
+echoed)::
 
     {"ok": true|false, "command": "laser", "request_id": ..., "error": null|"why",
      "result": {...}|null, "t": 1718000000.123}
@@ -32,7 +35,7 @@ request (with its Correlation Data) when that is this same reply topic or a topi
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -41,6 +44,9 @@ class Command(BaseModel):
     """Base of every command payload: unknown keys refused, immutable once validated."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    #: Changes the laser or the measurement: executed only when signed (``command_auth``).
+    requires_authorisation: ClassVar[bool] = True
 
 
 class LaserCommand(Command):
@@ -60,6 +66,11 @@ class DarkCommand(Command):
 
 class PublishMapsCommand(Command):
     """Publish the maps at the next chance instead of waiting for maps_interval_s."""
+
+    #: Changes nothing: a read of what is already published, coalesced into the next maps
+    #: message (so a flood costs at most the maps a frame rate allows); open to any client the
+    #: broker lets write the topic.
+    requires_authorisation: ClassVar[bool] = False
 
 
 class RecordCommand(Command):

@@ -62,12 +62,13 @@ from edgedsm.errors import ConfigError
 from edgedsm.publish.alert_sender import AlertSender
 from edgedsm.publish.alertqueue import AlertQueue
 from edgedsm.publish.alertstore import AlertStore
+from edgedsm.publish.command_auth import CommandVerifier
 from edgedsm.publish.command_channel import CommandChannel, CommandHandler
 from edgedsm.publish.counters import Counters
 from edgedsm.publish.errors import PublishError, StorageError
 from edgedsm.publish.map_sender import MapSender
 from edgedsm.publish.session import MqttSession
-from edgedsm.publish.settings import MqttSettings
+from edgedsm.publish.settings import COMMAND_KEY_CREDENTIAL, COMMAND_KEY_ENV, MqttSettings, resolve_command_keys
 from edgedsm.publish.topics import Topics
 
 log = logging.getLogger(__name__)
@@ -91,15 +92,21 @@ class MqttPublisher:
     ``settings``: the ``[mqtt]`` table. ``state_dir``: where the alert queue lives
     (``$STATE_DIRECTORY`` under systemd; ConfigError when unusable). ``on_command``: the daemon's
     command handler (see ``CommandHandler``); without one, commands are refused with a reply.
-    ``password``: overrides :func:`resolve_password` (tests).
+    ``password``: overrides :func:`resolve_password` (tests). ``command_keys``: key id -> secret,
+    overrides :func:`resolve_command_keys` (empty: read-only; ConfigError when a key source is bad).
 
     Nothing connects until :meth:`start` (or ``with``); the connection is then made and kept in
     the background with backoff between ``reconnect_min_s`` and ``reconnect_max_s``.
     """
 
     def __init__(self, settings: MqttSettings, state_dir: str | Path, on_command: CommandHandler | None = None,
-                 *, password: str | None = None) -> None:
+                 *, password: str | None = None, command_keys: Mapping[str, bytes] | None = None) -> None:
         self.settings = settings
+        keys = resolve_command_keys(settings) if command_keys is None else command_keys
+        if not keys:
+            log.warning("MQTT: no command key ([mqtt] command_key_file, $%s or the credential %r): "
+                        "commands that change the laser or the measurement will be refused (read-only)",
+                        COMMAND_KEY_ENV, COMMAND_KEY_CREDENTIAL)
         self.topics = Topics.from_settings(settings)
         #: The connection; Home Assistant publishes through it too (``homeassistant``).
         self.session = MqttSession(settings, client_id=settings.effective_client_id, label="MQTT", logger=log,
@@ -120,8 +127,11 @@ class MqttPublisher:
         disabled = {} if settings.laser_command else {
             "laser": "cmd/laser is disabled by configuration ([mqtt] laser_command = false)"}
         self._commands = CommandChannel(self.topics, self._client.publish, on_command, self._counters,
-                                        mqtt5=settings.protocol == "5", disabled=disabled)
-        self.session.subscribe(self.topics.command_filter, 1, self._commands.receive, what="commands")
+                                        mqtt5=settings.protocol == "5", disabled=disabled,
+                                        verifier=CommandVerifier(keys, settings.command_max_age_s))
+        # retain-as-published (MQTT 5): a retained command shows its flag on first delivery too
+        self.session.subscribe(self.topics.command_filter, 1, self._commands.receive, what="commands",
+                               retain_as_published=True)
         self.session.on_connected(self._on_connected)
         self._client.on_publish = self._on_publish
 

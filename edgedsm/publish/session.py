@@ -24,6 +24,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from edgedsm.publish.connection import (
     ProblemLog,
@@ -51,8 +52,9 @@ def _release_wakeup_sockets(client: mqtt.Client) -> None:
 
 
 class _Subscription:
-    def __init__(self, qos: int, what: str) -> None:
+    def __init__(self, qos: int, what: str, retain_as_published: bool = False) -> None:
         self.qos = qos
+        self.retain_as_published = retain_as_published
         self.what = what  # what is not received when the broker refuses it ("commands")
         self.handlers: list[MessageHandler] = []
 
@@ -138,15 +140,18 @@ class MqttSession:
             for registered in self._hooks.values():
                 registered[:] = [hook for hook in registered if hook not in hooks]
 
-    def subscribe(self, topic: str, qos: int, handler: MessageHandler, *, what: str) -> None:
+    def subscribe(self, topic: str, qos: int, handler: MessageHandler, *, what: str,
+                  retain_as_published: bool = False) -> None:
         """Receive ``topic`` (a filter) with ``handler``, subscribed again at every connection;
-        at once if connected now. ``what`` names what is missed when the broker refuses it."""
+        at once if connected now. ``what`` names what is missed when the broker refuses it.
+        ``retain_as_published`` (MQTT 5 only; 3.1.1 has no such option): the broker keeps the
+        retain flag of a message published while we are subscribed, instead of clearing it."""
         with self._lock:
-            subscription = self._subscriptions.setdefault(topic, _Subscription(qos, what))
+            subscription = self._subscriptions.setdefault(topic, _Subscription(qos, what, retain_as_published))
             subscription.handlers.append(handler)
             now = self.connected.is_set()
         if now:
-            self._send_subscribe([(topic, qos)])
+            self._send_subscribe([(topic, self._options(subscription))])
 
     def unsubscribe(self, topic: str, handler: MessageHandler) -> None:
         """Stop handing ``topic`` to ``handler``; the last handler of a filter unsubscribes."""
@@ -258,7 +263,13 @@ class MqttSession:
         for hook in hooks:
             self._run(hook, event, *args)
 
-    def _send_subscribe(self, topics: list[tuple[str, int]]) -> int | None:
+    def _options(self, subscription: _Subscription) -> int | SubscribeOptions:
+        """What paho's subscribe takes for one filter: the QoS, or MQTT 5's options."""
+        if self.settings.protocol == "5" and subscription.retain_as_published:
+            return SubscribeOptions(qos=subscription.qos, retainAsPublished=True)
+        return subscription.qos
+
+    def _send_subscribe(self, topics: list[tuple[str, int | SubscribeOptions]]) -> int | None:
         if not topics:
             return None
         _, mid = self.client.subscribe(topics)
@@ -286,7 +297,7 @@ class MqttSession:
         with self._lock:  # a subscription or hook added from now on is served at once, not here
             self.ready.clear()
             self.connected.set()
-            topics = [(topic, subscription.qos) for topic, subscription in self._subscriptions.items()]
+            topics = [(topic, self._options(subscription)) for topic, subscription in self._subscriptions.items()]
             self._pending.clear()
         # the SUBACK is handled on this thread, after this callback: the mid is stored in time
         self._batch_mid = self._send_subscribe(topics)

@@ -18,10 +18,13 @@ from typing import Any, Literal
 from pydantic import Field, FilePath, field_validator, model_validator
 
 from edgedsm.errors import ConfigError
+from edgedsm.publish.command_auth import KeyFileError, parse_keys
 from edgedsm.validation import StrictModel
 
 PASSWORD_ENV = "EDGEDSM_MQTT_PASSWORD"
 CREDENTIAL_NAME = "mqtt-password"
+COMMAND_KEY_ENV = "EDGEDSM_COMMAND_KEY"
+COMMAND_KEY_CREDENTIAL = "command-key"
 
 # A topic level: no MQTT wildcards, no NUL, no empty levels (they confuse subscribers).
 _TOPIC_PREFIX = r"^[^#+/\x00\s]+(/[^#+/\x00\s]+)*$"
@@ -77,7 +80,8 @@ class MqttSettings(StrictModel):
     device: str = Field(DEFAULT_DEVICE, pattern=_DEVICE,
                         description="this camera's name in the topics (letters, digits, '_', '.', '-')")
     protocol: Literal["3.1.1", "5"] = Field(
-        "5", description="MQTT protocol version; '5' also honours a command's response topic")
+        "5", description="MQTT protocol version; '5' also sees a retained command as retained when it is "
+                         "first delivered (and refuses it) and echoes a command's correlation data")
     keepalive_s: int = Field(30, ge=5, le=3600,
                              description="keepalive in seconds; the broker sends the last will "
                                          "('offline') after about 1.5 times this without traffic")
@@ -103,6 +107,15 @@ class MqttSettings(StrictModel):
     laser_command: bool = Field(
         True, description="accept cmd/laser (on/off/auto); false = refused, saying so, for sites whose laser-safety "
                           "sign-off does not cover switching the laser remotely (docs/laser-safety.md)")
+    command_key_file: Path | None = Field(
+        None, description="file of command keys ('KEY_ID SECRET' per line, docs/security.md); absent: "
+                          f"${COMMAND_KEY_ENV}, else the systemd credential "
+                          f"$CREDENTIALS_DIRECTORY/{COMMAND_KEY_CREDENTIAL}; no key at all: commands that "
+                          "change the laser or the measurement are refused (read-only)")
+    command_max_age_s: float = Field(
+        30.0, ge=2.0, le=600.0,
+        description="a signed command is refused when its 'issued' time is further than this from the "
+                    "daemon's clock, either way; also how long its nonce is remembered against replays")
     map_max_size: int = Field(512, ge=8, le=8192,
                               description="longest side in pixels of a published map; larger maps are "
                                           "downsampled by area averaging (stated in the map's meta)")
@@ -166,3 +179,49 @@ def resolve_password(environ: Mapping[str, str] | None = None) -> str | None:
         raise ConfigError(f"{path}: MQTT password credential cannot be read: {exc}") from None
     return text.rstrip("\r\n") or None
 
+
+
+def resolve_command_keys(settings: MqttSettings | None = None,
+                         environ: Mapping[str, str] | None = None) -> dict[str, bytes]:
+    """Command keys (key id -> secret, :mod:`edgedsm.publish.command_auth`) from
+    ``$EDGEDSM_COMMAND_KEY`` (the key file's text), else ``[mqtt] command_key_file``, else
+    ``$CREDENTIALS_DIRECTORY/command-key``. Empty when none is present (read-only); ConfigError
+    naming the source when one is present but unreadable or malformed."""
+    env = os.environ if environ is None else environ
+    text = env.get(COMMAND_KEY_ENV)
+    if text:
+        return _keys(text, f"${COMMAND_KEY_ENV}")
+    if settings is not None and settings.command_key_file is not None:
+        path, source = settings.command_key_file, f"mqtt.command_key_file: {settings.command_key_file}"
+        missing_ok = False
+    else:
+        directory = env.get("CREDENTIALS_DIRECTORY")
+        if not directory:
+            return {}
+        path = Path(directory) / COMMAND_KEY_CREDENTIAL
+        source, missing_ok = f"{path} (systemd credential {COMMAND_KEY_CREDENTIAL})", True
+    try:
+        with path.open("rb") as file:
+            data = file.read(64 * 1024 + 1)
+    except FileNotFoundError:
+        if missing_ok:
+            return {}
+        raise ConfigError(f"{source}: no such file") from None
+    except OSError as exc:
+        raise ConfigError(f"{source}: command key cannot be read: {exc.strerror or exc}") from None
+    if len(data) > 64 * 1024:
+        raise ConfigError(f"{source}: larger than 64 KiB, not a key file")
+    try:
+        return _keys(data.decode("utf-8"), source)
+    except UnicodeDecodeError:
+        raise ConfigError(f"{source}: not UTF-8 text") from None
+
+
+def _keys(text: str, source: str) -> dict[str, bytes]:
+    try:
+        keys = parse_keys(text)
+    except KeyFileError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    if not keys:
+        raise ConfigError(f"{source}: holds no key")
+    return keys

@@ -7,6 +7,7 @@ from pydantic import BaseModel
 
 from edgedsm.errors import ConfigError
 from edgedsm.publish import COMMANDS, LaserCommand, MqttSettings, MqttTlsSettings, Topics, resolve_password
+from edgedsm.publish.settings import resolve_command_keys
 from edgedsm.validation import validate
 
 
@@ -76,6 +77,47 @@ def test_unreadable_credential_is_a_config_error(tmp_path):
     (tmp_path / "mqtt-password").mkdir()  # a directory cannot be read as a file
     with pytest.raises(ConfigError, match="mqtt-password"):
         resolve_password({"CREDENTIALS_DIRECTORY": str(tmp_path)})
+
+
+ALICE = "alice " + "a" * 64
+
+
+def test_command_keys_from_environment_then_config_file_then_credential(tmp_path):
+    assert resolve_command_keys(None, {}) == {}
+    (tmp_path / "command-key").write_text("c" * 64 + "\n")
+    creds = {"CREDENTIALS_DIRECTORY": str(tmp_path)}
+    assert resolve_command_keys(None, creds) == {"default": b"c" * 64}
+    named = tmp_path / "keys"
+    named.write_text(f"# operators\n{ALICE}\nbob {'b' * 40}\n")
+    settings = MqttSettings(command_key_file=named)
+    assert resolve_command_keys(settings, creds) == {"alice": b"a" * 64, "bob": b"b" * 40}
+    assert resolve_command_keys(settings, {**creds, "EDGEDSM_COMMAND_KEY": "e" * 32}) == {"default": b"e" * 32}
+    assert resolve_command_keys(None, {"CREDENTIALS_DIRECTORY": str(tmp_path / "none")}) == {}
+
+
+@pytest.mark.parametrize(("content", "why"), [
+    (None, "mqtt.command_key_file: .*: no such file"),
+    ("short\n", "mqtt.command_key_file: .*: line 1: the secret of 'default' must be 32-1024"),
+    ("# nothing but a comment\n", "mqtt.command_key_file: .*: holds no key"),
+    (b"\xff" * 40, "mqtt.command_key_file: .*: not UTF-8"),
+    ("x" * 70_000, "mqtt.command_key_file: .*: larger than 64 KiB"),
+])
+def test_a_bad_key_file_is_a_config_error_naming_the_key(tmp_path, content, why):
+    path = tmp_path / "keys"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    elif content is not None:
+        path.write_text(content)
+    with pytest.raises(ConfigError, match=why):
+        resolve_command_keys(MqttSettings(command_key_file=path), {})
+
+
+def test_a_bad_key_in_the_environment_or_credential_names_it(tmp_path):
+    with pytest.raises(ConfigError, match=r"\$EDGEDSM_COMMAND_KEY: line 1"):
+        resolve_command_keys(None, {"EDGEDSM_COMMAND_KEY": "too short"})
+    (tmp_path / "command-key").mkdir()
+    with pytest.raises(ConfigError, match=r"systemd credential command-key.*cannot be read"):
+        resolve_command_keys(None, {"CREDENTIALS_DIRECTORY": str(tmp_path)})
 
 
 def test_topics():
