@@ -232,7 +232,15 @@ def load_mask_image(path: Path, shape: tuple[int, int], threshold: int = 128) ->
 
 
 def load_mask_image_or_none(path: Path) -> np.ndarray | None:
-    """The grey image at ``path``, or None when it is missing or not an image."""
+    """The grey image at ``path``, or None when it is missing or not an image. Its header is
+    checked against the memory budget before it is decoded: a header claiming more is a
+    ``BudgetError`` (exit 65) naming the mask and the claim (``edgedsm.frameio.budget``)."""
+    from edgedsm.frameio.budget import check_frame, image_size
+
+    size = image_size(path)
+    if size is None:
+        return None  # missing, unknown or damaged: never handed to a decoder
+    check_frame(path, (size.rows, size.columns, size.samples), size.itemsize, f"{size.format} header of the mask")
     return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
 
 

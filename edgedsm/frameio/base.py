@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import abc
 import logging
+import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -160,6 +161,9 @@ class FrameReader(abc.ABC):
         """Frames ``start`` .. ``start+count-1`` as one (count, H, W) array: the only place a
         reader holds more than a frame, on purpose (a batch map needs its window). ``wrap``
         wraps the frames as they are read (a progress bar)."""
+        from edgedsm.frameio.budget import check_bytes  # budget's errors are ReaderErrors: imported here
+
+        check_bytes(self.path, f"a window of {count} frames", count * math.prod(self.shape) * self.dtype.itemsize)
         stack = np.empty((count, *self.shape), self.dtype)
         frames = self.frames(start, start + count)
         taken = 0

@@ -2,15 +2,16 @@
 
 Order is natural numeric order (``img_2`` before ``img_10``): frames sorted by plain name order
 (img_1, img_10, img_100, img_2 ...) would give maps computed from shuffled frames, silently.
-Every file's header is read at open (sizes only, no pixels: Pillow reads headers lazily), so
-one odd-sized image is named before anything is computed; pixels are decoded one frame at a
-time with OpenCV (colour comes as B, G, R). A pattern's missing numbers are noted.
+Every file's header is read at open (sizes only, no pixels: ``edgedsm.frameio.budget.image_size``),
+so one odd-sized image, or one whose header claims more than the memory budget, is named before
+anything is decoded; pixels are decoded one frame at a time with OpenCV (colour comes as B, G, R),
+each file's header checked again just before (OpenCV has no header-only read, and allocates
+what a header claims). A pattern's missing numbers are noted.
 """
 
 from __future__ import annotations
 
 import re
-import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import cv2
 import numpy as np
 
 from edgedsm.frameio.base import FrameReader, InputMissing, ReaderError, describe_shape
+from edgedsm.frameio.budget import check_image
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm", ".pnm")
 LOSSY_SUFFIXES = (".jpg", ".jpeg")
@@ -55,21 +57,6 @@ def pattern_files(pattern: str) -> tuple[list[Path], list[int]]:
     return [p for _, p in numbered], missing
 
 
-def _header(path: Path) -> tuple[tuple[int, int], int] | None:
-    """((rows, columns), channels) from the file's header; None when Pillow cannot tell (the
-    frame is then checked when it is decoded)."""
-    from PIL import Image
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # a header is no bomb
-            with Image.open(path) as image:
-                width, height = image.size
-                return (height, width), len(image.getbands())
-    except Exception:  # any file Pillow does not know or refuses (very large images): OpenCV decides
-        return None
-
-
 class ImageSeriesReader(FrameReader):
     kind = "image series"
 
@@ -105,13 +92,14 @@ class ImageSeriesReader(FrameReader):
     def _check_headers(self) -> None:
         """Name the first image whose size differs from the first one's, before any pixel is used."""
         for file in self.files[1:]:
-            header = _header(file)
-            if header is not None and header[0] != self.shape:
-                raise ReaderError(f"{file}: {describe_shape(header[0])} frame among "
+            size = check_image(file)
+            if size.shape != self.shape:
+                raise ReaderError(f"{file}: {describe_shape(size.shape)} frame among "
                                   f"{describe_shape(self.shape)} ones; a recording keeps one frame size")
 
     def _decode(self, index: int) -> np.ndarray:
         file = self.files[index]
+        check_image(file)  # before OpenCV allocates what the header claims
         image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise ReaderError(f"{file}: cannot be read as an image (frame {index} of {self.path})")

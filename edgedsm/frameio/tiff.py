@@ -18,6 +18,7 @@ import numpy as np
 
 from edgedsm.errors import DataError
 from edgedsm.frameio.base import FrameReader, ReaderError, Stamps
+from edgedsm.frameio.budget import check_frame
 from edgedsm.frameio.recording import is_recording, parse_description
 
 TIFF_SUFFIXES = (".tif", ".tiff", ".btf", ".tf8")
@@ -62,8 +63,8 @@ class TiffReader(FrameReader):
         try:
             self._tif = tifffile.TiffFile(path)
             count = len(self._tif.pages)  # walks the page chain (headers only)
-        except (tifffile.TiffFileError, ValueError, OSError, EOFError, KeyError, IndexError) as exc:
-            raise ReaderError(f"{path}: cannot be read as a TIFF: {exc}") from None
+        except Exception as exc:  # tifffile's own errors and struct/Value/OS/Index errors of a damaged file
+            raise ReaderError(f"{path}: cannot be read as a TIFF: {exc or type(exc).__name__}") from None
         finally:
             logger.removeHandler(tiff_log)
             logger.propagate = propagate
@@ -125,6 +126,11 @@ class TiffReader(FrameReader):
     def _page(self, index: int) -> np.ndarray:
         try:
             page = self._tif.pages[index]
+        except Exception as exc:  # a damaged page chain: name the page, no traceback
+            raise ReaderError(f"{self.path}: page {index} cannot be read (truncated or damaged file?): "
+                              f"{type(exc).__name__}: {exc}") from None
+        self._check_page(index, page)
+        try:
             image = page.asarray()
             axes = page.axes
         except Exception as exc:  # any decoding failure of damaged data: name the page, no traceback
@@ -133,6 +139,26 @@ class TiffReader(FrameReader):
         if image.ndim == 3 and axes.startswith("S"):  # planar colour: S, Y, X -> Y, X, S
             image = np.moveaxis(image, 0, -1)
         return image
+
+    def _check_page(self, index: int, page: Any) -> None:
+        """The page's size from its tags, checked against the budget before it is decoded (a
+        1.9 MB deflate page can claim 45000 x 45000 pixels)."""
+        what = f"TIFF page {index} header"
+        try:
+            dtype = page.dtype
+            depth, rows, columns = int(page.imagedepth), int(page.imagelength), int(page.imagewidth)
+            samples = int(page.samplesperpixel)
+            tile = (int(page.tilelength), int(page.tilewidth)) if page.is_tiled else None
+        except Exception as exc:
+            raise ReaderError(f"{self.path}: {what} cannot be read: {type(exc).__name__}: {exc}") from None
+        if dtype is None:
+            raise ReaderError(f"{self.path}: {what}: samples of {page.bitspersample} bits in format "
+                              f"{page.sampleformat} are not grey levels")
+        if depth != 1:
+            raise ReaderError(f"{self.path}: {what} claims a volume {depth} deep, not a 2-D frame")
+        check_frame(self.path, (rows, columns, samples), np.dtype(dtype).itemsize, what)
+        if tile is not None:
+            check_frame(self.path, (*tile, samples), np.dtype(dtype).itemsize, f"{what} (its tiles)")
 
     def _raw(self, start: int) -> Iterator[tuple[int, np.ndarray]]:
         for index in range(start, self.count or 0):

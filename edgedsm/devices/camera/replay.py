@@ -66,8 +66,17 @@ class ReplayCamera(Camera):
             reader.close()
             raise DataError(f"{self.path}: frames must be uint8 or uint16, not {reader.dtype}")
         self._reader = reader
+        try:
+            self._pace_from(reader)
+        except BaseException:  # the reader holds the file open: release it
+            self._do_close()
+            raise
         for note in reader.notes:  # a lossy codec, numbers missing in a series
             log.warning("%s", note)
+        self._rewind()
+        self._passes = 0
+
+    def _pace_from(self, reader: FrameReader) -> None:
         self._stamps = reader.stamps()
         recorded_dt = self.dt if self.dt is not None else reader.dt
         if self.rate == "recorded":
@@ -77,8 +86,6 @@ class ReplayCamera(Camera):
         else:
             self._interval = 0.0 if self.rate == 0 else 1.0 / float(self.rate)
         self._timestamp_dt = recorded_dt if recorded_dt is not None else (self._interval or None)
-        self._rewind()
-        self._passes = 0
 
     @property
     def paced(self) -> bool:
