@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from edgedsm.dashboard.access import AccessSettings, ViewerLogin, tls_context
 from edgedsm.dashboard.commissioning import report_dirs
 from edgedsm.dashboard.history import History
 from edgedsm.dashboard.plant import Plant, RegionInfo
@@ -29,6 +31,8 @@ class DashboardSettings:
     retention_s: float
     token: str | None
     daemon_configs: list[Path]
+    access: AccessSettings = field(default_factory=AccessSettings)
+    viewer_password: str | None = None
 
 
 def regions_from_configs(paths: list[Path]) -> dict[str, dict[str, RegionInfo]]:
@@ -55,11 +59,31 @@ def _float(value: Any) -> float | None:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
+def _warn_exposure(settings: DashboardSettings, *, tls_on: bool) -> None:
+    """Say in the log what a listen address beyond this machine exposes."""
+    host = settings.listen[0]
+    try:
+        loopback = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = host == "localhost"
+    if loopback:
+        return
+    if not tls_on and (settings.viewer_password or settings.token):
+        log.warning("dashboard: plain HTTP on %s: the viewer password, session cookie and command token travel "
+                    "in clear (use --tls-cert/--tls-key or a TLS reverse proxy; docs/dashboard.md, Security)", host)
+    if settings.viewer_password is None:
+        log.warning("dashboard: listening on %s without a viewer login: anyone who reaches the port sees the "
+                    "plant (set the credential dashboard-viewer-password; docs/dashboard.md, Security)", host)
+
+
 class Dashboard:
     """``start()`` connects and serves; ``stop()`` undoes it."""
 
     def __init__(self, settings: DashboardSettings, *, password: str | None) -> None:
         self.settings = settings
+        tls = tls_context(settings.access)
+        login = None if settings.viewer_password is None else ViewerLogin(
+            settings.viewer_password, secure=tls is not None, session_s=settings.access.session_hours * 3600)
         settings.database.parent.mkdir(parents=True, exist_ok=True)
         self.history = History(settings.database, settings.retention_s)
         self.hub = EventHub()
@@ -70,10 +94,13 @@ class Dashboard:
             self.server = DashboardServer(settings.listen, self.plant, self.history, self.hub, token=settings.token,
                                           send_command=self.subscriber.send_command,
                                           broker_connected=self.subscriber.connected.is_set,
-                                          commissioning_dirs=report_dirs(settings.daemon_configs))
+                                          commissioning_dirs=report_dirs(settings.daemon_configs),
+                                          limits=settings.access.limits, tls=tls,
+                                          allowed_hosts=settings.access.allowed_hosts, login=login)
         except BaseException:
             self.history.close()
             raise
+        _warn_exposure(settings, tls_on=tls is not None)
 
     @property
     def url(self) -> str:

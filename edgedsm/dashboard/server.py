@@ -11,11 +11,11 @@ import json
 import logging
 import math
 import queue
+import ssl
 import threading
 import time
 from collections.abc import Callable
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -23,10 +23,10 @@ from urllib.parse import parse_qs, urlsplit
 
 from pydantic import ValidationError
 
-from edgedsm.dashboard import commissioning, maps
+from edgedsm.dashboard import access, commissioning, maps
 from edgedsm.dashboard.history import History
 from edgedsm.dashboard.plant import Plant
-from edgedsm.publish.http_server import QuietDisconnects
+from edgedsm.publish.http_guard import ConnectionLimits, GuardedHandler, GuardedServer
 
 log = logging.getLogger(__name__)
 
@@ -107,15 +107,19 @@ def _finite(value: Any) -> Any:
     return value
 
 
-class DashboardServer(QuietDisconnects, ThreadingHTTPServer):
-    daemon_threads = True
+class DashboardServer(GuardedServer):
+    """Connections bounded and timed by ``http_guard``; Host allow-list, optional viewer login and
+    TLS by ``access``."""
+
     allow_reuse_address = True
 
     def __init__(self, address: tuple[str, int], plant: Plant, history: History, hub: EventHub, *,
                  token: str | None, send_command: SendCommand | None,
                  broker_connected: Callable[[], bool] = lambda: False,
-                 commissioning_dirs: dict[str, Path] | None = None) -> None:
-        super().__init__(address, Handler)
+                 commissioning_dirs: dict[str, Path] | None = None,
+                 limits: ConnectionLimits | None = None, tls: ssl.SSLContext | None = None,
+                 allowed_hosts: list[str] | None = None, login: access.ViewerLogin | None = None) -> None:
+        super().__init__(address, Handler, limits=limits, tls=tls, name="dashboard")
         self.plant = plant
         self.history = history
         self.hub = hub
@@ -123,12 +127,15 @@ class DashboardServer(QuietDisconnects, ThreadingHTTPServer):
         self.send_command = send_command
         self.broker_connected = broker_connected
         self.commissioning_dirs = dict(commissioning_dirs or {})  # device -> its last tune report's folder
+        self.hosts = access.HostGuard(address[0], allowed_hosts or [])
+        self.login = login
         self.stopping = threading.Event()
 
     @property
     def url(self) -> str:
         host, port = self.server_address[:2]
-        return f"http://{host}:{port}/"
+        host = f"[{host}]" if ":" in host else host
+        return f"{'https' if self.tls else 'http'}://{host}:{port}/"
 
     def stop(self) -> None:
         self.stopping.set()
@@ -137,7 +144,7 @@ class DashboardServer(QuietDisconnects, ThreadingHTTPServer):
         self.server_close()
 
 
-class Handler(BaseHTTPRequestHandler):
+class Handler(GuardedHandler):
     server: DashboardServer
     protocol_version = "HTTP/1.1"
     server_version = "edgedsm-dashboard"
@@ -147,16 +154,17 @@ class Handler(BaseHTTPRequestHandler):
 
     # -- routing ----------------------------------------------------------------------------
 
-    def do_GET(self) -> None:
+    def do_GET(self) -> None:  # noqa: N802 (http.server names)
         self._answer(self._get)
 
-    def do_POST(self) -> None:
+    def do_POST(self) -> None:  # noqa: N802 (http.server names)
         self._answer(self._post)
 
     def _answer(self, route: Callable[[], None]) -> None:
         """Run a route; a bad request answers 400, a bug 500 (logged), a vanished client nothing."""
         try:
-            route()
+            if access.gate(self):
+                route()
         except BadRequest as exc:
             self._error(HTTPStatus.BAD_REQUEST, str(exc))
         except (BrokenPipeError, ConnectionResetError):
@@ -223,6 +231,9 @@ class Handler(BaseHTTPRequestHandler):
         self._send(HTTPStatus.OK, data, kind, cache=name.startswith("vendor/"))
 
     def _events(self) -> None:
+        if not self.server.limiter.stream(self.conn):
+            self._error(HTTPStatus.SERVICE_UNAVAILABLE, "too many open pages: close one", {"Retry-After": "5"})
+            return
         client = self.server.hub.subscribe()
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", "text/event-stream")
@@ -336,8 +347,8 @@ class Handler(BaseHTTPRequestHandler):
     def _json(self, data: Any) -> None:
         self._send(HTTPStatus.OK, json.dumps(_finite(data), default=_jsonable).encode(), "application/json")
 
-    def _error(self, status: HTTPStatus, message: str) -> None:
-        self._send(status, json.dumps({"error": message}).encode(), "application/json")
+    def _error(self, status: HTTPStatus, message: str, extra: dict[str, str] | None = None) -> None:
+        self._send(status, json.dumps({"error": message}).encode(), "application/json", extra=extra)
 
     def _send(self, status: HTTPStatus, data: bytes, kind: str, *, cache: bool = False,
               extra: dict[str, str] | None = None) -> None:

@@ -2,72 +2,36 @@
 
 Bad input never reaches the measurement: only ``GET``/``HEAD`` of the two paths are served;
 other paths are 404, other methods 405, a request with a body 413, a request line or headers
-beyond the limits 414/431 (``http.server``'s own checks), and a client that stalls is dropped
-after ``REQUEST_TIMEOUT_S``; beyond ``MAX_CLIENTS`` connections at once, 503 at once. Requests
-run on their own threads, never the pipeline's.
+beyond the limits 414/431 (``http.server``'s own checks). Connections are bounded and timed by
+``http_guard`` (``LIMITS``: 16 at once, 8 per address, request headers within 5 s; idle
+connections are evicted by new ones, 503 when all are busy). Requests run on their own threads,
+never the pipeline's.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import sys
 import threading
 from collections.abc import Callable
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any
+from http.server import BaseHTTPRequestHandler
 
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
 from edgedsm.errors import ConfigError
+from edgedsm.publish.http_guard import ConnectionLimits, GuardedHandler, GuardedServer, QuietDisconnects
 
 log = logging.getLogger(__name__)
 
-#: A client slower than this per read is dropped (slowloris).
-REQUEST_TIMEOUT_S = 5.0
+#: The metrics server's connection limits (the shared mechanism of ``http_guard``): a scraper or two,
+#: a health check; a client that does not send its request within 5 s is dropped (slowloris).
+LIMITS = ConnectionLimits(max_connections=16, max_per_client=8, max_event_streams=0,
+                          max_event_streams_per_client=0, header_timeout_s=5.0, idle_timeout_s=5.0,
+                          request_timeout_s=5.0)
 #: Most header lines accepted (``http.client``'s limit is 100).
 MAX_HEADERS = 32
-#: Connections served at once; more are answered 503 at once (a flood costs no threads).
-MAX_CLIENTS = 16
 
-
-class QuietDisconnects:
-    """``socketserver``'s ``handle_error`` prints a traceback to stderr (the journal) for any error
-    of a connection. A client that went away mid-request (a browser closing a keep-alive socket, a
-    scraper killed) is routine: a debug line. Any other error is logged with its traceback."""
-
-    def handle_error(self, request: Any, client_address: Any) -> None:
-        error = sys.exc_info()[1]
-        if isinstance(error, ConnectionError):
-            log.debug("http: client %s went away: %s", client_address, error)
-            return
-        log.exception("http: a request from %s failed", client_address)
-
-
-class _BoundedServer(QuietDisconnects, ThreadingHTTPServer):
-    """A thread per connection, at most ``MAX_CLIENTS`` at once."""
-
-    daemon_threads = True
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.slots = threading.BoundedSemaphore(MAX_CLIENTS)
-
-    def process_request(self, request: Any, client_address: Any) -> None:
-        if not self.slots.acquire(blocking=False):
-            with contextlib.suppress(OSError):
-                request.sendall(b"HTTP/1.0 503 Service Unavailable\r\nContent-Length: 0\r\n"
-                                b"Connection: close\r\n\r\n")
-            self.shutdown_request(request)
-            return
-        super().process_request(request, client_address)
-
-    def process_request_thread(self, request: Any, client_address: Any) -> None:
-        try:
-            super().process_request_thread(request, client_address)
-        finally:
-            self.slots.release()
+__all__ = ["LIMITS", "MAX_HEADERS", "MetricsServer", "QuietDisconnects"]
 
 
 class MetricsServer:
@@ -79,7 +43,7 @@ class MetricsServer:
         self.healthy = healthy
         handler = _handler_for(self)
         try:
-            self._server = _BoundedServer(address, handler)
+            self._server = GuardedServer(address, handler, limits=LIMITS, name="metrics")
         except OSError as exc:
             raise ConfigError(f"http.listen: cannot listen on {address[0]}:{address[1]}: {exc.strerror or exc}") \
                 from None
@@ -102,18 +66,17 @@ class MetricsServer:
 
 
 def _handler_for(server: MetricsServer) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        timeout = REQUEST_TIMEOUT_S
+    class Handler(GuardedHandler):
         server_version = "edgedsm"
         sys_version = ""
 
-        def do_GET(self) -> None:
+        def do_GET(self) -> None:  # noqa: N802 (http.server names)
             self._serve(body=True)
 
-        def do_HEAD(self) -> None:
+        def do_HEAD(self) -> None:  # noqa: N802 (http.server names)
             self._serve(body=False)
 
-        def do_POST(self) -> None:
+        def do_POST(self) -> None:  # noqa: N802 (http.server names)
             self._refuse(HTTPStatus.METHOD_NOT_ALLOWED, "only GET and HEAD are served")
 
         do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_POST  # noqa: N815 (http.server names)

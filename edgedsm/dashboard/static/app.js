@@ -495,7 +495,13 @@ function startCommands() {
 function connect() {
   const source = new EventSource("/api/events");
   source.addEventListener("open", () => { $("link").textContent = "live"; $("link").className = "badge online"; });
-  source.addEventListener("error", () => { $("link").textContent = "reconnecting…"; $("link").className = "badge offline"; });
+  source.addEventListener("error", () => {
+    $("link").textContent = "reconnecting…"; $("link").className = "badge offline";
+    if (source.readyState !== EventSource.CLOSED) return;  // the browser retries by itself
+    // refused (401: the login expired; 503: too many open pages): ask why, then log in or retry
+    fetch("/api/info").then((r) => { if (r.status === 401) location.assign("/login"); }).catch(() => {});
+    setTimeout(connect, 5000);
+  });
   source.addEventListener("snapshot", (event) => {
     devices.clear();
     for (const device of JSON.parse(event.data)) devices.set(device.device, device);
@@ -530,7 +536,9 @@ function connect() {
 }
 
 async function main() {
-  info = await fetch("/api/info").then((r) => r.json());
+  const answer = await fetch("/api/info");
+  if (answer.status === 401) { location.assign("/login"); return; }
+  info = await answer.json();
   startCommands();
   startEditor();
   $("region-select").addEventListener("change", loadHistory);

@@ -12,7 +12,7 @@ from http.server import BaseHTTPRequestHandler
 
 import pytest
 
-from edgedsm.publish.http_server import QuietDisconnects, _BoundedServer
+from edgedsm.publish.http_guard import GuardedServer, QuietDisconnects
 
 
 class _Slow(BaseHTTPRequestHandler):
@@ -31,12 +31,12 @@ def _reset_mid_request(port: int) -> None:
 
 def test_a_client_reset_mid_request_prints_no_traceback(capfd: pytest.CaptureFixture[str],
                                                         caplog: pytest.LogCaptureFixture) -> None:
-    assert issubclass(_BoundedServer, QuietDisconnects)
-    server = _BoundedServer(("127.0.0.1", 0), _Slow)
+    assert issubclass(GuardedServer, QuietDisconnects)
+    server = GuardedServer(("127.0.0.1", 0), _Slow)
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
     thread.start()
     try:
-        with caplog.at_level(logging.DEBUG, logger="edgedsm.publish.http_server"):
+        with caplog.at_level(logging.DEBUG, logger="edgedsm.publish.http_guard"):
             _reset_mid_request(server.server_address[1])
             deadline = time.monotonic() + 5
             while not any("went away" in r.getMessage() for r in caplog.records) and time.monotonic() < deadline:
@@ -51,7 +51,7 @@ def test_a_client_reset_mid_request_prints_no_traceback(capfd: pytest.CaptureFix
 def test_other_errors_of_a_connection_are_still_logged_with_their_traceback(
         caplog: pytest.LogCaptureFixture) -> None:
     server = QuietDisconnects()
-    with caplog.at_level(logging.DEBUG, logger="edgedsm.publish.http_server"):
+    with caplog.at_level(logging.DEBUG, logger="edgedsm.publish.http_guard"):
         try:
             raise ValueError("a bug in a handler")
         except ValueError:
