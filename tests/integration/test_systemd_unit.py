@@ -30,8 +30,8 @@ def systemd_analyze() -> str:
     return path
 
 
-def settings(text: str) -> dict[str, list[str]]:
-    """Every KEY=value of the [Service] section, repeated keys kept in order."""
+def settings(text: str, wanted: str = "[Service]") -> dict[str, list[str]]:
+    """Every KEY=value of one section (``[Service]``), repeated keys kept in order."""
     found: dict[str, list[str]] = {}
     section = ""
     for line in text.splitlines():
@@ -41,7 +41,7 @@ def settings(text: str) -> dict[str, list[str]]:
         if line.startswith("["):
             section = line
             continue
-        if section == "[Service]":
+        if section == wanted:
             key, _, value = line.partition("=")
             found.setdefault(key, []).append(value)
     return found
@@ -72,6 +72,19 @@ def test_laser_off_after_any_death_and_exit_codes() -> None:
     assert service["RestartPreventExitStatus"] == ["78 65"]
     assert int(service["RestartSec"][0]) >= 5  # 69 (device unavailable) restarts with a delay
     assert service["KillMode"] == ["mixed"]
+
+
+def test_a_crash_loop_is_bounded_by_a_start_limit() -> None:
+    # a file that kills the process by a signal is not stopped by RestartPreventExitStatus=
+    # (exit statuses only): the start limit ends the loop (5 starts in 10 minutes)
+    unit, service = settings(UNIT.read_text(), "[Unit]"), settings(UNIT.read_text())
+    assert unit["StartLimitIntervalSec"] == ["600"] and unit["StartLimitBurst"] == ["5"]
+    # in [Unit] only: the old [Service] spelling would be a second, conflicting place
+    assert not any(key.startswith("StartLimit") for key in service)
+    assert not any(name.startswith("SIG") for name in service["RestartPreventExitStatus"][0].split())
+    # the restarts a crash gets within the interval fit in it: the limit is reached, not outrun
+    restarts = int(unit["StartLimitBurst"][0]) - 1
+    assert restarts * int(service["RestartSec"][0]) < int(unit["StartLimitIntervalSec"][0])
 
 
 def test_devices_and_networks_the_drivers_need_stay_allowed() -> None:
