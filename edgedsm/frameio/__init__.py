@@ -6,7 +6,7 @@ recording, and the frames one at a time) for
 - multi-page TIFF and BigTIFF, compressed or not (tifffile, page by page), and edgedsm's own
   recordings (``edgedsm record``: BigTIFF with a record per page),
 - image folders and printf patterns (``frames/%05d.png``), in natural numeric order,
-- video files (AVI, MP4, MKV, MOV ... through OpenCV; a lossy codec is noted).
+- video files (AVI, MP4, MKV, MOV ... through PyAV, by each frame's pixel format; a lossy codec is noted).
 
 ``analyze``, ``--timeline``, the ``replay:`` camera and ``probe camera replay:`` all read through
 it. Writing recordings: ``edgedsm.frameio.recording.RecordingWriter``.

@@ -1,64 +1,97 @@
-"""Video files (AVI, MP4, MKV, MOV ...) decoded frame by frame with OpenCV (its FFmpeg backend).
+"""Video files (AVI, MP4, MKV, MOV ...) decoded frame by frame with PyAV (FFmpeg's libraries).
 
-OpenCV decodes to B, G, R: a grey video gives three equal channels and is read as grey; a
-colour one needs a channel. A grey video of more than 8 bits (FFV1 gray16le) is read unconverted,
-as uint16. Lossless codecs (raw, FFV1, HuffYUV, Lagarith, PNG ...) give the
-frames as recorded; any other codec (MJPG, H.264, MPEG-4 ...) is accepted for analysis with a
-note naming its FOURCC, because its artefacts change the speckle statistics.
+Each decoded frame is turned into pixels by its own pixel format, never guessed:
+
+- grey (``gray``, ``gray10le`` .. ``gray16le``, either byte order): the stored values exactly,
+  uint8 or uint16, with the format's significant bits (FFV1 gray16le stays bit-exact);
+- palettized (``pal8``: the 8-, 4- and 1-bit DIBs of older capture software): each index looked
+  up in the frame's palette; a grey palette gives its grey levels, a colour one R, G, B
+  (a channel to choose), never the indices as intensities;
+- anything else (RGB555, BGR24, YUV of MJPG or H.264 ...): R, G, B of 8 bits (16 above 8 bits
+  per component) by FFmpeg's converter; a grey video stored as colour has equal channels and is
+  read as grey, a colour one needs a channel.
+
+FFmpeg puts row 0 of a bottom-up DIB on top. Lossless codecs (raw, FFV1, HuffYUV, Ut Video,
+PNG ...) give the frames as recorded; any other codec (MJPG, H.264, MPEG-4 ...) is accepted for
+analysis with a note naming its FOURCC (AVI) or codec, because its artefacts change the speckle
+statistics.
 
 The frame count is the container's (AVI and MP4 store it; MKV and WebM only a duration, so
-their count is unknown). A file that ends before the count it announces is truncated:
-``ReaderError`` naming the file, once the last frame has been decoded.
+their count is unknown); a count the file is too small to hold is refused at open. A file that
+ends before the count it announces is truncated: ``ReaderError`` naming the file, once the last
+frame has been decoded. The frame size the stream announces is checked against the memory
+budget (``edgedsm.frameio.budget``) before any frame is decoded.
 """
 
 from __future__ import annotations
 
-import os
+import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
+import av
 import numpy as np
 
-from edgedsm.frameio.base import FrameReader, ReaderError
-
-# FFmpeg's own lines about a damaged stream ("Slice pointer chain broken") would come on top of
-# the one line edgedsm says about the file; read when OpenCV first loads FFmpeg. Overridable.
-os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+from edgedsm.frameio.base import FrameReader, InputMissing, ReaderError
+from edgedsm.frameio.budget import check_frame
 
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mj2")
-#: FOURCCs of codecs that keep every pixel ("\0\0\0\0" and "DIB " are raw frames in an AVI).
-LOSSLESS_FOURCCS = {"\0\0\0\0", "DIB ", "RAW ", "raw ", "Y800", "Y8  ", "GREY", "Y16 ", "FFV1", "ffv1", "HFYU",
-                    "FFVH", "LAGS", "MPNG", "png ", "PNG ", "UYVY", "YUY2", "YUYV", "I420", "IYUV", "RGBA",
-                    "BGRA", "RGB ", "BGR ", "r210", "v210", "ULRG", "ULY0", "ULY2", "ULRA", "MAGY", "M8Y0"}
+#: FFmpeg decoders of codecs that keep every pixel.
+LOSSLESS_CODECS = {"rawvideo", "ffv1", "huffyuv", "ffvhuff", "png", "apng", "utvideo", "magicyuv", "lagarith",
+                   "v210", "v210x", "r210", "r10k", "v308", "v408", "v410", "y41p", "yuv4", "ayuv", "zlib",
+                   "mszh", "qtrle", "msrle", "bmp", "tiff", "ljpeg", "jpegls", "fits", "qoi"}
 #: Containers whose frame count is an estimate from the duration, not a stored number.
 _ESTIMATED_COUNT = (".mkv", ".webm")
+#: The smallest a frame takes in an AVI file (its chunk header): a count needing more is a lie.
+_MIN_FRAME_BYTES = 8
 
 
-def fourcc_text(code: float) -> str:
-    value = int(code)
-    return "".join(chr((value >> (8 * i)) & 0xFF) for i in range(4))
+def shown_codec(tag: str, codec: str, container: str) -> str:
+    """How messages name a stream's codec: the FOURCC in an AVI (what its tools show), else
+    FFmpeg's codec name ('h264', 'mjpeg' ...)."""
+    if "avi" in container and tag and tag.isprintable() and tag.strip("\0 "):
+        return repr(tag.strip("\0 ") if tag.strip("\0 ") else tag)
+    return repr(codec)
 
 
-def shown_fourcc(fourcc: str) -> str:
-    return "raw (no FOURCC)" if fourcc == "\0\0\0\0" else repr(fourcc.strip("\0 ") or fourcc)
+def _dib_frame_bytes(container: av.container.InputContainer, stream: av.VideoStream) -> int | None:
+    """Bytes of one uncompressed DIB frame in an AVI (rows padded to 4 bytes), None for others."""
+    context = stream.codec_context
+    bits = int(getattr(context, "bits_per_coded_sample", 0) or 0)
+    if context.name != "rawvideo" or "avi" not in container.format.name or bits not in (1, 2, 4, 8, 16, 24, 32):
+        return None
+    return (int(context.width) * bits + 31) // 32 * 4 * int(context.height)
 
 
-def _deep_capture(path: Path) -> tuple[cv2.VideoCapture, np.ndarray] | None:
-    """A capture and its first frame when the video is grey with more than 8 bits (FFV1 gray16le):
-    OpenCV's default conversion to B, G, R would cut it to 8 bits, so it is read unconverted.
-    None for every other video (OpenCV's warnings about unconverted colour formats silenced)."""
-    level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-    try:
-        capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG, [cv2.CAP_PROP_CONVERT_RGB, 0])
-        ok, image = capture.read() if capture.isOpened() else (False, None)
-    finally:
-        cv2.utils.logging.setLogLevel(level)
-    if ok and image is not None and image.ndim == 2 and image.dtype == np.uint16:
-        return capture, image
-    capture.release()
+def _grey_bits(fmt: av.VideoFormat) -> int | None:
+    """Significant bits of a one-component grey format (gray, gray12le ...), else None."""
+    parts = fmt.components
+    if len(parts) == 1 and not fmt.is_rgb and not fmt.has_palette and not fmt.is_bayer and parts[0].bits <= 16:
+        return int(parts[0].bits)
     return None
+
+
+def _grey_pixels(frame: av.VideoFrame, bits: int) -> np.ndarray:
+    """The stored grey values of a grey frame, exactly (uint8 up to 8 bits, uint16 above)."""
+    if bits <= 8:
+        return frame.to_ndarray(format="gray") if frame.format.name != "gray" else frame.to_ndarray()
+    plane = frame.planes[0]
+    step = abs(plane.line_size)
+    rows = np.frombuffer(plane, np.uint8).reshape(frame.height, step)
+    if plane.line_size < 0:  # FFmpeg stores a bottom-up frame with a negative stride
+        rows = rows[::-1]
+    order = ">" if frame.format.is_big_endian else "<"
+    return rows[:, :2 * frame.width].view(f"{order}u2").astype(np.uint16)
+
+
+def _palette_pixels(frame: av.VideoFrame) -> np.ndarray:
+    """A pal8 frame through its palette: (H, W) grey when every entry is grey, else (H, W, 3) R, G, B."""
+    index, _ = frame.to_ndarray()  # the indices (and PyAV's copy of the palette)
+    entries = np.frombuffer(frame.planes[1], "=u4")[:256]  # FFmpeg's palette: native-endian 0xAARRGGBB
+    rgb = np.stack([(entries >> shift) & 0xFF for shift in (16, 8, 0)], axis=1).astype(np.uint8)
+    if np.array_equal(rgb[:, 0], rgb[:, 1]) and np.array_equal(rgb[:, 0], rgb[:, 2]):
+        return rgb[:, 0][index]
+    return rgb[index]
 
 
 class VideoReader(FrameReader):
@@ -66,67 +99,164 @@ class VideoReader(FrameReader):
 
     def __init__(self, path: Path, channel: str | None = None) -> None:
         super().__init__(path, channel)
-        deep = _deep_capture(path)
-        capture = deep[0] if deep is not None else cv2.VideoCapture(str(path))
-        if not capture.isOpened():
-            capture.release()
-            raise ReaderError(f"{path}: cannot be opened as a video (damaged or truncated file, or a codec "
-                              f"this OpenCV build lacks)")
-        self._capture = capture
+        self._container: av.container.InputContainer | None = None
+        self._decoded: Iterator[av.VideoFrame] | None = None
         try:
-            self._inspect(deep[1] if deep is not None else None)
+            self._open()
+            self._inspect()
+        except av.FFmpegError as exc:
+            self.close()
+            raise ReaderError(f"{path}: cannot be opened as a video (damaged or truncated file, or a codec "
+                              f"FFmpeg lacks: {_reason(exc)})") from None
         except BaseException:
             self.close()
             raise
 
-    def _inspect(self, first: np.ndarray | None) -> None:
-        path, capture = self.path, self._capture
-        self.fourcc = fourcc_text(capture.get(cv2.CAP_PROP_FOURCC))
-        fps = capture.get(cv2.CAP_PROP_FPS)
-        self.dt = 1.0 / fps if fps and fps > 0 else None
-        announced = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
-        self._announced = announced if announced > 0 and path.suffix.lower() not in _ESTIMATED_COUNT else None
-        self.count = self._announced
+    def _open(self) -> None:
+        try:
+            container = av.open(str(self.path), mode="r", metadata_errors="ignore")
+        except FileNotFoundError:
+            raise InputMissing(f"{self.path}: no such file or directory") from None
+        except PermissionError:
+            raise InputMissing(f"{self.path}: cannot be read (permission denied)") from None
+        except av.FFmpegError as exc:
+            raise ReaderError(f"{self.path}: cannot be opened as a video (not a video, or a damaged or "
+                              f"truncated one: {_reason(exc)})") from None
+        self._container = container
+        if not container.streams.video:
+            raise ReaderError(f"{self.path}: holds no video stream")
+        self._stream = container.streams.video[0]
+        self._stream.thread_type = "AUTO"  # frame and slice threads, as OpenCV's reader used
+        self._raw_bytes = _dib_frame_bytes(container, self._stream)
+        self._damage: str | None = None
+        self._decoded = self._decode()
         self._position = 0
+
+    def _decode(self) -> Iterator[av.VideoFrame]:
+        """The stream's frames; a raw DIB frame whose chunk is shorter than the header's frame
+        size ends it (FFmpeg would pad it with black: not what was recorded), saying why."""
+        assert self._container is not None
+        for number, packet in enumerate(self._container.demux(self._stream)):
+            if self._raw_bytes and packet.size and packet.size < self._raw_bytes:
+                self._damage = (f"frame {number} holds {packet.size:,} bytes where the header's frames of "
+                                f"{self._stream.codec_context.width}x{self._stream.codec_context.height} "
+                                f"pixels need {self._raw_bytes:,}")
+                return
+            yield from packet.decode()
+
+    def _inspect(self) -> None:
+        path, stream = self.path, self._stream
+        context = stream.codec_context
+        width, height = int(context.width or 0), int(context.height or 0)
+        if width and height:  # before a frame is decoded: what a decoded frame (R, G, B, 16 bits) may take
+            check_frame(path, (height, width, 3), 2, "video stream's header")
+        codec = context.name
+        self.fourcc = context.codec_tag or ""
+        rate = stream.average_rate or stream.guessed_rate or stream.base_rate
+        self.dt = 1.0 / float(rate) if rate and float(rate) > 0 else None
+        announced = int(stream.frames or 0)
+        if path.suffix.lower() in _ESTIMATED_COUNT or announced <= 0:
+            announced = 0
+        size = path.stat().st_size
+        if announced * _MIN_FRAME_BYTES > size:
+            raise ReaderError(f"{path}: its header announces {announced:,} frames, more than a file of "
+                              f"{size:,} bytes can hold (damaged or forged header)")
+        self._announced = announced or None
+        self.count = self._announced
+        first = self._next()
         if first is None:
-            ok, first = capture.read()
-            first = first if ok else None
-        if first is None:
-            raise ReaderError(f"{path}: no frame can be decoded (empty, damaged or truncated video)")
+            why = self._damage or "empty, damaged or truncated video"
+            raise ReaderError(f"{path}: no frame can be decoded ({why})")
         self._first: np.ndarray | None = first
-        self._settle(first, 1 if first.ndim == 2 else first.shape[2], order="bgr")
-        if self.fourcc not in LOSSLESS_FOURCCS:
-            self.lossy = self.fourcc
-            self.note(f"{path}: codec {shown_fourcc(self.fourcc)} is lossy: compression artefacts change the "
-                      f"speckle statistics (analysed all the same; record with a lossless codec such as FFV1)")
+        self._settle(first, 1 if first.ndim == 2 else first.shape[2], order="rgb")
+        if codec not in LOSSLESS_CODECS:
+            shown = shown_codec(self.fourcc, codec, self._container.format.name)
+            self.lossy = shown.strip("'")
+            self.note(f"{path}: codec {shown} is lossy: compression artefacts change the speckle statistics "
+                      f"(analysed all the same; record with a lossless codec such as FFV1)")
+
+    def _pixels(self, frame: av.VideoFrame) -> np.ndarray:
+        """One decoded frame as pixels, by its pixel format (see the module docstring)."""
+        fmt = frame.format
+        if (frame.height, frame.width) != self.shape and self.shape != (0, 0):
+            check_frame(self.path, (frame.height, frame.width, 3), 2, "video stream")
+        bits = _grey_bits(fmt)
+        if bits is not None:
+            if self.bits is None:
+                self.bits = bits
+            return _grey_pixels(frame, bits)
+        if fmt.has_palette:
+            return _palette_pixels(frame)
+        deep = max(int(part.bits) for part in fmt.components) > 8
+        return frame.to_ndarray(format="rgb48le" if deep else "rgb24")
+
+    def _next(self) -> np.ndarray | None:
+        """The next frame's pixels; None at the end, or where the stream cannot be decoded further
+        (the truncation check then names it)."""
+        if self._decoded is None:
+            return None
+        try:
+            frame = next(self._decoded)
+        except StopIteration:
+            self._decoded = None
+            return None
+        except av.FFmpegError:
+            self._decoded = None  # a damaged packet ends the stream here
+            return None
+        try:
+            return self._pixels(frame)
+        except av.FFmpegError as exc:
+            raise ReaderError(f"{self.path}: frame {self._position} cannot be converted to pixels "
+                              f"({_reason(exc)})") from None
 
     def _read(self) -> np.ndarray | None:
         if self._first is not None and self._position == 0:
             image, self._first = self._first, None
         else:
-            ok, image = self._capture.read()
-            if not ok or image is None:
+            image = self._next()
+            if image is None:
                 return None
         self._position += 1
         return image
 
+    def _rewind(self) -> None:
+        """Back to frame 0 (seeking in a compressed stream is not exact: decode forward again)."""
+        self.close()
+        try:
+            self._open()
+        except av.FFmpegError as exc:
+            raise ReaderError(f"{self.path}: cannot be opened again ({_reason(exc)})") from None
+        self._first = None
+
     def _skip_to(self, start: int) -> None:
-        """Decode forward to frame ``start`` (seeking in a compressed stream is not exact)."""
+        """Decode forward to frame ``start``."""
         if start < self._position:
-            self._capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
-            self._position, self._first = 0, None
+            self._rewind()
         while self._position < start:
             if self._first is not None and self._position == 0:
                 self._first = None
-            elif not self._capture.grab():
+            elif not self._skip_one():
                 self._truncated(self._position)
                 raise ReaderError(f"{self.path}: has {self._position} frames; frame {start} does not exist")
             self._position += 1
 
+    def _skip_one(self) -> bool:
+        """Decode one frame without converting it; False at the end of the stream."""
+        if self._decoded is None:
+            return False
+        try:
+            next(self._decoded)
+        except (StopIteration, av.FFmpegError):
+            self._decoded = None
+            return False
+        return True
+
     def _truncated(self, decoded: int) -> None:
         if self._announced is not None and decoded < self._announced:
             raise ReaderError(f"{self.path}: ends after {decoded} of the {self._announced} frames its header "
-                              f"announces (truncated or damaged video)")
+                              f"announces ({self._damage or 'truncated or damaged video'})")
+        if self._damage is not None:
+            raise ReaderError(f"{self.path}: ends after {decoded} frames: {self._damage} (truncated or damaged video)")
 
     def _raw(self, start: int) -> Iterator[tuple[int, np.ndarray]]:
         self._skip_to(start)
@@ -141,7 +271,15 @@ class VideoReader(FrameReader):
             yield index, image
 
     def close(self) -> None:
-        capture = getattr(self, "_capture", None)
-        if capture is not None:
-            capture.release()
-            self._capture = None
+        self._decoded = None
+        container = getattr(self, "_container", None)
+        if container is not None:
+            self._container = None
+            with contextlib.suppress(av.FFmpegError):
+                container.close()
+
+
+def _reason(exc: av.FFmpegError) -> str:
+    """FFmpeg's reason in a few words ('Invalid data found when processing input')."""
+    text = getattr(exc, "strerror", None) or str(exc)
+    return str(text).split(":")[0].strip() or type(exc).__name__
