@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from edgedsm.publish.settings import TOPIC_PREFIX_PATTERN
+from edgedsm.publish.settings import TopicPrefix
 from edgedsm.validation import StrictModel
 
 
@@ -29,8 +29,8 @@ class CadenceSection(StrictModel):
 class HomeAssistantSection(StrictModel):
     """``[homeassistant]``: MQTT discovery of this device's entities (needs ``[mqtt]``)."""
 
-    discovery_prefix: str = Field("homeassistant", min_length=1, max_length=128, pattern=TOPIC_PREFIX_PATTERN,
-                                  description="Home Assistant's discovery prefix (its MQTT integration setting)")
+    discovery_prefix: TopicPrefix = Field(
+        "homeassistant", description="Home Assistant's discovery prefix (its MQTT integration setting)")
     color_maps: bool = Field(True, description="publish colour-mapped 8-bit PNG maps on <base>/map/<name>/color "
                                                "(with a colour bar) and announce them as image entities")
     colormap: Literal["turbo", "viridis", "inferno", "jet"] = Field("turbo", description="OpenCV colour map")

@@ -13,9 +13,9 @@ import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, FilePath, field_validator, model_validator
+from pydantic import AfterValidator, Field, FilePath, field_validator, model_validator
 
 from edgedsm.errors import ConfigError
 from edgedsm.publish.command_auth import KeyFileError, parse_keys
@@ -29,6 +29,20 @@ COMMAND_KEY_CREDENTIAL = "command-key"
 # A topic level: no MQTT wildcards, no NUL, no empty levels (they confuse subscribers).
 _TOPIC_PREFIX = r"^[^#+/\x00\s]+(/[^#+/\x00\s]+)*$"
 TOPIC_PREFIX_PATTERN = _TOPIC_PREFIX  # for other topic-prefix fields (e.g. [homeassistant])
+
+
+def _not_the_brokers(value: str) -> str:
+    """A topic starting with '$' is the broker's ($SYS/...): publishes there are dropped."""
+    if value.startswith("$"):
+        raise ValueError("must not start with '$': topics beginning with '$' belong to the broker ($SYS), "
+                         "which drops what clients publish there (every state and alert would be lost)")
+    return value
+
+
+#: A topic prefix: one or more levels, no wildcards, NUL, spaces or empty levels, not the broker's '$'.
+TopicPrefix = Annotated[str, Field(min_length=1, max_length=128, pattern=_TOPIC_PREFIX),
+                        AfterValidator(_not_the_brokers)]
+
 _DEVICE = r"^[A-Za-z0-9_.-]{1,64}$"
 #: The one default device name: ``[device] name``, ``[mqtt] device`` and ``edgedsm watch`` agree.
 DEFAULT_DEVICE = "camera1"
@@ -75,8 +89,8 @@ class MqttSettings(StrictModel):
         None, min_length=1, max_length=128, pattern=r"^[\x21-\x7e]+$",
         description="MQTT client id; default '<topic_prefix>-<device>' with '/' replaced by '-'. "
                     "Must be unique on the broker: a second client with the same id throws the first off")
-    topic_prefix: str = Field("edgedsm", min_length=1, max_length=128, pattern=_TOPIC_PREFIX,
-                              description="first topic level(s), e.g. 'plant1/edgedsm'; no wildcards")
+    topic_prefix: TopicPrefix = Field("edgedsm",
+                                      description="first topic level(s), e.g. 'plant1/edgedsm'; no wildcards")
     device: str = Field(DEFAULT_DEVICE, pattern=_DEVICE,
                         description="this camera's name in the topics (letters, digits, '_', '.', '-')")
     protocol: Literal["3.1.1", "5"] = Field(

@@ -31,6 +31,10 @@ def test_password_in_the_file_is_refused_with_directions():
     ({"port": 70000}, "port"),
     ({"topic_prefix": "a/#"}, "topic_prefix"),
     ({"topic_prefix": "a//b"}, "topic_prefix"),
+    ({"topic_prefix": "$SYS"}, "topic_prefix: Value error, must not start with '$'"),
+    ({"topic_prefix": "$share/plant"}, "topic_prefix: Value error, must not start with '$'"),
+    ({"topic_prefix": "plant/+"}, "topic_prefix"),
+    ({"topic_prefix": "plant\x00"}, "topic_prefix"),
     ({"device": "line 3"}, "device"),
     ({"host": "mqtt://broker"}, "host"),
     ({"keepalive_s": 1}, "keepalive_s"),
@@ -141,3 +145,8 @@ def test_command_models_are_strict():
     for bad in ({"seconds": 0}, {"seconds": 7200}, {"seconds": "long"}, {"frames": 3}):
         with pytest.raises(ValueError):
             COMMANDS["record"].model_validate(bad)
+
+
+def test_a_dollar_inside_the_prefix_is_an_ordinary_character():
+    # only a first level starting with '$' is the broker's (MQTT 3.1.1 §4.7.2)
+    assert MqttSettings(topic_prefix="plant/$line").topic_prefix == "plant/$line"
