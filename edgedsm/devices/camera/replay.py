@@ -162,11 +162,12 @@ class ReplayCamera(Camera):
         return seconds
 
 
-def first_frame_shape(path: Path) -> tuple[int, int] | None:
-    """(rows, columns) of a recording's frames, reading only its first frame; None when it
-    cannot be read (opening the recording will then say why)."""
-    try:
-        with open_frames(path, "luma") as reader:  # the size is the same whichever channel
-            return reader.shape
-    except EdgedsmError:
-        return None
+def first_frame_shape(path: Path, channel: str | None = None) -> tuple[int, int]:
+    """(rows, columns) of a recording's frames, reading its headers and first frame only, with
+    the checks the replay camera makes when it opens (``check-config`` refuses what ``run``
+    would): ``DataError`` (exit 65) naming the file when it cannot be replayed, ``InputMissing``
+    (66) when it is not there."""
+    with open_frames(path, channel) as reader:
+        if reader.dtype not in (np.uint8, np.uint16):
+            raise DataError(f"{path}: frames must be uint8 or uint16, not {reader.dtype}")
+        return reader.shape

@@ -221,7 +221,8 @@ def resolve_camera_spec(spec: CameraSpec, base_dir: Path) -> CameraSpec:
 
 def known_frame_shape(spec: CameraSpec) -> tuple[int, int] | None:
     """(rows, columns) of the frames the camera will deliver where that is known without opening
-    a device: a scene's size, a recording's first frame, a v4l2 width and height asked for."""
+    a device: a scene's size, a recording's first frame, a v4l2 width and height asked for. A
+    recording the replay camera would refuse raises ``DataError`` (exit 65) naming the file."""
     if spec.scheme == "sim":
         if spec.scene is not None:
             return spec.scene.shape
@@ -232,7 +233,7 @@ def known_frame_shape(spec: CameraSpec) -> tuple[int, int] | None:
     if spec.scheme == "replay":
         from edgedsm.devices.camera.replay import first_frame_shape
 
-        return first_frame_shape(Path(spec.target))
+        return first_frame_shape(Path(spec.target), spec.options.get("channel"))  # type: ignore[arg-type]
     if spec.scheme == "v4l2" and "width" in spec.options and "height" in spec.options:
         return (int(spec.options["height"]), int(spec.options["width"]))  # type: ignore[call-overload]
     return None
