@@ -299,7 +299,7 @@ class GuardedServer(QuietDisconnects, ThreadingHTTPServer):
 
     daemon_threads = True
     block_on_close = False
-    request_queue_size = 128  # a burst of connections waits in the kernel's queue, not refused by it
+    request_queue_size = 1024  # a burst of connections waits in the kernel's queue (no descriptor of ours), not dropped
 
     def __init__(self, address: tuple[str, int], handler: type[BaseHTTPRequestHandler], *,
                  limits: ConnectionLimits | None = None, tls: ssl.SSLContext | None = None,
