@@ -12,7 +12,7 @@ shares), composed of small collaborators.
 ``<base>/map/<name>``              16-bit PNG of a map (``map_sender``, ``mapcodec``), QoS 0
 ``<base>/map/<name>/meta``         its JSON meta (offset, scale, shape, seq, t, png_crc32...)
 ``<base>/cmd/<name>``              commands in (``command_channel``, ``commands``)
-``<base>/cmd/<name>/reply``        their replies (or the request's MQTT v5 Response Topic)
+``<base>/cmd/<name>/reply``        their replies (only there: an MQTT v5 Response Topic is ignored)
 =================================  =========================================================
 
 ``<base>`` is ``<topic_prefix>/<device>`` (:class:`edgedsm.publish.topics.Topics`); payloads

@@ -1,5 +1,6 @@
 """Fault: a command flood — 500 `laser`/`dark`/`rebaseline`/garbage commands in a few seconds from a
-misbehaving client — against the running daemon (real mosquitto, a Numato board on a PTY).
+misbehaving client holding a command key (the commands are signed) — against the running daemon
+(real mosquitto, a Numato board on a PTY).
 
 Every request gets a reply or a refusal (none lost), the relay is switched on at most once per
 ``MIN_SWITCH_INTERVAL_S`` (counted on the board's side: its 'relay on' commands), and the daemon
@@ -16,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers_commands import signed
 from helpers_daemon import Daemon
 from helpers_faults import TOPICS, Plant, RelayRig, daemon_config
 from helpers_mqtt import REPO, Broker, Subscriber
@@ -36,9 +38,9 @@ def flood(rng: random.Random) -> list[tuple[str, bytes]]:
         kind = rng.choice(["laser", "laser", "laser", "dark", "rebaseline", "garbage", "unknown"])
         if kind == "laser":
             state = rng.choice(["on", "off", "auto", "dim"])
-            out.append(("laser", json.dumps({"state": state, "request_id": f"f{i}"}).encode()))
+            out.append(("laser", signed(TOPICS.command("laser"), {"state": state}, request_id=f"f{i}").encode()))
         elif kind in ("dark", "rebaseline"):
-            out.append((kind, json.dumps({"request_id": f"f{i}"}).encode()))
+            out.append((kind, signed(TOPICS.command(kind), request_id=f"f{i}").encode()))
         elif kind == "garbage":
             out.append((rng.choice(["laser", "dark"]), bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 40)))))
         else:
@@ -70,8 +72,8 @@ def test_command_flood_every_request_answered_relay_rate_limited(
         got = [m.json() for m in replies.messages]
         # the flood may have ended on `laser off` (held): hand the laser back to the plan
         for attempt in range(10):
-            sender.client.publish(TOPICS.command("laser"), json.dumps({"state": "auto", "request_id": f"a{attempt}"}),
-                                  qos=1)
+            sender.client.publish(TOPICS.command("laser"),
+                                  signed(TOPICS.command("laser"), {"state": "auto"}, request_id=f"a{attempt}"), qos=1)
             reply = replies.wait_for(TOPICS.reply("laser"), lambda m: m.json()["request_id"] == f"a{attempt}",  # noqa: B023
                                      "the reply to laser auto").json()
             if reply["ok"]:

@@ -8,7 +8,6 @@ within ``max_bytes``. The demo plate at 100 frames/s (128², wet → drying → 
 from __future__ import annotations
 
 import contextlib
-import json
 import threading
 import time
 from collections.abc import Callable
@@ -16,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers_commands import signed
 from helpers_daemon import DEMO_PLATE, Daemon
 from helpers_faults import TOPICS, Plant, RelayRig, daemon_config
 from helpers_mqtt import REPO, Broker, Subscriber
@@ -88,7 +88,8 @@ def test_sigkill_mid_recording_leaves_every_file_readable_and_the_restart_goes_o
         daemon.wait_until(lambda: any(s["frames"] > 50 and s.get("recording") for s in plant.stats()
                                       if s["t"] > time.time() - (time.monotonic() - restarted)), 30,
                           "the restarted daemon measuring and recording")
-        replies.client.publish(TOPICS.command("record"), json.dumps({"seconds": 1.0, "request_id": "r1"}), qos=1)
+        replies.client.publish(TOPICS.command("record"), signed(TOPICS.command("record"), {"seconds": 1.0},
+                                                                request_id="r1"), qos=1)
         reply = replies.wait_for(f"{TOPICS.base}/cmd/record/reply", lambda m: m.json().get("request_id") == "r1",
                                  "the reply to cmd/record", timeout=15).json()
         assert reply["ok"] is True, reply

@@ -21,6 +21,7 @@ from typing import Any
 
 import paho.mqtt.client as mqtt
 import pytest
+from helpers_commands import ENV as COMMAND_KEY_ENV
 from paho.mqtt.enums import CallbackAPIVersion
 
 from edgedsm.publish import Topics
@@ -51,7 +52,8 @@ def wait_until(predicate: Callable[[], bool], timeout: float, what: str) -> None
 
 def child_env() -> dict[str, str]:
     path = os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
-    return {**os.environ, "PYTHONPATH": path}
+    # the tests' command key (helpers_commands): a daemon started here accepts signed test commands
+    return {**os.environ, "PYTHONPATH": path, **COMMAND_KEY_ENV}
 
 
 # -- the broker ------------------------------------------------------------------------------

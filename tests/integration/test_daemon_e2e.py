@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from helpers_commands import KEY_TEXT, signed
 from helpers_daemon import (
     DEMO_PLATE,
     DRYING_SCENE,
@@ -305,7 +306,8 @@ def test_a_numato_board_gone_silent_while_on_is_unknown_faulted_and_exit_69(
 @pytest.mark.timeout(60)
 def test_malformed_commands_are_refused_and_change_nothing_and_laser_off_is_obeyed(
         tmp_path: Path, make_broker: Callable[..., Broker], subscribers: Callable[..., Subscriber],
-        sim_board_name: str) -> None:
+        sim_board_name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("EDGEDSM_COMMAND_KEY", KEY_TEXT)  # the in-process daemon's command key
     broker = make_broker()
     topics = Topics.of("edgedsm", "e2e")
     board = simulated_board(sim_board_name)
@@ -314,7 +316,7 @@ def test_malformed_commands_are_refused_and_change_nothing_and_laser_off_is_obey
     subscriber = subscribers(broker.port, [topics.availability, topics.stats, f"{topics.base}/cmd/+/reply"])
     sender = subscribers(broker.port, [f"{topics.base}/nothing"])
 
-    def command(name: str, payload: bytes) -> dict[str, Any]:
+    def command(name: str, payload: bytes | str) -> dict[str, Any]:
         replies = len(subscriber.on(topics.reply(name)))
         sender.client.publish(topics.command(name), payload, qos=1)
         wait_until(lambda: len(subscriber.on(topics.reply(name))) > replies, WAIT_S, f"a reply on cmd/{name}")
@@ -330,8 +332,13 @@ def test_malformed_commands_are_refused_and_change_nothing_and_laser_off_is_obey
             ("laser", b"{state: off", "not valid JSON", None),
             ("laser", b'["off"]', "must be a JSON object", None),
             ("self_destruct", b'{"request_id": "r3"}', "unknown command 'self_destruct'", "r3"),
-            ("laser", b'{"state": "dim", "request_id": "r4"}', "state: Input should be 'on', 'off' or 'auto'", "r4"),
-            ("laser", b'{"state": "off", "power": 5, "request_id": 5}', "power: unknown key", 5),
+            ("laser", signed(topics.command("laser"), {"state": "dim"}, request_id="r4"),
+             "state: Input should be 'on', 'off' or 'auto'", "r4"),
+            ("laser", signed(topics.command("laser"), {"state": "off", "power": 5}, request_id=5),
+             "power: unknown key", 5),
+            ("laser", b'{"state": "off", "request_id": "r7"}', "not signed", "r7"),  # anyone's
+            ("laser", signed(topics.command("laser"), {"state": "off"}, request_id="r8", now=time.time() - 60),
+             "expired: issued 6", "r8"),  # 60 s ago, or a second more by the time it is sent
             ("laser", b'{"state": "off", "request_id": [1]}', "request_id must be", None),
         ]
         for name, payload, why, request_id in malformed:
@@ -344,7 +351,7 @@ def test_malformed_commands_are_refused_and_change_nothing_and_laser_off_is_obey
         assert last_stats(subscriber, topics)["laser"] == "on"  # type: ignore[index]
         assert result["thread"].is_alive()
 
-        reply = command("laser", b'{"state": "off", "request_id": "r6"}')
+        reply = command("laser", signed(topics.command("laser"), {"state": "off"}, request_id="r6"))
         assert reply["ok"] is True and reply["error"] is None and reply["request_id"] == "r6"
         assert reply["result"] == {"laser": "off"}
         assert not board.is_on and len(board.history) == switched + 1 and not board.history[-1].on

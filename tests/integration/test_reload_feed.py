@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from helpers_commands import signed
 from helpers_daemon import (
     DRYING_SCENE,
     Daemon,
@@ -195,7 +196,8 @@ def test_a_removed_region_has_its_retained_topic_cleared_and_laser_command_can_b
                                                 mqtt={"laser_command": False})
     scada.wait_for(f"{topics.state}/plate", lambda m: bool(m.payload), "state/plate")
 
-    scada.client.publish(topics.command("laser"), json.dumps({"state": "on", "request_id": "q1"}), qos=1)
+    scada.client.publish(topics.command("laser"), signed(topics.command("laser"), {"state": "on"}, request_id="q1"),
+                         qos=1)
     reply = scada.wait_for(topics.reply("laser"), lambda m: m.json().get("request_id") == "q1", "laser reply").json()
     assert reply["ok"] is False and "disabled by configuration" in reply["error"]
     # the other commands still work
