@@ -58,6 +58,12 @@ def warm_daemon_kernels(paths: list[str]) -> None:
             list(pool.map(lambda case: warm_start(*case), ESTIMATORS))
 
 
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    """Which versions this run ran, and whether they are requirements/test.lock's (tests/locks.py)."""
+    from tests.locks import report_lines
+    return report_lines()
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_collection_modifyitems(session: pytest.Session, config: pytest.Config,
                                   items: list[pytest.Item]) -> Iterator[None]:
