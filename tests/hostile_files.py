@@ -12,10 +12,15 @@ mask may name.
 
 from __future__ import annotations
 
+import os
 import struct
+import subprocess
+import tempfile
+import time
 import zlib
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -300,3 +305,32 @@ def mask_cases(d: Path) -> dict[str, Path]:
         paths[name] = d / f"mask_{name}.{'bmp' if 'bmp' in name else 'png'}"
         paths[name].write_bytes(data)
     return paths
+
+
+# -- measuring a refusal -----------------------------------------------------------------------
+
+def reap(process: subprocess.Popen[Any], timeout: float) -> tuple[int, float]:
+    """Wait (bounded) for ``process`` to end and reap it with ``wait4``: (its exit code, negative
+    for a signal, as Popen gives it; its own peak RSS in MiB). Killed at the timeout."""
+    deadline = time.monotonic() + timeout
+    while True:
+        pid, status, usage = os.wait4(process.pid, os.WNOHANG)
+        if pid == process.pid:
+            break
+        if time.monotonic() > deadline:
+            process.kill()
+            pid, status, usage = os.wait4(process.pid, 0)
+            break
+        time.sleep(0.02)
+    process.returncode = os.waitstatus_to_exitcode(status)
+    return process.returncode, usage.ru_maxrss / 1024
+
+
+def run_measured(command: list[str], timeout: float = 60.0, **popen: Any) -> tuple[int, str, float]:
+    """Run ``command``: (exit code, its stderr, its peak RSS in MiB)."""
+    with tempfile.TemporaryFile() as err:
+        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
+                                   **popen)
+        code, rss = reap(process, timeout)
+        err.seek(0)
+        return code, err.read().decode(errors="replace"), rss
