@@ -25,25 +25,48 @@ apt_install() {
 }
 
 ensure_venv() {
-    # A virtual environment with edgedsm installed (editable) plus the given extras.
-    local extras="$1"
+    # A virtual environment with edgedsm installed (editable) and exactly the versions that
+    # requirements/<name>.lock pins (name: demo or test): every file checked against its sha256 and
+    # no resolver choosing anything, so each machine gets the versions the suite ran (docs/install.md,
+    # "Versions and locks"; scripts/upgrade-locks.sh moves them on purpose).
+    local name="$1"
+    local req="$ROOT/requirements"
+    local lock="$req/$name.lock"
+    if [ ! -f "$lock" ]; then
+        echo "edgedsm: no lock file $lock" >&2
+        return 1
+    fi
     if ! "$PYTHON" -c "import venv, ensurepip" >/dev/null 2>&1; then
         apt_install python3-venv
     fi
     if [ ! -x "$VENV/bin/python" ]; then
         "$PYTHON" -m venv "$VENV"
     fi
-    # Re-install only when pyproject.toml or the extras changed (the install is editable).
-    local stamp="$VENV/.edgedsm-$extras"
+    # Re-install only when pyproject.toml or a lock changed (the install of edgedsm is editable).
+    local stamp="$VENV/.edgedsm-$name"
     local digest
-    digest="$(sha256sum "$ROOT/pyproject.toml" | cut -d' ' -f1)"
+    digest="$(cat "$ROOT/pyproject.toml" "$req/pip.lock" "$req/build.lock" "$lock" | sha256sum | cut -d' ' -f1)"
     if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$digest" ]; then
         return 0
     fi
-    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip 2>/dev/null
-    if ! "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -e "$ROOT[$extras]" \
-            2> >(grep -v "is ignored: it is neither a file nor a directory" >&2); then
-        echo "edgedsm: pip could not install edgedsm[$extras]" >&2
+    local pip=("$VENV/bin/python" -m pip --quiet --disable-pip-version-check)
+    # (this machine's pip configuration may name local package folders that lack a package: noise)
+    local quiet=(grep -v "is ignored: it is neither a file nor a directory")
+    # pip first, at its locked version (--build-constraint needs pip >= 25.3; Debian 12's venv has 23.0).
+    # Then the lock's wheels and sdists, --no-deps: the lock is the whole set. Each sdist (pycairo,
+    # PyGObject) builds in an isolated environment that build.lock pins, hash-checked as well. Then
+    # edgedsm itself, editable (which has no hash to check), built with build.lock's setuptools.
+    if ! "${pip[@]}" install --require-hashes --no-deps -r "$req/pip.lock" 2> >("${quiet[@]}" >&2) ||
+       ! "${pip[@]}" install --require-hashes --no-deps --build-constraint "$req/build.lock" -r "$lock" \
+            2> >("${quiet[@]}" >&2) ||
+       ! "${pip[@]}" install --no-deps --build-constraint "$req/build.lock" -e "$ROOT" 2> >("${quiet[@]}" >&2); then
+        echo "edgedsm: pip could not install requirements/$name.lock and edgedsm into $VENV" >&2
+        return 1
+    fi
+    local broken
+    if ! broken="$("${pip[@]}" check 2>&1)"; then
+        echo "edgedsm: requirements/$name.lock misses what an installed package needs:" >&2
+        echo "$broken" >&2
         return 1
     fi
     echo "$digest" > "$stamp"

@@ -3,5 +3,5 @@
 source "$(dirname "${BASH_SOURCE[0]}")/_env.sh"
 # mosquitto: the private broker the daemon demo publishes to
 apt_install mosquitto
-ensure_venv fast
+ensure_venv demo  # requirements/demo.lock: the runtime dependencies and numba ([fast])
 exec "$VENV/bin/edgedsm" demo "$@"
