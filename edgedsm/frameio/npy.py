@@ -135,8 +135,8 @@ class NpyReader(FrameReader):
                               f"{exc.strerror or exc}") from None
         change = self._changed()
         if done < len(view) or change is not None:
-            raise ReaderError(f"{self.path}: frame {start + done // self._frame_bytes} cannot be read: "
-                              f"{change or 'the file ended early'}")
+            index = start + done // self._frame_bytes if done < len(view) else start
+            raise ReaderError(f"{self.path}: frame {index} cannot be read: {change or 'the file ended early'}")
         if not self._stored.isnative:
             stack = stack.byteswap().view(self._stored.newbyteorder("="))
         return stack
