@@ -32,7 +32,7 @@ class DashboardProcess:
         self.errors: list[str] = []
         assert self.process.stdout is not None
         line = self.process.stdout.readline()
-        match = re.search(r"(http://\S+/)", line)
+        match = re.search(r"(https?://\S+/)", line)
         if match is None:
             self.process.kill()
             pytest.fail(f"the dashboard did not print its URL: {line!r} {self.process.stderr.read()!r}")
