@@ -68,10 +68,13 @@ class TlsFiles:
 
 
 class Broker:
-    """A mosquitto on 127.0.0.1:<free port> (tests/ports.py); the port stays the same across restarts."""
+    """A mosquitto on 127.0.0.1:<free port> (tests/ports.py); the port stays the same across restarts.
+
+    ``settings``: mosquitto configuration lines (e.g. the shipped config/mosquitto/edgedsm.conf,
+    its paths and listener templated) used instead of the listener, TLS and password lines."""
 
     def __init__(self, directory: Path, *, persistence: bool = False, tls: TlsFiles | None = None,
-                 password_file: Path | None = None) -> None:
+                 password_file: Path | None = None, settings: Callable[[int], str] | None = None) -> None:
         self.binary = tool("mosquitto", "mosquitto")
         self.directory = directory
         self.directory.mkdir(parents=True, exist_ok=True)
@@ -79,15 +82,20 @@ class Broker:
         self.persistence = persistence
         self.tls = tls
         self.password_file = password_file
+        self.settings = settings
         self.log = directory / "mosquitto.log"
         self.process: subprocess.Popen[bytes] | None = None
 
     def _config(self) -> Path:
         lines = [f"listener {self.port} 127.0.0.1"]
-        if self.tls is not None:
+        if self.settings is not None:
+            lines = self.settings(self.port).splitlines()
+        elif self.tls is not None:
             lines += [f"cafile {self.tls.ca}", f"certfile {self.tls.server_cert}",
                       f"keyfile {self.tls.server_key}", "require_certificate true"]
-        if self.password_file is not None:
+        if self.settings is not None:
+            pass
+        elif self.password_file is not None:
             lines += ["allow_anonymous false", f"password_file {self.password_file}"]
         else:
             lines.append("allow_anonymous true")
@@ -153,6 +161,32 @@ class Broker:
         if self.process is not None and self.process.stderr is not None:
             self.process.stderr.close()
 
+
+
+def _openssl(*args: str, cwd: Path) -> None:
+    result = subprocess.run([tool("openssl", "openssl"), *args], cwd=cwd, capture_output=True, text=True,
+                            timeout=30)
+    if result.returncode != 0:
+        pytest.fail(f"openssl {' '.join(args)} failed:\n{result.stderr}")
+
+
+def make_certificates(directory: Path) -> TlsFiles:
+    """A CA, a server certificate for 127.0.0.1/localhost and a client certificate (EC P-256: fast)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    key = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    _openssl("req", "-x509", *key, "-keyout", "ca.key", "-out", "ca.crt", "-days", "2", "-subj", "/CN=edgedsm test CA",
+             "-addext", "basicConstraints=critical,CA:TRUE", "-addext", "keyUsage=critical,keyCertSign,cRLSign",
+             cwd=directory)
+    (directory / "server.ext").write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n"
+                                          "extendedKeyUsage=serverAuth\n")
+    (directory / "client.ext").write_text("extendedKeyUsage=clientAuth\n")
+    for name in ("server", "client"):
+        _openssl("req", *key, "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN=edgedsm-{name}",
+                 cwd=directory)
+        _openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
+                 "-out", f"{name}.crt", "-days", "2", "-extfile", f"{name}.ext", cwd=directory)
+    return TlsFiles(directory / "ca.crt", directory / "server.crt", directory / "server.key",
+                    directory / "client.crt", directory / "client.key")
 
 
 # -- a test subscriber -----------------------------------------------------------------------

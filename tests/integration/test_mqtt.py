@@ -35,7 +35,7 @@ import numpy as np
 import paho.mqtt.client as mqtt
 import pytest
 from helpers_commands import KEY_TEXT, signed
-from helpers_mqtt import WAIT_S, Broker, TlsFiles, child_env, tool, wait_until
+from helpers_mqtt import WAIT_S, Broker, TlsFiles, child_env, make_certificates, tool, wait_until
 from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
@@ -472,35 +472,9 @@ def test_without_handler_daemon_commands_are_refused(broker, subscribers, publis
 
 # -- TLS and passwords -----------------------------------------------------------------------
 
-def _openssl(*args: str, cwd: Path) -> None:
-    result = subprocess.run([tool("openssl", "openssl"), *args], cwd=cwd, capture_output=True, text=True,
-                            timeout=30)
-    if result.returncode != 0:
-        pytest.fail(f"openssl {' '.join(args)} failed:\n{result.stderr}")
-
-
-def _make_certificates(directory: Path) -> TlsFiles:
-    """A CA, a server certificate for 127.0.0.1/localhost and a client certificate (EC P-256: fast)."""
-    directory.mkdir(parents=True, exist_ok=True)
-    key = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
-    _openssl("req", "-x509", *key, "-keyout", "ca.key", "-out", "ca.crt", "-days", "2", "-subj", "/CN=edgedsm test CA",
-             "-addext", "basicConstraints=critical,CA:TRUE", "-addext", "keyUsage=critical,keyCertSign,cRLSign",
-             cwd=directory)
-    (directory / "server.ext").write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n"
-                                          "extendedKeyUsage=serverAuth\n")
-    (directory / "client.ext").write_text("extendedKeyUsage=clientAuth\n")
-    for name in ("server", "client"):
-        _openssl("req", *key, "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN=edgedsm-{name}",
-                 cwd=directory)
-        _openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.crt", "-CAkey", "ca.key", "-CAcreateserial",
-                 "-out", f"{name}.crt", "-days", "2", "-extfile", f"{name}.ext", cwd=directory)
-    return TlsFiles(directory / "ca.crt", directory / "server.crt", directory / "server.key",
-                    directory / "client.crt", directory / "client.key")
-
-
 @pytest.fixture
 def secure_broker(make_broker: Callable[..., Broker], tmp_path: Path) -> tuple[Broker, TlsFiles]:
-    tls = _make_certificates(tmp_path / "pki")
+    tls = make_certificates(tmp_path / "pki")
     passwords = tmp_path / "passwd"
     result = subprocess.run([tool("mosquitto_passwd", "mosquitto"), "-b", "-c", str(passwords), "line3", "s3cret"],
                             capture_output=True, text=True, timeout=30)
@@ -541,7 +515,7 @@ def test_wrong_password_is_a_clear_error(secure_broker, publishers):
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 def test_untrusted_broker_certificate_is_a_clear_error(secure_broker, publishers, tmp_path):
     broker, tls = secure_broker
-    other = _make_certificates(tmp_path / "other-pki")  # a CA that did not sign the broker
+    other = make_certificates(tmp_path / "other-pki")  # a CA that did not sign the broker
     settings = _settings(broker.port, host="localhost", username="line3",
                          tls={"ca_file": other.ca, "cert_file": tls.client_cert, "key_file": tls.client_key})
     publisher = publishers(settings, password="s3cret")

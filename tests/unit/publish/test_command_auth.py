@@ -104,6 +104,7 @@ def test_without_keys_everything_that_changes_something_is_read_only():
     assert check(v, {"state": "on"}) == READ_ONLY
     # an open command (publish_maps) passes unsigned, with or without keys
     assert check(v, {}, required=False) == Authorised({}, None)
+    assert check(v, sign("alice", KEY, TOPIC, {}, now=NOW), required=False) == Authorised({}, None)
     assert check(verifier(), {}, required=False) == Authorised({}, None)
     # ...but a signature on it must hold
     bad = {**sign("alice", KEY, TOPIC, {}, now=NOW), "sig": "0" * 64}
