@@ -1,11 +1,14 @@
 """Validate a daemon configuration file without starting anything.
 
 Prints every problem with its key path (e.g. ``regions.0.dry_below: ...``) and exits 78
-(EX_CONFIG) when the file is bad, 0 with a short summary when it is good. Where the camera's
-frame size is known without opening a device (a simulated scene's size, a recording's first
-frame, a V4L2 width and height), the regions are checked against it too; the daemon checks
-them against the real camera's frames before the laser goes on. ``--schema`` prints
-the JSON Schema of the configuration instead (for editors).
+(EX_CONFIG) when the file is bad, 0 with a short summary when it is good. It refuses what
+``run`` refuses at its start, by the same rules (``edgedsm.daemon.preflight``): the state
+directory, the ``[http]`` listen address, the MQTT TLS files and credentials, and where the
+camera's frame size is known without opening a device (a simulated scene's size, a
+recording's first frame, a V4L2 width and height) the regions and the memory of the engine and
+frame queues against this machine's; the daemon checks the last two again against the real
+camera's frames before the laser goes on. ``--schema`` prints the JSON Schema of the
+configuration instead (for editors).
 
 Examples:
   edgedsm check-config /etc/edgedsm/line3.toml
@@ -34,8 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from edgedsm.config import check_regions, config_schema, load_config
-    from edgedsm.devices.camera.uri import known_frame_shape
+    from edgedsm.config import config_schema, load_config
+    from edgedsm.daemon.preflight import preflight_start
 
     if args.schema:
         print(json.dumps(config_schema(), indent=2))
@@ -43,9 +46,7 @@ def run(args: argparse.Namespace) -> int:
     if args.config is None:
         raise SystemExit("edgedsm check-config: give a CONFIG file (or --schema)")
     config = load_config(args.config)
-    frame_shape = known_frame_shape(config.camera.spec)
-    if frame_shape is not None:
-        check_regions(config, frame_shape)
+    frame_shape = preflight_start(config)  # what `run` refuses at its start, by the same rules
     from edgedsm.publish.topics import Topics
 
     base = Topics.from_settings(config.mqtt).base if config.mqtt else None

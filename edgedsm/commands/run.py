@@ -1,6 +1,7 @@
 """Run the measurement daemon for one camera (what the systemd service starts).
 
-Reads the configuration (refused with every key path and exit 78 when bad), switches the
+Reads the configuration and checks it on this machine as ``check-config`` does
+(``edgedsm.daemon.preflight``; refused with every key path and exit 78 when bad), switches the
 laser off, takes dark frames, then measures: S1/S2/S3 maps, per-region statistics and drying
 states, published over MQTT. SIGTERM stops (laser off, 'offline' published, exit 0); SIGHUP
 reloads the configuration (a bad one is refused and the old one kept).
@@ -35,10 +36,12 @@ def configure_logging(level: str, json_lines: bool) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from edgedsm.config import load_config
+    from edgedsm.daemon.preflight import preflight_start
     from edgedsm.daemon.service import Service
 
     config = load_config(args.config)
     configure_logging(config.logging.level, config.logging.json_lines)
+    preflight_start(config)  # check-config's rules, before any sink, camera or relay is opened
     service = Service(args.config, config=config)
     with service.handling_signals():
         code = service.run()

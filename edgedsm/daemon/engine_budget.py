@@ -1,14 +1,18 @@
-"""The engine's budget before frames flow: whether its arrays fit in memory (refused with the
-config keys to change when not), how many kernel threads a frame deserves, and the warm-up that
-loads every compiled kernel an evaluation uses."""
+"""The engine's budget before frames flow: whether its arrays and the frame queues fit in memory
+(refused with the config keys to change when not: :func:`check_memory`, the one memory rule of
+``check-config``, the daemon's start and its first frame), how many kernel threads a frame
+deserves, and the warm-up that loads every compiled kernel an evaluation uses."""
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 
 from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES
+from edgedsm.daemon.capture import queue_capacity
 from edgedsm.daemon.signal_judge import warm_up as warm_up_noise
 from edgedsm.daemon.tau import TauRegions, engine_estimators
 from edgedsm.errors import ConfigError
@@ -17,7 +21,6 @@ from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_mom
 from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
 from edgedsm.estimators.tau_pooled import pooled_covariances
-from edgedsm.frames import Frame
 
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
 SMALL_FRAME_PIXELS = 1 << 18
@@ -65,16 +68,61 @@ def engine_bytes_per_pixel(probe: SlidingWindow) -> float:
     return (sum(own.values()) + copies) / pixels + MAP_BYTES_PER_PIXEL + 2 * 8 * descriptors
 
 
-def check_engine_memory(frame: Frame, bytes_per_pixel: float, pixels: int | None = None) -> None:
-    """Refuse, with the config keys to change, an engine that cannot fit in memory (``pixels``:
-    what the engine sees, when not the whole frame; ``bytes_per_pixel``: engine_bytes_per_pixel)."""
-    needed = (pixels or frame.pixels.size) * bytes_per_pixel
+def make_engine(config: DaemonConfig, shape: tuple[int, int], bits: int, threads: int | None = None) -> SlidingWindow:
+    """The daemon's engine for ``config`` over ``shape`` (rows, columns) of ``bits``-bit frames."""
+    est = config.estimator
+    return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.engine_q, bits=bits,
+                         estimators=engine_estimators(config), mode=est.mode, threads=threads,
+                         max_lag=est.lags if config.tau_c_on else None, **config.band_args)
+
+
+def queue_bytes(config: DaemonConfig, frame_shape: tuple[int, int], bits: int) -> dict[str, int]:
+    """The most memory each frame queue of ``config`` holds (by the config key that bounds it):
+    the camera's queue (its length before the rate is known, the longest: ``queue_capacity``)
+    and ``[recording]``'s disk queue and, in alerts mode, its ring."""
+    frame_bytes = frame_shape[0] * frame_shape[1] * (1 if bits <= 8 else 2)
+    acq = config.acquisition
+    key = "acquisition.queue_frames" if acq.queue_frames is not None else "acquisition.queue_max_mib"
+    parts = {key: queue_capacity(acq, None, frame_bytes) * frame_bytes}
+    rec = config.recording
+    if rec is not None:
+        parts["recording.queue_max_mib"] = rec.queue_max_mib * 2**20
+        if rec.mode == "alerts":
+            parts["recording.ring_max_mib"] = rec.ring_max_mib * 2**20
+    return parts
+
+
+def check_memory(config: DaemonConfig, frame_shape: tuple[int, int], bits: int, pixels: int | None = None) -> None:
+    """Refuse (ConfigError naming the key to change) an engine and frame queues for frames of
+    ``frame_shape`` (rows, columns) and ``bits`` that cannot fit in this machine's memory
+    (``pixels``: what the engine sees, when not the whole frame); nothing large is allocated."""
+    per_pixel = engine_bytes_per_pixel(make_engine(config, (1, PROBE_PIXELS), bits, threads=1))
+    check_engine_memory(frame_shape, per_pixel, pixels, queue_bytes(config, frame_shape, bits))
+
+
+def check_engine_memory(frame_shape: tuple[int, int], bytes_per_pixel: float, pixels: int | None = None,
+                        queues: Mapping[str, int] | None = None) -> None:
+    """Refuse, with the config keys to change, an engine (and ``queues``: bytes by the config key
+    bounding them) that cannot fit in memory: more than 80 % of what the kernel says is available
+    (``pixels``: what the engine sees, when not the whole frame; ``bytes_per_pixel``:
+    engine_bytes_per_pixel). The key named is the largest part's."""
+    engine = (pixels or frame_shape[0] * frame_shape[1]) * bytes_per_pixel
+    queues = {key: size for key, size in (queues or {}).items() if size}
+    needed = engine + sum(queues.values())
     free = available_memory()
-    if free is not None and needed > 0.8 * free:
-        raise ConfigError(f"estimator.window: the estimator for {frame.shape[1]}x{frame.shape[0]} frames needs "
-                          f"{needed / 2**30:.1f} GiB (its window, sums and their copies); this machine has "
-                          f"{free / 2**30:.1f} GiB available (use a shorter window or max_lag, mode = 'tumbling' "
-                          "or 'exponential', or area = 'regions')")
+    if free is None or needed <= 0.8 * free:
+        return
+    size = f"{frame_shape[1]}x{frame_shape[0]}"
+    have = f"this machine has {free / 2**30:.1f} GiB available"
+    parts = ", ".join(f"{key} {part / 2**30:.2g} GiB" for key, part in queues.items())
+    if not queues or engine >= max(queues.values()):
+        with_queues = f"; with the frame queues ({parts}) {needed / 2**30:.1f} GiB" if queues else ""
+        raise ConfigError(f"estimator.window: the estimator for {size} frames needs {engine / 2**30:.1f} GiB (its "
+                          f"window, sums and their copies){with_queues}; {have} (use a shorter window or max_lag, "
+                          "mode = 'tumbling' or 'exponential', or area = 'regions')")
+    key = max(queues, key=lambda name: queues[name])
+    raise ConfigError(f"{key}: the frame queues and the estimator for {size} frames need {needed / 2**30:.1f} GiB "
+                      f"(estimator {engine / 2**30:.2g} GiB, {parts}); {have} (lower {key})")
 
 
 def kernel_variants(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> tuple[bool, ...]:

@@ -25,10 +25,10 @@ import numpy as np
 
 from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig, check_regions
-from edgedsm.daemon.engine_budget import PROBE_PIXELS, check_engine_memory, engine_bytes_per_pixel, kernel_threads
+from edgedsm.daemon.engine_budget import check_memory, kernel_threads, make_engine
 from edgedsm.daemon.handover import Snapshot, Status
 from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.tau import TauRegions, engine_estimators
+from edgedsm.daemon.tau import TauRegions
 from edgedsm.errors import FrameError
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
@@ -113,15 +113,10 @@ class Measurement:
             regions = {name: box.shifted(rows, cols) for name, box in regions.items()}
             shape = (rows.stop - rows.start, cols.stop - cols.start)
 
-        def engine(shape: tuple[int, int]) -> SlidingWindow:
-            return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.engine_q, bits=frame.bits,
-                                 estimators=engine_estimators(self.config), mode=est.mode, threads=threads,
-                                 max_lag=est.lags if self.tau.on else None, **self.config.band_args)
-
-        # the same arrays for a few pixels first: a window too big for memory is refused before
-        # anything large is allocated
-        check_engine_memory(frame, engine_bytes_per_pixel(engine((1, PROBE_PIXELS))), pixels=shape[0] * shape[1])
-        self.engine = engine(shape)
+        # the same arrays for a few pixels first: a window (or queues) too big for memory is refused
+        # before anything large is allocated (the rule check-config and the start apply: preflight)
+        check_memory(self.config, frame.shape, frame.bits, pixels=shape[0] * shape[1])
+        self.engine = make_engine(self.config, shape, frame.bits, threads)
         # the arrays of the maps evaluation (a copy of the sums, the float maps) written once now,
         # before frames flow: their fresh pages would otherwise stall both threads at the first maps
         self._buffers = self.engine.snapshot_buffers(est.maps)

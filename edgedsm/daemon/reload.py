@@ -14,8 +14,9 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from edgedsm.config import DaemonConfig, check_regions, load_config
+from edgedsm.config import DaemonConfig, load_config
 from edgedsm.daemon.devices import open_camera_for
+from edgedsm.daemon.preflight import preflight
 from edgedsm.devices.laser import open_relay
 from edgedsm.errors import ConfigError, DeviceError, EdgedsmError
 from edgedsm.validation import same_settings
@@ -60,8 +61,9 @@ def check_reload(path: Path, running: DaemonConfig, running_shape: tuple[int, in
         open_camera_for(new)  # the URI and scene file; opens nothing
         # the running camera cannot be opened twice: its frame is known
         shape = running_shape if _same_camera(new, running) else _probe_frame_shape(new)
-        if shape is not None:
-            check_regions(new, shape)  # the rule check-config and the daemon's start apply
+        # the rules check-config and the daemon's start apply; memory: checked when the new engine
+        # is built, once the running one is freed
+        preflight(new, shape, memory=False)
         if new.laser is not None and (running.laser is None or new.laser.uri != running.laser.uri):
             relay = open_relay(new.laser.uri)
             try:

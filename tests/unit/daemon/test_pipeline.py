@@ -206,17 +206,17 @@ def test_a_window_that_cannot_fit_in_memory_is_a_config_error(monkeypatch):
 
     # the ring (1 byte per frame), the sums (20), their copy (20) and two sets of maps (64)
     assert per_pixel(2000) == 2000 + 20 + 20 + 64
-    pipeline_module.check_engine_memory(frame, per_pixel(2000))  # 17.5 GiB: fits
+    pipeline_module.check_engine_memory(frame.shape, per_pixel(2000))  # 17.5 GiB: fits
     with pytest.raises(ConfigError, match=r"estimator\.window: .* needs 828\.\d GiB"):
-        pipeline_module.check_engine_memory(frame, per_pixel(100_000))
-    pipeline_module.check_engine_memory(frame, per_pixel(100_000, mode="tumbling"))  # m frames only
+        pipeline_module.check_engine_memory(frame.shape, per_pixel(100_000))
+    pipeline_module.check_engine_memory(frame.shape, per_pixel(100_000, mode="tumbling"))  # m frames only
     # τc's lag products (and their copy) count: 17 lags at max_lag 300, 4 bytes each, 8 for the edges
     with_tau = per_pixel(2000, estimators=("s1", "s2", "s3", "tau_c"), mode="tumbling", max_lag=300)
     assert with_tau > per_pixel(2000, mode="tumbling") + 2 * 17 * 4
     monkeypatch.setattr(pipeline_module, "available_memory", lambda: 8 * 2**30)
-    pipeline_module.check_engine_memory(frame, per_pixel(2000, mode="tumbling"))  # 1.1 GiB
+    pipeline_module.check_engine_memory(frame.shape, per_pixel(2000, mode="tumbling"))  # 1.1 GiB
     with pytest.raises(ConfigError, match=r"needs 8\.\d GiB .* max_lag"):  # the lag products: 8.8 GiB
-        pipeline_module.check_engine_memory(frame, with_tau)
+        pipeline_module.check_engine_memory(frame.shape, with_tau)
 
 
 def test_a_source_that_can_wait_is_held_back_not_dropped(repo, tmp_path):
