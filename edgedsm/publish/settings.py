@@ -199,8 +199,8 @@ def resolve_command_keys(settings: MqttSettings | None = None,
                          environ: Mapping[str, str] | None = None) -> dict[str, bytes]:
     """Command keys (key id -> secret, :mod:`edgedsm.publish.command_auth`) from
     ``$EDGEDSM_COMMAND_KEY`` (the key file's text), else ``[mqtt] command_key_file``, else
-    ``$CREDENTIALS_DIRECTORY/command-key``. Empty when none is present (read-only); ConfigError
-    naming the source when one is present but unreadable or malformed."""
+    ``$CREDENTIALS_DIRECTORY/command-key``. Empty when none is present or the credential is
+    empty (read-only); ConfigError naming the source when one is unreadable or malformed."""
     env = os.environ if environ is None else environ
     text = env.get(COMMAND_KEY_ENV)
     if text:
@@ -226,16 +226,18 @@ def resolve_command_keys(settings: MqttSettings | None = None,
     if len(data) > 64 * 1024:
         raise ConfigError(f"{source}: larger than 64 KiB, not a key file")
     try:
-        return _keys(data.decode("utf-8"), source)
+        return _keys(data.decode("utf-8"), source, empty_ok=missing_ok)
     except UnicodeDecodeError:
         raise ConfigError(f"{source}: not UTF-8 text") from None
 
 
-def _keys(text: str, source: str) -> dict[str, bytes]:
+def _keys(text: str, source: str, *, empty_ok: bool = False) -> dict[str, bytes]:
+    """``empty_ok``: the credential, which the unit needs to exist (LoadCredential=), may be left
+    empty for no key; a key file named in the config must hold one."""
     try:
         keys = parse_keys(text)
     except KeyFileError as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    if not keys:
+    if not keys and not empty_ok:
         raise ConfigError(f"{source}: holds no key")
     return keys

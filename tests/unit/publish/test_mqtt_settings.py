@@ -97,6 +97,8 @@ def test_command_keys_from_environment_then_config_file_then_credential(tmp_path
     assert resolve_command_keys(settings, creds) == {"alice": b"a" * 64, "bob": b"b" * 40}
     assert resolve_command_keys(settings, {**creds, "EDGEDSM_COMMAND_KEY": "e" * 32}) == {"default": b"e" * 32}
     assert resolve_command_keys(None, {"CREDENTIALS_DIRECTORY": str(tmp_path / "none")}) == {}
+    (tmp_path / "command-key").write_text("")  # LoadCredential= needs the file: empty = no key
+    assert resolve_command_keys(None, creds) == {}
 
 
 @pytest.mark.parametrize(("content", "why"), [
