@@ -38,7 +38,9 @@ def _analyze() -> str:
 
 def test_the_unit_runs_the_dashboard_without_devices() -> None:
     text = UNIT.read_text()
-    assert f"ExecStart={INSTALLED} dashboard --config-dir /etc/edgedsm --listen 0.0.0.0:8080" in text
+    # this machine only: the plant network through a TLS proxy or a drop-in with HTTPS and a viewer login
+    assert f"ExecStart={INSTALLED} dashboard --config-dir /etc/edgedsm --listen 127.0.0.1:8080" in text
+    assert "LoadCredential=dashboard-viewer-password:/etc/edgedsm/credentials/dashboard.viewer-password" in text
     assert "PrivateDevices=yes" in text and "DevicePolicy=closed" in text and "DeviceAllow" not in text
     assert "RestartPreventExitStatus=78" in text
 
