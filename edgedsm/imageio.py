@@ -7,9 +7,13 @@ every command); recordings with timestamps are ``edgedsm record`` (``edgedsm.fra
 
 from __future__ import annotations
 
+import contextlib
 import math
-from collections.abc import Iterable, Iterator
+import os
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import cv2
 import numpy as np
@@ -19,6 +23,35 @@ from edgedsm.errors import DataError
 
 class ImageIOError(DataError):
     """A frame file could not be read or written (exit code 65: the data, not the program)."""
+
+
+def write_atomic(path: str | Path, write: Callable[[BinaryIO], object]) -> Path:
+    """Write a file whole or not at all: ``write`` fills a temporary file beside ``path``, which
+    replaces ``path`` only once complete and synced; a failure (an exception, a full disk) leaves
+    no half-written ``path`` and no temporary file. ``WriteFailed`` (exit 74) when the disk refuses."""
+    from edgedsm.frameio.recording import WriteFailed
+
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        descriptor, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    except OSError as exc:
+        raise WriteFailed(f"{path}: cannot be written: {exc.strerror or exc}") from None
+    try:
+        with os.fdopen(descriptor, "wb") as file:
+            write(file)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise WriteFailed(f"{path}: cannot be written: {exc.strerror or exc}") from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
+    return path
 
 
 def _check_frame(frame: np.ndarray) -> np.ndarray:
@@ -122,7 +155,10 @@ def save_map_png(path: str | Path, values: np.ndarray, title: str = "",
         cv2.line(canvas, (4, y), (4 + bar_px, y), black, 3)
         cv2.putText(canvas, "50 px", (8 + bar_px, y + 5), font, 0.4, black, 1, cv2.LINE_AA)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), canvas):
-        raise ImageIOError(f"{path}: could not be written")
-    return path
+    try:
+        encoded, data = cv2.imencode(path.suffix or ".png", canvas)
+    except cv2.error:
+        encoded = False
+    if not encoded:
+        raise ImageIOError(f"{path}: could not be written (no image format for {path.suffix!r})")
+    return write_atomic(path, lambda file: file.write(data.tobytes()))

@@ -60,7 +60,7 @@ from edgedsm.estimators.descriptors import DESCRIPTORS, compute
 from edgedsm.estimators.noise import from_datasheet
 from edgedsm.estimators.noise_summary import RegionNoise, region_noise
 from edgedsm.frameio import CHANNELS, FrameReader
-from edgedsm.imageio import save_map_png
+from edgedsm.imageio import save_map_png, write_atomic
 from edgedsm.timeline import DESCRIPTORS as TIMELINE_DESCRIPTORS
 
 NAME = "analyze"
@@ -123,8 +123,9 @@ def run(args: argparse.Namespace) -> int:
     if args.estimator.startswith("band_"):
         lag_text = f", frequencies in Hz (dt {dt:.4g} s)" if dt else ", frequencies in cycles per frame"
     output = Path(args.output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    np.save(output, result)
+    if output.suffix != ".npy":  # where np.save(output) has always written it
+        output = output.with_name(output.name + ".npy")
+    write_atomic(output, lambda file: np.save(file, result))  # whole or not at all
     message = (f"{args.estimator.upper()} from frames {args.start}..{args.start + window - 1}{lag_text}: "
                f"mean {result.mean():.4g}, min {result.min():.4g}, max {result.max():.4g} ({descriptor.unit})"
                f" -> {output}")
