@@ -9,6 +9,7 @@
   edgedsm bench accuracy what N, m, mode, estimator and smoothing cost and buy (docs/accuracy.md)
   edgedsm bench compression  lossless and lossy codecs: ratio, MB/s per core, map accuracy (docs/compression.md)
   edgedsm bench recording    what continuous [recording] costs the daemon's zero-drop rate (docs/bench-recording.md)
+  edgedsm bench video    video decoders: PyAV against OpenCV, frames/s and exactness (docs/bench-video.md)
 
 Every benchmark prints a markdown table and can write it to a file (--output).
 """
@@ -24,7 +25,7 @@ HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers,
 SUITES = {name: f"edgedsm_lab.bench.{module}" for name, module in (
     ("sim", "sim"), ("engine", "engine"), ("devices", "devices"), ("e2e", "e2e_report"), ("ambient", "ambient"),
     ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"), ("recording", "recording"),
-    ("light", "light"))}
+    ("light", "light"), ("video", "video"))}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -17,7 +17,8 @@ analysis with a note naming its FOURCC (AVI) or codec, because its artefacts cha
 statistics.
 
 The frame count is the container's (AVI and MP4 store it; MKV and WebM only a duration, so
-their count is unknown); a count the file is too small to hold is refused at open. A file that
+their count is unknown); a count the file is too small to hold is refused at open, and so is an
+uncompressed AVI shorter than its frames (a cut file: check-config sees it as run would). A file that
 ends before the count it announces is truncated: ``ReaderError`` naming the file, once the last
 frame has been decoded. The frame size the stream announces is checked against the memory
 budget (``edgedsm.frameio.budget``) before any frame is decoded.
@@ -161,6 +162,10 @@ class VideoReader(FrameReader):
         if announced * _MIN_FRAME_BYTES > size:
             raise ReaderError(f"{path}: its header announces {announced:,} frames, more than a file of "
                               f"{size:,} bytes can hold (damaged or forged header)")
+        if self._raw_bytes and announced and announced * (self._raw_bytes + _MIN_FRAME_BYTES) > size:
+            raise ReaderError(f"{path}: holds {size:,} bytes, too few for the {announced} frames of "
+                              f"{context.width}x{context.height} pixels its header announces "
+                              f"({announced * self._raw_bytes:,} bytes of pixels): truncated or damaged video")
         self._announced = announced or None
         self.count = self._announced
         first = self._next()
