@@ -114,7 +114,7 @@ def check_engine_memory(frame_shape: tuple[int, int], bytes_per_pixel: float, pi
         return
     size = f"{frame_shape[1]}x{frame_shape[0]}"
     have = f"this machine has {free / 2**30:.1f} GiB available"
-    parts = ", ".join(f"{key} {part / 2**30:.2g} GiB" for key, part in queues.items())
+    parts = ", ".join(f"{key} {part / 2**30:.1f} GiB" for key, part in queues.items())
     if not queues or engine >= max(queues.values()):
         with_queues = f"; with the frame queues ({parts}) {needed / 2**30:.1f} GiB" if queues else ""
         raise ConfigError(f"estimator.window: the estimator for {size} frames needs {engine / 2**30:.1f} GiB (its "
@@ -122,7 +122,7 @@ def check_engine_memory(frame_shape: tuple[int, int], bytes_per_pixel: float, pi
                           "mode = 'tumbling' or 'exponential', or area = 'regions')")
     key = max(queues, key=lambda name: queues[name])
     raise ConfigError(f"{key}: the frame queues and the estimator for {size} frames need {needed / 2**30:.1f} GiB "
-                      f"(estimator {engine / 2**30:.2g} GiB, {parts}); {have} (lower {key})")
+                      f"(estimator {engine / 2**30:.1f} GiB, {parts}); {have} (lower {key})")
 
 
 def kernel_variants(config: DaemonConfig, frame_shape: tuple[int, int] | None) -> tuple[bool, ...]:
