@@ -85,9 +85,12 @@ compile pip.lock "the pip that installs the other locks (scripts/_env.sh brings 
     requirements/pip.in
 compile tools.lock "the resolver this script runs." requirements/tools.in
 
-echo "upgrade-locks.sh: the locks in requirements/ now pin:" >&2
-git -C "$ROOT" diff --stat -- requirements/ >&2 || true
-git -C "$ROOT" diff -U0 -- requirements/ | grep -E '^[-+][a-z0-9]' | sed 's/ \\$//' >&2 || true
+if git -C "$ROOT" diff --quiet -- requirements/; then
+    echo "upgrade-locks.sh: the locks in requirements/ are unchanged" >&2
+else
+    echo "upgrade-locks.sh: what moved in requirements/ (- committed, + now):" >&2
+    git -C "$ROOT" diff -U0 -- requirements/ | grep -E '^([-+][a-z0-9]|\+\+\+ )' | sed 's/ \\$//' >&2 || true
+fi
 
 [ "$run_tests" -eq 1 ] || exit 0
 export EDGEDSM_VENV="${EDGEDSM_VENV:-$ROOT/.venv-newest}"
