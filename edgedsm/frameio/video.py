@@ -65,31 +65,52 @@ def _dib_frame_bytes(container: av.container.InputContainer, stream: av.VideoStr
 
 
 def _grey_bits(fmt: av.VideoFormat) -> int | None:
-    """Significant bits of a one-component grey format (gray, gray12le ...), else None."""
+    """Significant bits of a one-component grey format (gray, gray12le ...), else None; formats
+    of fewer than 8 bits (monob) are widened to 8 by FFmpeg's converter."""
     parts = fmt.components
-    if len(parts) == 1 and not fmt.is_rgb and not fmt.has_palette and not fmt.is_bayer and parts[0].bits <= 16:
-        return int(parts[0].bits)
+    if (len(parts) == 1 and not fmt.is_rgb and not fmt.has_palette and not getattr(fmt, "is_bayer", False)
+            and parts[0].bits <= 16):
+        return max(8, int(parts[0].bits))
     return None
+
+
+def _samples(fmt: av.VideoFormat | None) -> tuple[int, int]:
+    """(samples per pixel, bytes per sample) of the pixels a frame of ``fmt`` becomes; R, G, B of
+    16 bits where the stream does not say."""
+    if fmt is None:
+        return 3, 2
+    bits = _grey_bits(fmt)
+    if bits is not None:
+        return 1, 1 if bits <= 8 else 2
+    return 3, 1 if fmt.has_palette or max(int(part.bits) for part in fmt.components) <= 8 else 2
+
+
+def _plane_rows(frame: av.VideoFrame, plane: int, row_bytes: int) -> np.ndarray:
+    """A plane's bytes as (height, row_bytes), row 0 on top: PyAV gives the plane's memory from
+    its lowest address, which for a bottom-up frame (a negative stride) is the last row."""
+    data = frame.planes[plane]
+    step = abs(data.line_size)
+    rows = np.frombuffer(data, np.uint8)[: step * frame.height].reshape(frame.height, step)
+    return (rows[::-1] if data.line_size < 0 else rows)[:, :row_bytes]
 
 
 def _grey_pixels(frame: av.VideoFrame, bits: int) -> np.ndarray:
     """The stored grey values of a grey frame, exactly (uint8 up to 8 bits, uint16 above)."""
+    if frame.format.name != "gray" and bits <= 8:
+        return frame.to_ndarray(format="gray")
     if bits <= 8:
-        return frame.to_ndarray(format="gray") if frame.format.name != "gray" else frame.to_ndarray()
-    plane = frame.planes[0]
-    step = abs(plane.line_size)
-    rows = np.frombuffer(plane, np.uint8).reshape(frame.height, step)
-    if plane.line_size < 0:  # FFmpeg stores a bottom-up frame with a negative stride
-        rows = rows[::-1]
+        return np.ascontiguousarray(_plane_rows(frame, 0, frame.width))
     order = ">" if frame.format.is_big_endian else "<"
-    return rows[:, :2 * frame.width].view(f"{order}u2").astype(np.uint16)
+    return _plane_rows(frame, 0, 2 * frame.width).view(f"{order}u2").astype(np.uint16)
 
 
 def _palette_pixels(frame: av.VideoFrame) -> np.ndarray:
     """A pal8 frame through its palette: (H, W) grey when every entry is grey, else (H, W, 3) R, G, B."""
-    index, _ = frame.to_ndarray()  # the indices (and PyAV's copy of the palette)
+    index = _plane_rows(frame, 0, frame.width)
     entries = np.frombuffer(frame.planes[1], "=u4")[:256]  # FFmpeg's palette: native-endian 0xAARRGGBB
     rgb = np.stack([(entries >> shift) & 0xFF for shift in (16, 8, 0)], axis=1).astype(np.uint8)
+    if len(rgb) < 256:  # indices beyond a short palette are black, as FFmpeg fills it
+        rgb = np.concatenate([rgb, np.zeros((256 - len(rgb), 3), np.uint8)])
     if np.array_equal(rgb[:, 0], rgb[:, 1]) and np.array_equal(rgb[:, 0], rgb[:, 2]):
         return rgb[:, 0][index]
     return rgb[index]
@@ -149,8 +170,9 @@ class VideoReader(FrameReader):
         path, stream = self.path, self._stream
         context = stream.codec_context
         width, height = int(context.width or 0), int(context.height or 0)
-        if width and height:  # before a frame is decoded: what a decoded frame (R, G, B, 16 bits) may take
-            check_frame(path, (height, width, 3), 2, "video stream's header")
+        if width and height:  # before a frame is decoded: what one frame's pixels will take
+            samples, itemsize = _samples(context.format)
+            check_frame(path, (height, width, samples), itemsize, "video stream's header")
         codec = context.name
         self.fourcc = context.codec_tag or ""
         rate = stream.average_rate or stream.guessed_rate or stream.base_rate
@@ -184,7 +206,8 @@ class VideoReader(FrameReader):
         """One decoded frame as pixels, by its pixel format (see the module docstring)."""
         fmt = frame.format
         if (frame.height, frame.width) != self.shape and self.shape != (0, 0):
-            check_frame(self.path, (frame.height, frame.width, 3), 2, "video stream")
+            samples, itemsize = _samples(fmt)
+            check_frame(self.path, (frame.height, frame.width, samples), itemsize, "video stream")
         bits = _grey_bits(fmt)
         if bits is not None:
             if self.bits is None:
@@ -210,9 +233,9 @@ class VideoReader(FrameReader):
             return None
         try:
             return self._pixels(frame)
-        except av.FFmpegError as exc:
-            raise ReaderError(f"{self.path}: frame {self._position} cannot be converted to pixels "
-                              f"({_reason(exc)})") from None
+        except (av.FFmpegError, ValueError, TypeError) as exc:  # PyAV: a format it cannot convert
+            raise ReaderError(f"{self.path}: frame {self._position} of pixel format {frame.format.name} cannot "
+                              f"be converted to grey levels ({_reason(exc)})") from None
 
     def _read(self) -> np.ndarray | None:
         if self._first is not None and self._position == 0:
@@ -284,7 +307,7 @@ class VideoReader(FrameReader):
                 container.close()
 
 
-def _reason(exc: av.FFmpegError) -> str:
+def _reason(exc: Exception) -> str:
     """FFmpeg's reason in a few words ('Invalid data found when processing input')."""
     text = getattr(exc, "strerror", None) or str(exc)
     return str(text).split(":")[0].strip() or type(exc).__name__
