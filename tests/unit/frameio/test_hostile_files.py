@@ -12,7 +12,7 @@ import tracemalloc
 
 import numpy as np
 import pytest
-import tifffile  # noqa: F401  (imported here, not inside a measured read)
+import tifffile  # also imported here, not first inside a measured read
 
 from edgedsm.devices.camera.replay import ReplayCamera, first_frame_shape
 from edgedsm.errors import DataError, DeviceError
@@ -115,3 +115,21 @@ def test_a_real_mask_still_loads(tmp_path):
     assert cv2.imwrite(str(tmp_path / "m.png"), image)
     mask = load_mask_image(tmp_path / "m.png", (20, 30))
     assert mask.shape == (20, 30) and int(mask.sum()) == 10 * 15
+
+
+def test_a_real_deflate_bomb_written_by_tifffile_is_refused_from_its_tags(tmp_path):
+    """20000 x 20000 zeros (400 MB decoded) in deflate tiles, as tifffile writes them: a file of
+    about a megabyte that must be refused from its tags, not decoded."""
+    tile = np.zeros((2048, 2048), np.uint8)
+    tiles = (tile for _ in range(10 * 10))
+    path = tmp_path / "bomb.tif"
+    tifffile.imwrite(path, tiles, shape=(20000, 20000), dtype=np.uint8, tile=(2048, 2048), compression="zlib")
+    assert path.stat().st_size < 2 ** 21
+    tracemalloc.start()
+    try:
+        with pytest.raises(ReaderError, match=r"20000 x 20000 x 1 = 400,000,000 pixels, more than the 268,435,456"):
+            open_frames(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2 ** 21
