@@ -2,14 +2,15 @@
 ``FrameReader`` (count when known, shape, dtype, bits, frame interval, per-frame stamps of a
 recording, and the frames one at a time) for
 
-- ``.npy`` stacks (memory-mapped),
+- ``.npy`` stacks (read frame by frame, never memory-mapped: a file changed under it is an error),
 - multi-page TIFF and BigTIFF, compressed or not (tifffile, page by page), and edgedsm's own
   recordings (``edgedsm record``: BigTIFF with a record per page),
 - image folders and printf patterns (``frames/%05d.png``), in natural numeric order,
 - video files (AVI, MP4, MKV, MOV ... through PyAV, by each frame's pixel format; a lossy codec is noted).
 
 ``analyze``, ``--timeline``, the ``replay:`` camera and ``probe camera replay:`` all read through
-it. Writing recordings: ``edgedsm.frameio.recording.RecordingWriter``.
+it. What a header claims is checked against one memory budget before anything is allocated or
+decoded (``edgedsm.frameio.budget``). Writing recordings: ``edgedsm.frameio.recording.RecordingWriter``.
 """
 
 from __future__ import annotations
