@@ -21,6 +21,7 @@ import contextlib
 import json
 import os
 import random
+import secrets
 import shutil
 import signal
 import socket
@@ -38,6 +39,7 @@ from typing import Any
 from edgedsm.daemon.acquisition import OFF_RETRY, RELAY_CHECK_S
 from edgedsm.errors import EdgedsmError
 from edgedsm.localbroker import free_port
+from edgedsm.publish.command_auth import sign
 from edgedsm.resources import data_file
 from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
@@ -236,12 +238,14 @@ class Rig:
         }
         write_config(self.config, self.tables)
         self.daemon: subprocess.Popen[bytes] | None = None
+        self.command_key = secrets.token_hex(32)  # the daemon's command key; command_burst signs with it
         self.rss: dict[int, list[tuple[float, int]]] = defaultdict(list)  # pid -> (monotonic, kB)
 
     def start_daemon(self) -> None:
         self.daemon = subprocess.Popen([sys.executable, "-m", "edgedsm", "run", "-c", str(self.config)],
                                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                       stderr=open(self.directory / "daemon.log", "ab"))  # noqa: SIM115
+                                       stderr=open(self.directory / "daemon.log", "ab"),  # noqa: SIM115
+                                       env={**os.environ, "EDGEDSM_COMMAND_KEY": f"soak {self.command_key}"})
         self.plant.last_stats = {}  # a new process counts its frames from 0
         self.wait_measuring(START_WAIT_S)
 
@@ -315,14 +319,20 @@ def bad_reload(rig: Rig, rng: random.Random) -> float | None:
 
 def command_burst(rig: Rig, rng: random.Random) -> float | None:
     client = rig.plant.client
+
+    def signed(name: str, arguments: dict[str, Any]) -> dict[str, Any]:  # as an operator's edgedsm cmd would
+        topic = f"edgedsm/{DEVICE}/cmd/{name}"
+        return sign("soak", rig.command_key.encode(), topic, arguments, now=time.time())
+
     for i in range(50):
         name = rng.choice(["laser", "dark", "rebaseline", "laser"])
-        payload = {"request_id": i} | ({"state": rng.choice(["on", "off", "auto"])} if name == "laser" else {})
+        payload = {"request_id": i, **signed(name, {"state": rng.choice(["on", "off", "auto"])} if name == "laser"
+                                             else {})}
         client.publish(f"edgedsm/{DEVICE}/cmd/{name}", json.dumps(payload) if rng.random() > 0.1 else b"\x00{", qos=1)
         time.sleep(0.01)
     time.sleep(1.0)
     for _ in range(20):  # hand the laser back to the plan (a rate-limited `auto` is refused: again)
-        client.publish(f"edgedsm/{DEVICE}/cmd/laser", json.dumps({"state": "auto"}), qos=1)
+        client.publish(f"edgedsm/{DEVICE}/cmd/laser", json.dumps(signed("laser", {"state": "auto"})), qos=1)
         time.sleep(0.6)
         if rig.plant.last_stats.get("laser") == "on":
             break
