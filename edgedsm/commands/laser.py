@@ -12,7 +12,11 @@
 
 A laser is never left on unattended unless --leave-on says so. Boards with readback
 (Numato, KMTronic, Modbus) confirm every switching; LCUS boards cannot, so check those by eye.
-Stop the edgedsm service first: the port is opened exclusively.
+Stop the edgedsm service first: the port is opened exclusively, and 'on' and 'status' refuse
+a port another process holds (exit 69). 'off' does not: off is always safe to send, so when a
+process holds the port's lock (a daemon hung or stopped with the laser on) it opens the port
+without the lock, switches off and reads back as always, and says whose lock it overrode
+(docs/laser-safety.md, "Off overrides the port lock").
 
 With --config, a config whose other tables do not validate still has its [laser] uri used to
 switch off (safety first); the configuration error is reported and the exit status is 78.
@@ -27,8 +31,8 @@ RELAY_URI (see edgedsm/devices/uri.py for every option):
   sim:                                              (simulated relay, for a dry run)
 
 Exit status: 0 done (off: confirmed by readback where the board has it), 69 the relay is
-unreachable or misbehaved (no answer, bad answer, did not switch, port busy or missing),
-78 bad RELAY_URI or configuration.
+unreachable or misbehaved (no answer, bad answer, did not switch, port missing; for on and
+status also a port another process holds), 78 bad RELAY_URI or configuration.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ import threading
 import time
 from pathlib import Path
 
-from edgedsm.devices.laser import LaserRelay, LaserSafety, RelayStatus, SignalExit, open_relay
+from edgedsm.devices.laser import LaserRelay, LaserSafety, PortLocked, RelayStatus, SignalExit, open_relay
 from edgedsm.errors import ConfigError, DeviceError
 from edgedsm.signals import SIGNAL_SLICE_S
 
@@ -100,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, uri: str) -> int:
-    relay = open_relay(uri)
+    relay = _open_for_off(uri) if args.action == "off" else open_relay(uri)
     if args.action == "status":
         try:
             _say(relay.state().describe())
@@ -122,6 +126,20 @@ def _run(args: argparse.Namespace, uri: str) -> int:
              f"Switch it off with: edgedsm laser off '{uri}'")
         return 0
     return _hold_on(relay, args.hold)
+
+
+def _open_for_off(uri: str) -> LaserRelay:
+    """The relay, to switch it off: opened with the port's lock as always; when another process
+    holds it (a daemon hung or stopped, SIGSTOP, with the laser on), without: off is idempotent
+    and always safe, and the readback confirms it whatever that process left in the port's
+    buffers. Never used for on."""
+    try:
+        return open_relay(uri)
+    except PortLocked as exc:
+        by = f"process {exc.holder}" if exc.holder else "another process"
+        print(f"edgedsm: warning: relay port {exc.port} is locked by {by}: overriding the lock to switch "
+              "the laser off (off only)", file=sys.stderr, flush=True)
+        return open_relay(uri, exclusive=False)
 
 
 def _switch_off(relay: LaserRelay) -> RelayStatus:
@@ -169,7 +187,7 @@ def _off_with_retries(uri: str) -> None:
     """Open, switch off, confirm; up to OFF_ATTEMPTS times (a port may be busy for a moment)."""
     for attempt in range(1, OFF_ATTEMPTS + 1):
         try:
-            with open_relay(uri) as relay:
+            with _open_for_off(uri) as relay:
                 _say(_switch_off(relay).describe())
             return
         except DeviceError as exc:

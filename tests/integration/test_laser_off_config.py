@@ -5,7 +5,9 @@ byte for byte; exit 0 off (confirmed where the board can), 69 unreachable, 78 ba
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -13,7 +15,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from helpers_relay import OFF, READ, KmtronicBoard, LcusBoard, ModbusBoard, NumatoBoard, PtyPair, open_pty_pair
+from helpers_daemon import base_config
+from helpers_daemon import write_config as write_daemon_config
+from helpers_relay import OFF, ON, READ, KmtronicBoard, LcusBoard, ModbusBoard, NumatoBoard, PtyPair, open_pty_pair
 
 from edgedsm.cli import main
 
@@ -174,3 +178,131 @@ def test_as_the_unit_runs_it(pty_pair: PtyPair, tmp_path: Path) -> None:
         assert board.is_on is False
     finally:
         board.stop()
+
+
+# -- a stopped process holding the port's lock (issue 34) -------------------------------------
+
+#: Holds the relay as the daemon does (open_relay: the port's exclusive lock), switches it on,
+#: says so and waits: SIGSTOPped by the test, it is a hung daemon with the laser on.
+HOLDER = """
+import sys, time
+from edgedsm.devices.laser import open_relay
+relay = open_relay(sys.argv[1])
+relay.on()
+print("on", flush=True)
+time.sleep(600)
+"""
+#: `laser off --config` against a stopped holder: a process start (about 1 s of imports) and
+#: one exchange; well within the "few seconds" a technician waits, far from the 60 s watchdog.
+OVERRIDE_WITHIN_S = 5.0
+
+
+def _child_env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+
+
+def _stopped(pid: int) -> bool:
+    """The process is stopped (state T in /proc/PID/stat)."""
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    return stat.rpartition(")")[2].split()[0] in ("T", "t")
+
+
+@contextlib.contextmanager
+def _stopped_holder(uri: str) -> Iterator[subprocess.Popen[str]]:
+    """A process holding ``uri``'s port locked with the relay on, SIGSTOPped; continued and
+    killed on the way out."""
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, uri], stdout=subprocess.PIPE, text=True,
+                              env=_child_env(), stdin=subprocess.DEVNULL)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "on\n"
+        holder.send_signal(signal.SIGSTOP)
+        deadline = time.monotonic() + 5
+        while not _stopped(holder.pid):
+            assert time.monotonic() < deadline, "the holder did not stop"
+            time.sleep(0.01)
+        yield holder
+    finally:
+        holder.send_signal(signal.SIGCONT)
+        holder.kill()
+        holder.wait(10)
+        if holder.stdout is not None:
+            holder.stdout.close()
+
+
+def _laser(action: str, config: Path) -> tuple[subprocess.CompletedProcess[str], float]:
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "edgedsm", "laser", action, "--config", str(config)],
+                          capture_output=True, text=True, timeout=30, env=_child_env(), stdin=subprocess.DEVNULL)
+    return done, time.monotonic() - started
+
+
+@pytest.mark.parametrize("name", ["numato", "modbus"])
+def test_off_overrides_the_lock_of_a_stopped_holder(name: str, pty_pair: PtyPair, tmp_path: Path) -> None:
+    cls, query, kwargs = QUERIES[name]
+    board = cls(pty_pair.board, **kwargs)
+    board.start()
+    uri = f"serial:{pty_pair.app}?{query}"
+    try:
+        with _stopped_holder(uri) as holder:
+            assert board.is_on is True and board.frames() == [ON[name], READ[name]]
+            done, took = _laser("off", write_config(tmp_path, uri))
+            print(f"laser off under a lock held by a stopped process: {took:.2f} s")
+            assert done.returncode == 0, done.stderr
+            assert took < OVERRIDE_WITHIN_S
+            assert board.is_on is False
+            # off with its readback, then close()'s off with its readback: nothing else
+            assert board.frames() == [ON[name], READ[name]] + [OFF[name], READ[name]] * 2
+            assert done.stdout == "laser: off (readback confirmed)\n"
+            assert done.stderr == (f"edgedsm: warning: relay port {pty_pair.app} is locked by process "
+                                   f"{holder.pid}: overriding the lock to switch the laser off (off only)\n")
+    finally:
+        board.stop()
+    assert board.errors == []
+
+
+@pytest.mark.parametrize("action", ["on", "status"])
+def test_on_and_status_still_refuse_a_locked_port(action: str, pty_pair: PtyPair, tmp_path: Path) -> None:
+    board, uri = start_board("numato", pty_pair)
+    board.is_on = False
+    try:
+        with _stopped_holder(uri) as holder:
+            before = board.frames()
+            done, _ = _laser(action, write_config(tmp_path, uri))
+            assert done.returncode == 69
+            assert f"locked by process {holder.pid}" in done.stderr and "overriding" not in done.stderr
+            time.sleep(0.3)  # anything sent would have arrived by now
+            assert board.frames() == before  # not a byte
+            assert board.is_on is True  # as the holder left it
+    finally:
+        board.stop()
+
+
+@pytest.mark.timeout(90)
+def test_off_overrides_a_stopped_daemon(pty_pair: PtyPair, tmp_path: Path, daemons) -> None:
+    """The issue's case: the real daemon measuring with the laser on, SIGSTOPped (hung) while it
+    holds the relay's port."""
+    board = ModbusBoard(pty_pair.board, channel=5, slave=7)
+    board.start()
+    uri = f"serial:{pty_pair.app}?protocol=modbus&slave=7&channel=5"
+    try:
+        config = write_daemon_config(tmp_path / "daemon.toml", base_config(tmp_path, laser=uri))
+        daemon = daemons(config)
+        daemon.wait_until(lambda: board.is_on, 60, "the relay on (measuring)")
+        daemon.signal(signal.SIGSTOP)
+        daemon.wait_until(lambda: _stopped(daemon.process.pid), 5, "the daemon stopped")
+        sent = len(board.frames())
+        done, took = _laser("off", config)
+        print(f"laser off under a stopped daemon's lock: {took:.2f} s")
+        assert done.returncode == 0, done.stderr
+        assert took < OVERRIDE_WITHIN_S
+        assert f"locked by process {daemon.process.pid}: overriding the lock" in done.stderr
+        assert board.is_on is False
+        assert board.frames()[sent:] == [OFF["modbus"], READ["modbus"]] * 2
+        daemon.signal(signal.SIGCONT)  # it finds the relay off under it; SIGTERM then ends it
+        code, _ = daemon.terminate()
+        assert board.is_on is False
+        print(f"daemon exit after SIGCONT and SIGTERM: {code}")
+        assert code == 0, daemon.log  # its own off at stop confirmed
+    finally:
+        board.stop()
+    assert board.errors == []

@@ -14,7 +14,7 @@ Drivers: ``LcusRelay`` (LCUS/CH340), ``NumatoRelay`` (Numato ASCII), ``KmtronicR
 
 from __future__ import annotations
 
-from edgedsm.devices.laser._serial import SerialRelay
+from edgedsm.devices.laser._serial import PortLocked, SerialRelay
 from edgedsm.devices.laser.base import LaserRelay, RelayStatus
 from edgedsm.devices.laser.kmtronic import KmtronicRelay
 from edgedsm.devices.laser.lcus import LcusRelay
@@ -38,16 +38,18 @@ DRIVERS: dict[str, type[SerialRelay]] = {
 }
 
 
-def open_relay(uri: str | RelaySpec) -> LaserRelay:
-    """Open the relay a URI names. Bad URI: ConfigError; port trouble: DeviceError.
+def open_relay(uri: str | RelaySpec, *, exclusive: bool = True) -> LaserRelay:
+    """Open the relay a URI names. Bad URI: ConfigError; port trouble: DeviceError (a serial
+    port another process holds locked: ``PortLocked``).
 
     Opening never switches: wrap the relay in ``LaserSafety`` (or switch it off yourself)
-    to start from a known state.
+    to start from a known state. ``exclusive=False`` opens a serial port without its lock:
+    only to switch off (``edgedsm laser off``, docs/laser-safety.md), never to switch on.
     """
     spec = uri if isinstance(uri, RelaySpec) else parse_relay_uri(uri)
     if spec.kind == "sim":
         return SimulatedRelay.from_spec(spec)
-    return DRIVERS[spec.protocol].from_spec(spec)
+    return DRIVERS[spec.protocol].from_spec(spec, exclusive=exclusive)
 
 
 __all__ = [
@@ -58,6 +60,7 @@ __all__ = [
     "LcusRelay",
     "ModbusCoilRelay",
     "NumatoRelay",
+    "PortLocked",
     "RelaySpec",
     "RelayStatus",
     "SerialRelay",

@@ -9,6 +9,8 @@ and a board that trickles garbage must not keep us waiting either.
 from __future__ import annotations
 
 import contextlib
+import errno
+import os
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -46,8 +48,46 @@ def hexdump(data: bytes) -> str:
     return shown + (f" ... ({len(data)} bytes)" if len(data) > 32 else "") if data else "nothing"
 
 
-def open_port(spec: RelaySpec) -> SerialBase:
-    """Open the spec's port with pyserial's ``serial_for_url`` (device paths and URLs alike)."""
+class PortLocked(DeviceError):
+    """Another process holds the port's exclusive lock (a daemon running, hung or stopped);
+    ``holder``: its PID where /proc/locks says (None: unknown)."""
+
+    def __init__(self, message: str, port: str, holder: int | None) -> None:
+        super().__init__(message)
+        self.port = port
+        self.holder = holder
+
+
+def lock_holder(path: str) -> int | None:
+    """The PID holding a lock on the file ``path`` (a device node; symlinks followed), from
+    /proc/locks (None when it cannot tell: no /proc, the file gone, the holder in another
+    PID namespace shows as 0)."""
+    try:
+        st = os.stat(path)
+        with open("/proc/locks", encoding="ascii", errors="replace") as handle:
+            lines = handle.read().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        fields = line.split()
+        if len(fields) < 6 or "->" in fields:  # "->": a process waiting for the lock, not holding it
+            continue
+        try:
+            major, minor, inode = fields[5].split(":")
+            pid = int(fields[4])
+            if (int(major, 16), int(minor, 16), int(inode)) == (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino):
+                return pid or None
+        except ValueError:
+            continue
+    return None
+
+
+def open_port(spec: RelaySpec, *, exclusive: bool = True) -> SerialBase:
+    """Open the spec's port with pyserial's ``serial_for_url`` (device paths and URLs alike).
+
+    ``exclusive``: take the port's lock (flock), so that a technician's tool and the daemon
+    never talk at once; a port another process holds is :class:`PortLocked`. Without it (only
+    to switch off: ``edgedsm laser off``) the port is opened whoever holds it."""
     if serial is None:
         raise DeviceError("cannot open a serial relay: pyserial is not installed "
                           "(pip install pyserial)")
@@ -59,7 +99,7 @@ def open_port(spec: RelaySpec) -> SerialBase:
         "timeout": POLL_S,
         "write_timeout": spec.timeout,
     }
-    if not spec.is_url:
+    if not spec.is_url and exclusive:
         # A lock on the device keeps a technician's tool and the daemon from talking at once.
         kwargs["exclusive"] = True
     try:
@@ -67,6 +107,11 @@ def open_port(spec: RelaySpec) -> SerialBase:
     except ValueError as exc:  # pyserial's answer to a malformed URL or setting
         raise ConfigError(f"relay URI {spec.uri!r}: {exc}") from exc
     except PORT_ERRORS as exc:
+        if "exclusive" in kwargs and getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
+            holder = lock_holder(spec.port)
+            by = f"process {holder}" if holder else "another process"
+            raise PortLocked(f"cannot open relay port {spec.port}: it is locked by {by} (a daemon still "
+                             f"running? stop it first): {exc}", spec.port, holder) from exc
         raise DeviceError(f"cannot open relay port {spec.port}: {exc}") from exc
 
 
@@ -85,19 +130,21 @@ class SerialRelay(LaserRelay):
         self.channel = channel
         self.timeout = timeout
         self._spec: RelaySpec | None = None  # set by from_spec: how to reopen the port
+        self._exclusive = True  # and whether with its lock
         self._port_failed = False  # the port failed (board unplugged): reopened before the next request
 
     @classmethod
-    def from_spec(cls, spec: RelaySpec) -> SerialRelay:
-        """Open the port named by a parsed URI and build the driver on it."""
-        port = open_port(spec)
+    def from_spec(cls, spec: RelaySpec, *, exclusive: bool = True) -> SerialRelay:
+        """Open the port named by a parsed URI and build the driver on it (``exclusive``: see
+        :func:`open_port`)."""
+        port = open_port(spec, exclusive=exclusive)
         try:
             relay = cls(port, channel=spec.channel, timeout=spec.timeout, verify=spec.verify,
                         **cls._spec_options(spec))
         except BaseException:
             port.close()
             raise
-        relay._spec = spec
+        relay._spec, relay._exclusive = spec, exclusive
         return relay
 
     @classmethod
@@ -114,7 +161,7 @@ class SerialRelay(LaserRelay):
             return
         with contextlib.suppress(*PORT_ERRORS):
             self._port.close()
-        self._port = open_port(self._spec)
+        self._port = open_port(self._spec, exclusive=self._exclusive)
         self._port_failed = False
 
     def _port_lost(self, exc: BaseException) -> DeviceLost:
