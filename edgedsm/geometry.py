@@ -235,13 +235,12 @@ def load_mask_image_or_none(path: Path) -> np.ndarray | None:
     """The grey image at ``path``, or None when it is missing or not an image. Its header is
     checked against the memory budget before it is decoded: a header claiming more is a
     ``BudgetError`` (exit 65) naming the mask and the claim (``edgedsm.frameio.budget``)."""
-    from edgedsm.frameio.budget import check_frame, image_size
+    from edgedsm.frameio.budget import image_size
+    from edgedsm.frameio.images import decode_image
 
-    size = image_size(path)
-    if size is None:
+    if image_size(path) is None:
         return None  # missing, unknown or damaged: never handed to a decoder
-    check_frame(path, (size.rows, size.columns, size.samples), size.itemsize, f"{size.format} header of the mask")
-    return cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    return decode_image(path, cv2.IMREAD_GRAYSCALE, "header of the mask")
 
 
 def _grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:

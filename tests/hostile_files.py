@@ -250,6 +250,40 @@ def folder_tiff_six_bytes(d: Path) -> Path:
     return _folder(d, "tiny", {"f_000.tif": b"II*\x00\x08\x00"})
 
 
+def _cut_image(d: Path, suffix: str) -> Path:
+    """A folder of two 64 x 64 images written by OpenCV, the first cut in half (a copy that stopped)."""
+    import cv2
+
+    folder = d / f"cut_{suffix}"
+    folder.mkdir()
+    image = np.random.default_rng(3).integers(0, 256, (64, 64), dtype=np.uint8)
+    for index in range(2):
+        assert cv2.imwrite(str(folder / f"f_{index:03d}.{suffix}"), image)
+    first = folder / f"f_000.{suffix}"
+    first.write_bytes(first.read_bytes()[: first.stat().st_size // 2])
+    return folder
+
+
+def folder_cut_png(d: Path) -> Path:
+    return _cut_image(d, "png")
+
+
+def folder_cut_jpg(d: Path) -> Path:
+    return _cut_image(d, "jpg")
+
+
+def folder_cut_bmp(d: Path) -> Path:
+    return _cut_image(d, "bmp")
+
+
+def folder_cut_pgm(d: Path) -> Path:
+    return _cut_image(d, "pgm")
+
+
+def folder_cut_tif(d: Path) -> Path:
+    return _cut_image(d, "tif")
+
+
 def folder_no_images(d: Path) -> Path:
     return _folder(d, "nothing", {"readme.txt": b"no frames here"})
 
@@ -291,6 +325,11 @@ CASES: dict[str, tuple[Callable[[Path], Path], int, str]] = {
     "folder_png_garbage": (folder_png_garbage, 65, "f_000.png"),
     "folder_empty_png": (folder_empty_png, 65, "cannot be read as an image"),
     "folder_tiff_six_bytes": (folder_tiff_six_bytes, 65, "cannot be read as an image"),
+    "folder_cut_png": (folder_cut_png, 65, "f_000.png: cannot be read as an image"),
+    "folder_cut_jpg": (folder_cut_jpg, 65, "f_000.jpg: cannot be read as an image"),
+    "folder_cut_bmp": (folder_cut_bmp, 65, "f_000.bmp: cannot be read as an image"),
+    "folder_cut_pgm": (folder_cut_pgm, 65, "f_000.pgm: cannot be read as an image"),
+    "folder_cut_tif": (folder_cut_tif, 65, "f_000.tif: cannot be read as an image"),
     "folder_no_images": (folder_no_images, 65, "no images"),
     "missing": (missing, 66, "no such file"),
 }

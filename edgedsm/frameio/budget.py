@@ -18,6 +18,7 @@ before OpenCV decodes anything (OpenCV has no header-only read).
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -158,6 +159,10 @@ def _pnm(head: bytes) -> ImageSize | None:
 def _tiff(path: Path) -> ImageSize | None:
     import tifffile
 
+    logger = logging.getLogger("tifffile")  # it logs a damaged page chain, then says there is none
+    propagate, logger.propagate = logger.propagate, False
+    quiet = logging.NullHandler()
+    logger.addHandler(quiet)
     try:
         with tifffile.TiffFile(path) as tif:
             page = tif.pages.first
@@ -166,6 +171,9 @@ def _tiff(path: Path) -> ImageSize | None:
                              max(1, int(np.dtype(page.dtype).itemsize) if page.dtype is not None else 1), "TIFF")
     except Exception:  # any damaged header: not an image we can size
         return None
+    finally:
+        logger.removeHandler(quiet)
+        logger.propagate = propagate
 
 
 def image_size(path: Path) -> ImageSize | None:

@@ -11,6 +11,8 @@ what a header claims). A pattern's missing numbers are noted.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +26,38 @@ from edgedsm.frameio.budget import check_image
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg", ".pgm", ".ppm", ".pnm")
 LOSSY_SUFFIXES = (".jpg", ".jpeg")
 _DIGITS = re.compile(r"(\d+)")
+
+
+@contextlib.contextmanager
+def _opencv_silent() -> Iterator[None]:
+    """OpenCV logs a damaged file's decoding errors on stderr, several lines each: silenced
+    while decoding (the caller says what went wrong, in one line)."""
+    logging = cv2.utils.logging
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(level)
+
+
+def _jpeg_complete(path: Path) -> bool:
+    """Whether a JPEG's end-of-image marker is there (libjpeg decodes a truncated file with a
+    message on stderr and grey where the data ends, rather than failing)."""
+    with open(path, "rb") as file:
+        file.seek(max(0, os.fstat(file.fileno()).st_size - 4096))
+        return b"\xff\xd9" in file.read()
+
+
+def decode_image(path: Path, flags: int = cv2.IMREAD_UNCHANGED, what: str = "header") -> np.ndarray | None:
+    """One image file decoded by OpenCV once its header passed the memory budget (``BudgetError``
+    naming the file and the claim otherwise); None when it cannot be decoded (damaged, truncated),
+    with nothing printed."""
+    size = check_image(path, what)  # before OpenCV allocates what the header claims
+    if size.format == "JPEG" and not _jpeg_complete(path):
+        return None
+    with _opencv_silent():
+        return cv2.imread(str(path), flags)
 
 
 def natural_key(name: str) -> tuple:
@@ -99,8 +133,7 @@ class ImageSeriesReader(FrameReader):
 
     def _decode(self, index: int) -> np.ndarray:
         file = self.files[index]
-        check_image(file)  # before OpenCV allocates what the header claims
-        image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
+        image = decode_image(file)
         if image is None:
             raise ReaderError(f"{file}: cannot be read as an image (frame {index} of {self.path})")
         return image
