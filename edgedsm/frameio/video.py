@@ -43,6 +43,9 @@ LOSSLESS_CODECS = {"rawvideo", "ffv1", "huffyuv", "ffvhuff", "png", "apng", "utv
                    "mszh", "qtrle", "msrle", "bmp", "tiff", "ljpeg", "jpegls", "fits", "qoi"}
 #: Containers whose frame count is an estimate from the duration, not a stored number.
 _ESTIMATED_COUNT = (".mkv", ".webm")
+#: AVI compression tags of Windows DIBs, whose rows are padded to 4 bytes (BI_RGB, BI_BITFIELDS and
+#: the 'DIB '/'RGB ' spellings); other raw tags (Y800, YUY2 ...) store rows unpadded.
+_DIB_TAGS = ("\0\0\0\0", "\x03\0\0\0", "DIB ", "RGB ")
 #: The smallest a frame takes in an AVI file (its chunk header): a count needing more is a lie.
 _MIN_FRAME_BYTES = 8
 
@@ -59,7 +62,8 @@ def _dib_frame_bytes(container: av.container.InputContainer, stream: av.VideoStr
     """Bytes of one uncompressed DIB frame in an AVI (rows padded to 4 bytes), None for others."""
     context = stream.codec_context
     bits = int(getattr(context, "bits_per_coded_sample", 0) or 0)
-    if context.name != "rawvideo" or "avi" not in container.format.name or bits not in (1, 2, 4, 8, 16, 24, 32):
+    if (context.name != "rawvideo" or "avi" not in container.format.name or bits not in (1, 2, 4, 8, 16, 24, 32)
+            or (context.codec_tag or "") not in _DIB_TAGS):
         return None
     return (int(context.width) * bits + 31) // 32 * 4 * int(context.height)
 

@@ -117,6 +117,15 @@ def test_grey_videos_ffmpeg_writes_are_bit_exact(tmp_path, codec, pix_fmt, top, 
     assert np.array_equal(got, want)
 
 
+def test_an_unpadded_raw_avi_ffmpeg_writes_is_read_exactly(tmp_path):
+    # FFmpeg writes raw grey as 'Y800', rows unpadded (13 bytes, not a DIB's 16): not a short frame
+    frames = np.random.default_rng(9).integers(0, 256, (5, *SHAPE), dtype=np.uint8)
+    path = _pyav_video(tmp_path / "y800.avi", frames, "rawvideo", "gray", "gray")
+    with open_frames(path) as reader:
+        assert reader.fourcc == "Y800" and reader.count == 5 and reader.lossy is None
+        assert np.array_equal(np.stack(list(reader.frames())), frames)
+
+
 @pytest.mark.parametrize(("codec", "shown"), [("mjpeg", "mjpeg"), ("libx264", "h264"), ("mpeg4", "mpeg4")])
 def test_lossy_videos_name_their_codec(tmp_path, codec, shown):
     grey = np.random.default_rng(8).integers(0, 256, (6, 32, 48), dtype=np.uint8)
