@@ -49,6 +49,12 @@ ensure_venv() {
     if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$digest" ]; then
         return 0
     fi
+    local python_version
+    python_version="$("$VENV/bin/python" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+    if [ "$python_version" != 3.11 ]; then
+        echo "edgedsm: warning: the locks are resolved for Python 3.11 and $VENV has $python_version;" \
+             "a pinned version may have no wheel for it (scripts/upgrade-locks.sh, docs/install.md)" >&2
+    fi
     local pip=("$VENV/bin/python" -m pip --quiet --disable-pip-version-check)
     # (this machine's pip configuration may name local package folders that lack a package: noise)
     local quiet=(grep -v "is ignored: it is neither a file nor a directory")
