@@ -7,8 +7,9 @@ colour-mapped PNG, and prints the mean activity per region and the contrast β.
 
 Part 2 (daemon, skip with --no-daemon): runs the measurement daemon on config/daemon/demo.toml
 (a simulated plate drying in under a minute, simulated laser relay) against a private mosquitto
-started on a free loopback port (or --broker HOST:PORT), and prints what a subscriber sees
-(edgedsm watch): availability, then the plate going wet -> drying -> dry.
+started on a free loopback port with the shipped broker configuration (config/mosquitto: TLS,
+a password per user, the ACL; docs/security.md) or against --broker HOST:PORT, and prints what
+a subscriber sees (edgedsm watch): availability, then the plate going wet -> drying -> dry.
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import re
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,6 +34,7 @@ from edgedsm.config import DaemonConfig
 from edgedsm.errors import EdgedsmError
 from edgedsm.estimators import ESTIMATORS, all_maps
 from edgedsm.imageio import save_map_png
+from edgedsm.publish.settings import PASSWORD_ENV, MqttSettings, MqttTlsSettings
 from edgedsm.resources import data_file
 from edgedsm.signals import wait_for
 
@@ -121,17 +125,29 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
     from edgedsm.localbroker import LocalBroker
 
     assert config.mqtt is not None
+    viewer, dashboard_user = config.mqtt, config.mqtt  # who watches, and the dashboard: as the daemon
+    passwords: dict[str, str | None] = {}
     with contextlib.ExitStack() as stack:
         if broker is None:
-            local = stack.enter_context(LocalBroker())
-            config.mqtt.host, config.mqtt.port = "127.0.0.1", local.port
-            print(f"\nedgedsm demo: started a private mosquitto on 127.0.0.1:{local.port}")
+            local = stack.enter_context(LocalBroker(secure=True, prefix=config.mqtt.topic_prefix,
+                                                    device=config.mqtt.device))
+            config.mqtt.host, config.mqtt.port = "localhost", local.port
+            config.mqtt.username = f"edgedsm-{config.mqtt.device}"
+            config.mqtt.tls = MqttTlsSettings(ca_file=local.ca_file)
+            viewer = config.mqtt.model_copy(update={"username": "edgedsm-viewer"})
+            dashboard_user = config.mqtt.model_copy(update={"username": "edgedsm-dashboard"})
+            passwords = {user: local.passwords[user] for user in ("edgedsm-viewer", "edgedsm-dashboard")}
+            # the daemon in this process takes its password as under systemd, from the environment
+            stack.enter_context(_environment(PASSWORD_ENV, local.passwords[config.mqtt.username]))
+            print(f"\nedgedsm demo: started a private mosquitto on localhost:{local.port} "
+                  f"(TLS, passwords and ACLs of config/mosquitto; docs/security.md)")
         else:
             host, _, port = broker.rpartition(":")
             config.mqtt.host, config.mqtt.port = host or "127.0.0.1", int(port)
         print(f"edgedsm demo: daemon on {config.camera.uri} (laser {config.laser.uri if config.laser else 'none'}); "
               f"watching {config.mqtt.topic_prefix}/{config.mqtt.device}/# until the plate is dry\n")
-        dashboard = None if dashboard_listen == "off" else _start_dashboard(config, config_path, dashboard_listen)
+        dashboard = None if dashboard_listen == "off" else _start_dashboard(
+            config, config_path, dashboard_listen, dashboard_user, passwords.get("edgedsm-dashboard"))
         if dashboard is not None:
             stack.callback(dashboard.stop)
             print(f"edgedsm demo: plant dashboard at {dashboard.url}")
@@ -145,7 +161,7 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
             if "alert" in line and re.search(r"-> dry\b(?!ing)", line):
                 dry.set()
 
-        watcher = Watcher(config.mqtt, password=None, emit=emit)
+        watcher = Watcher(viewer, password=passwords.get("edgedsm-viewer"), emit=emit)
         watcher.start()
         try:
             finished = dry.wait(time_limit)
@@ -167,17 +183,30 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
     return 0
 
 
-def _start_dashboard(config: DaemonConfig, config_path: Path, listen: str) -> Dashboard:
+@contextlib.contextmanager
+def _environment(name: str, value: str) -> Iterator[None]:
+    previous = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = previous
+
+
+def _start_dashboard(config: DaemonConfig, config_path: Path, listen: str, mqtt: MqttSettings,
+                     password: str | None) -> Dashboard:
     """The plant dashboard on the demo's broker, its history beside the daemon's state."""
     from edgedsm.dashboard.app import Dashboard, DashboardSettings
 
-    assert config.mqtt is not None
     host, _, port = listen.rpartition(":")
-    settings = DashboardSettings(mqtt=config.mqtt, listen=(host or "127.0.0.1", int(port)),
+    settings = DashboardSettings(mqtt=mqtt, listen=(host or "127.0.0.1", int(port)),
                                  database=Path(config.device.state_dir) / "dashboard.sqlite3", retention_s=86400.0,
                                  token=None, daemon_configs=[config_path])
     try:
-        return Dashboard(settings, password=None).serve_in_background()
+        return Dashboard(settings, password=password).serve_in_background()
     except OSError:  # the port is taken: any free one
         settings.listen = (settings.listen[0], 0)
-        return Dashboard(settings, password=None).serve_in_background()
+        return Dashboard(settings, password=password).serve_in_background()
