@@ -287,7 +287,8 @@ def test_off_overrides_a_stopped_daemon(pty_pair: PtyPair, tmp_path: Path, daemo
     try:
         config = write_daemon_config(tmp_path / "daemon.toml", base_config(tmp_path, laser=uri))
         daemon = daemons(config)
-        daemon.wait_until(lambda: board.is_on, 60, "the relay on (measuring)")
+        daemon.wait_log(r"laser on \(measuring\)", 60)
+        assert board.is_on is True
         daemon.signal(signal.SIGSTOP)
         daemon.wait_until(lambda: _stopped(daemon.process.pid), 5, "the daemon stopped")
         sent = len(board.frames())
@@ -298,7 +299,16 @@ def test_off_overrides_a_stopped_daemon(pty_pair: PtyPair, tmp_path: Path, daemo
         assert f"locked by process {daemon.process.pid}: overriding the lock" in done.stderr
         assert board.is_on is False
         assert board.frames()[sent:] == [OFF["modbus"], READ["modbus"]] * 2
-        daemon.signal(signal.SIGCONT)  # it finds the relay off under it; SIGTERM then ends it
+        # continued, it finds the relay off under it (its readback, at the latest after its 5 s
+        # check interval): a fault, the laser state unknown until its own off is confirmed; then it
+        # measures again, laser on, as its plan wants. The override is for a hung daemon, not a way
+        # to overrule a running one (docs/laser-safety.md).
+        resumed = time.monotonic()
+        daemon.signal(signal.SIGCONT)
+        daemon.wait_log(r"laser relay (reports off|did not report its state|failed while switching)", 15)
+        daemon.wait_log(r"laser confirmed off after the relay error", 15)
+        daemon.wait_until(lambda: board.is_on, 15, "the continued daemon's laser on again")
+        print(f"the continued daemon: fault, off confirmed, on again in {time.monotonic() - resumed:.1f} s")
         code, _ = daemon.terminate()
         assert board.is_on is False
         print(f"daemon exit after SIGCONT and SIGTERM: {code}")
