@@ -65,7 +65,8 @@ ensure_venv() {
     if ! "${pip[@]}" install --require-hashes --no-deps -r "$req/pip.lock" 2> >("${quiet[@]}" >&2) ||
        ! "${pip[@]}" install --require-hashes --no-deps --build-constraint "$req/build.lock" -r "$lock" \
             2> >("${quiet[@]}" >&2) ||
-       ! "${pip[@]}" install --no-deps --build-constraint "$req/build.lock" -e "$ROOT" 2> >("${quiet[@]}" >&2); then
+       ! "${pip[@]}" install --quiet --no-deps --build-constraint "$req/build.lock" -e "$ROOT" \
+            2> >("${quiet[@]}" >&2); then  # (--quiet twice: errors only, not setuptools' editable notice)
         echo "edgedsm: pip could not install requirements/$name.lock and edgedsm into $VENV" >&2
         return 1
     fi
