@@ -73,6 +73,17 @@ class CameraSection(StrictModel):
             raise ValueError(str(exc)) from None
         return value
 
+    @field_validator("pixel_format")
+    @classmethod
+    def _known_pixel_format(cls, value: str | None) -> str | None:
+        # the formats a camera accepts (Camera.set_pixel_format): refused here, not by the start (exit 69)
+        from edgedsm.devices.camera.base import PIXEL_FORMATS
+
+        if value is not None and value not in PIXEL_FORMATS:
+            raise ValueError(f"{value!r} is not a pixel format edgedsm measures with: use one of "
+                             f"{', '.join(sorted(PIXEL_FORMATS))}")
+        return value
+
     @property
     def spec(self) -> CameraSpec:
         """The parsed camera URI, relative paths resolved against the config file's directory and

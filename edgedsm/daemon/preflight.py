@@ -8,6 +8,9 @@ rule per fact, each a ConfigError (exit 78) naming its key path:
   one that can be created, on a file system that keeps files (not /proc, /sys or /dev); an
   empty file is created and removed to prove it. (A recording directory failing later, a full
   disk, is a fault alert and the measurement goes on: docs/recording.md.)
+- ``camera.pixel_format`` of a simulated camera: the one its scene's detector delivers;
+  ``laser.uri`` as a pyserial URL (``socket://``, ``rfc2217://``): a protocol pyserial knows
+  (checked, nothing opened; the relay itself is opened by the start, a device error then).
 - ``http.listen``: the host resolves (``getaddrinfo``) and is an address of this machine (a
   socket binds to it on a free port; the configured port is not taken here: a running daemon
   holds it while ``check-config`` runs, and the start refuses a taken port itself).
@@ -43,7 +46,7 @@ VIRTUAL_FILESYSTEMS = frozenset({"proc", "sysfs", "devtmpfs", "devpts", "cgroup"
 def preflight(config: DaemonConfig, frame_shape: tuple[int, int] | None = None, *, memory: bool = True) -> None:
     """Every rule of the module docstring; ConfigError with one line per problem."""
     problems: list[str] = []
-    for check in (_state_dir, _listen, _mqtt):
+    for check in (_devices, _state_dir, _listen, _mqtt):
         try:
             check(config)
         except ConfigError as exc:
@@ -67,6 +70,33 @@ def preflight_start(config: DaemonConfig) -> tuple[int, int] | None:
     frame_shape = known_frame_shape(config.camera.spec)
     preflight(config, frame_shape)
     return frame_shape
+
+
+# -- camera and laser, without opening them ---------------------------------------------------
+
+def _devices(config: DaemonConfig) -> None:
+    """A simulated camera asked for a pixel format its scene's detector does not deliver, and a
+    relay URL pyserial does not know: refused by the start too (the first as a device fault,
+    exit 69, restarted over and over), found here without touching a device."""
+    problems = []
+    camera = config.camera
+    if camera.pixel_format is not None and camera.spec.scheme == "sim":
+        from edgedsm.devices.camera.sim import SimulatedCamera
+        from edgedsm.devices.camera.uri import open_camera
+
+        sim = open_camera(camera.spec)  # constructed, not opened: nothing simulated yet
+        if isinstance(sim, SimulatedCamera) and camera.pixel_format != sim.delivers:
+            problems.append(f"camera.pixel_format: {camera.pixel_format}: the scene's {sim.bits}-bit detector "
+                            f"delivers {sim.delivers}")
+    if config.laser is not None and config.laser.spec.kind != "sim" and config.laser.spec.is_url:
+        from edgedsm.devices.laser._serial import open_port
+
+        try:
+            open_port(config.laser.spec, do_not_open=True)
+        except ConfigError as exc:
+            problems.append(f"laser.uri: {exc}")
+    if problems:
+        raise ConfigError("\n".join(problems))
 
 
 # -- device.state_dir ------------------------------------------------------------------------

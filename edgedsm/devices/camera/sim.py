@@ -99,8 +99,12 @@ class SimulatedCamera(Camera):
             raise DeviceError(f"{self.description}: only the full {size}x{size} region is simulated")
         return region
 
+    @property
+    def delivers(self) -> str:
+        """The one pixel format the scene's detector delivers (the only one it can be set to)."""
+        return "Mono8" if self.bits <= 8 else "Mono16"
+
     def _do_set_pixel_format(self, pixel_format: str) -> str:
-        wanted = "Mono8" if self.bits <= 8 else "Mono16"
-        if pixel_format != wanted:
-            raise DeviceError(f"{self.description}: the scene's {self.bits}-bit detector delivers {wanted}")
+        if pixel_format != self.delivers:
+            raise DeviceError(f"{self.description}: the scene's {self.bits}-bit detector delivers {self.delivers}")
         return pixel_format

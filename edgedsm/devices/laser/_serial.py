@@ -82,12 +82,13 @@ def lock_holder(path: str) -> int | None:
     return None
 
 
-def open_port(spec: RelaySpec, *, exclusive: bool = True) -> SerialBase:
+def open_port(spec: RelaySpec, *, exclusive: bool = True, do_not_open: bool = False) -> SerialBase:
     """Open the spec's port with pyserial's ``serial_for_url`` (device paths and URLs alike).
 
     ``exclusive``: take the port's lock (flock), so that a technician's tool and the daemon
     never talk at once; a port another process holds is :class:`PortLocked`. Without it (only
-    to switch off: ``edgedsm laser off``) the port is opened whoever holds it."""
+    to switch off: ``edgedsm laser off``) the port is opened whoever holds it. ``do_not_open``:
+    only check the URL and settings (ConfigError, as opening would say), touching nothing."""
     if serial is None:
         raise DeviceError("cannot open a serial relay: pyserial is not installed "
                           "(pip install pyserial)")
@@ -103,7 +104,7 @@ def open_port(spec: RelaySpec, *, exclusive: bool = True) -> SerialBase:
         # A lock on the device keeps a technician's tool and the daemon from talking at once.
         kwargs["exclusive"] = True
     try:
-        return serial.serial_for_url(spec.port, **kwargs)
+        return serial.serial_for_url(spec.port, do_not_open=do_not_open, **kwargs)
     except ValueError as exc:  # pyserial's answer to a malformed URL or setting
         raise ConfigError(f"relay URI {spec.uri!r}: {exc}") from exc
     except PORT_ERRORS as exc:

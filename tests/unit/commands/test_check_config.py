@@ -152,6 +152,23 @@ def test_a_command_key_file_with_no_key(tmp_path: Path, capsys: pytest.CaptureFi
     assert "holds no key" in refused_alike(path, "mqtt.command_key_file", capsys)
 
 
+@pytest.mark.parametrize(("camera", "key", "said"), [
+    # once a device fault at the start (exit 69, restarted every 10 s), now a configuration error
+    ('uri = "sim:default"\npixel_format = "Mono99"', "camera.pixel_format", "'Mono99' is not a pixel format"),
+    ('uri = "sim:default"\npixel_format = "Mono16"', "camera.pixel_format",
+     "Mono16: the scene's 8-bit detector delivers Mono8"),
+])
+def test_a_pixel_format_the_camera_cannot_deliver(camera: str, key: str, said: str, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    assert said in refused_alike(_config(tmp_path, "", camera=camera), key, capsys)
+
+
+def test_a_relay_url_pyserial_does_not_know(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _config(tmp_path, "")
+    path.write_text(path.read_text().replace('uri = "sim:line3"', 'uri = "serial:xyz://relay?protocol=modbus"'))
+    assert "invalid URL, protocol 'xyz' not known" in refused_alike(path, "laser.uri", capsys)
+
+
 def test_every_problem_is_said_at_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = _config(tmp_path, _broker() + '\n[http]\nlisten = "no-such-host.invalid:9108"\n', state_dir="/proc")
     assert main(["check-config", str(path)]) == 78
