@@ -24,20 +24,12 @@ from typing import Self
 
 import numpy as np
 
-from edgedsm.errors import DataError
+from edgedsm.frameio.budget import check_bytes
 from edgedsm.frameio.channels import CHANNELS, select_channel
+from edgedsm.frameio.errors import InputMissing, ReaderError
 
 log = logging.getLogger(__name__)
-
-
-class ReaderError(DataError):
-    """A frame source cannot be read as frames (exit code 65: the data, not the program)."""
-
-
-class InputMissing(ReaderError):
-    """The input named does not exist (exit code 66, EX_NOINPUT)."""
-
-    exit_code = 66
+__all__ = ["FrameReader", "InputMissing", "ReaderError", "Stamps", "describe_shape"]
 
 
 @dataclass(frozen=True)
@@ -161,8 +153,6 @@ class FrameReader(abc.ABC):
         """Frames ``start`` .. ``start+count-1`` as one (count, H, W) array: the only place a
         reader holds more than a frame, on purpose (a batch map needs its window). ``wrap``
         wraps the frames as they are read (a progress bar)."""
-        from edgedsm.frameio.budget import check_bytes  # budget's errors are ReaderErrors: imported here
-
         check_bytes(self.path, f"a window of {count} frames", count * math.prod(self.shape) * self.dtype.itemsize)
         stack = np.empty((count, *self.shape), self.dtype)
         frames = self.frames(start, start + count)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.frameio.base import ReaderError
+from edgedsm.frameio.errors import ReaderError
 
 #: Pixels one frame may have (rows x columns; colour samples are counted in its bytes).
 MAX_FRAME_PIXELS = 2 ** 28
