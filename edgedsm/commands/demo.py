@@ -19,6 +19,7 @@ import contextlib
 import logging
 import os
 import re
+import shutil
 import sys
 import threading
 import time
@@ -128,7 +129,12 @@ def _daemon_demo(config: DaemonConfig, config_path: Path, broker: str | None, ti
     viewer, dashboard_user = config.mqtt, config.mqtt  # who watches, and the dashboard: as the daemon
     passwords: dict[str, str | None] = {}
     with contextlib.ExitStack() as stack:
-        if broker is None:
+        if broker is None and shutil.which("openssl") is None:  # makes the broker's certificates
+            local_plain = stack.enter_context(LocalBroker())
+            config.mqtt.host, config.mqtt.port = "127.0.0.1", local_plain.port
+            print(f"\nedgedsm demo: started a private mosquitto on 127.0.0.1:{local_plain.port}, anonymous "
+                  "(openssl is not installed: apt-get install openssl for the TLS broker of docs/security.md)")
+        elif broker is None:
             local = stack.enter_context(LocalBroker(secure=True, prefix=config.mqtt.topic_prefix,
                                                     device=config.mqtt.device))
             config.mqtt.host, config.mqtt.port = "localhost", local.port
