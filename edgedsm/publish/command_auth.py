@@ -130,7 +130,8 @@ class ReplayGuard:
 
     def admit(self, nonce: str, expires: float, now: float) -> str | None:
         """Remember ``nonce`` until ``expires``; why not (replayed, full), or None."""
-        for old, until in list(self._expiry.items()):  # ordered by insertion; expiries nearly so
+        while self._expiry:  # ordered by insertion, expiries nearly so: forget from the oldest
+            old, until = next(iter(self._expiry.items()))
             if until > now:
                 break
             del self._expiry[old]
