@@ -13,10 +13,11 @@ mask may name.
 from __future__ import annotations
 
 import os
+import signal
 import struct
 import subprocess
+import sys
 import tempfile
-import time
 import zlib
 from collections.abc import Callable
 from pathlib import Path
@@ -348,28 +349,33 @@ def mask_cases(d: Path) -> dict[str, Path]:
 
 # -- measuring a refusal -----------------------------------------------------------------------
 
-def reap(process: subprocess.Popen[Any], timeout: float) -> tuple[int, float]:
-    """Wait (bounded) for ``process`` to end and reap it with ``wait4``: (its exit code, negative
-    for a signal, as Popen gives it; its own peak RSS in MiB). Killed at the timeout."""
-    deadline = time.monotonic() + timeout
-    while True:
-        pid, status, usage = os.wait4(process.pid, os.WNOHANG)
-        if pid == process.pid:
-            break
-        if time.monotonic() > deadline:
-            process.kill()
-            pid, status, usage = os.wait4(process.pid, 0)
-            break
-        time.sleep(0.02)
-    process.returncode = os.waitstatus_to_exitcode(status)
-    return process.returncode, usage.ru_maxrss / 1024
+#: Runs argv[2:] and writes "<exit code> <peak RSS in KiB>" of it to the file argv[1]. A child's
+#: ru_maxrss includes the RSS of the process it was forked from (the high-water mark survives
+#: exec), so the command is started by this small interpreter, not by the test process whose
+#: RSS grows with every test it ran.
+_MEASURE = """
+import os, sys
+pid = os.posix_spawn(sys.argv[2], sys.argv[2:], os.environ)
+_, status, usage = os.wait4(pid, 0)
+with open(sys.argv[1], "w") as out:
+    out.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
+"""
 
 
 def run_measured(command: list[str], timeout: float = 60.0, **popen: Any) -> tuple[int, str, float]:
-    """Run ``command``: (exit code, its stderr, its peak RSS in MiB)."""
-    with tempfile.TemporaryFile() as err:
-        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
-                                   **popen)
-        code, rss = reap(process, timeout)
-        err.seek(0)
-        return code, err.read().decode(errors="replace"), rss
+    """Run ``command`` (its first item an absolute path): (its exit code, negative for a signal
+    as Popen gives it; its stderr; its own peak RSS in MiB). Killed, with its session, at the timeout."""
+    with tempfile.TemporaryDirectory() as folder:
+        report, err_path = Path(folder) / "report", Path(folder) / "stderr"
+        with open(err_path, "wb") as err:
+            process = subprocess.Popen([sys.executable, "-I", "-c", _MEASURE, str(report), *command],
+                                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
+                                       start_new_session=True, **popen)
+            try:
+                process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+                raise AssertionError(f"{command} did not end within {timeout} s") from None
+        code, rss_kib = report.read_text().split()
+        return int(code), err_path.read_text(errors="replace"), int(rss_kib) / 1024

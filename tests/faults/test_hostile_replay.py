@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -20,8 +21,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers_daemon import Daemon
+from helpers_daemon import Daemon, write_config
 from helpers_faults import RelayRig, daemon_config
+from helpers_mqtt import child_env
 
 from tests import hostile_files
 
@@ -43,6 +45,10 @@ def _config(tmp_path: Path, camera: str, laser: str) -> dict[str, Any]:
     return config
 
 
+def _env() -> dict[str, str]:
+    return {k: v for k, v in child_env().items() if not k.startswith(("NOTIFY_SOCKET", "WATCHDOG_"))}
+
+
 def _refusal_lines(log: str) -> list[str]:
     return [line for line in log.splitlines() if line.startswith("edgedsm: ")]
 
@@ -50,13 +56,12 @@ def _refusal_lines(log: str) -> list[str]:
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("case", DAEMON_CASES)
 def test_a_hostile_replay_file_ends_the_daemon_cleanly_with_the_laser_off(
-        tmp_path: Path, case: str, relay_board: RelayRig, daemons: Callable[[dict[str, Any]], Daemon]) -> None:
+        tmp_path: Path, case: str, relay_board: RelayRig) -> None:
     write, code, fragment = hostile_files.CASES[case]
     path = write(tmp_path)
-    daemon = daemons(_config(tmp_path, f"replay:{path}", relay_board.uri))
-    got, rss_mib = hostile_files.reap(daemon.process, 40)
-    daemon.wait(5)  # collects the rest of its log
-    log = daemon.log
+    config = write_config(tmp_path / "daemon.toml", _config(tmp_path, f"replay:{path}", relay_board.uri))
+    got, log, rss_mib = hostile_files.run_measured([sys.executable, "-m", "edgedsm", "run", "-c", str(config)],
+                                                   timeout=40, env=_env())
     assert got >= 0, f"killed by signal {signal.Signals(-got).name}:\n{log}"
     assert "Traceback" not in log, log
     expected = 78 if case == "missing" else code  # a missing replay path is the config's: exit 78
