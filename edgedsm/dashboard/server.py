@@ -11,6 +11,7 @@ import json
 import logging
 import math
 import queue
+import select
 import socket
 import ssl
 import threading
@@ -367,7 +368,15 @@ class Handler(GuardedHandler):
 
 def _peer_closed(sock: socket.socket) -> bool:
     """Whether the page went away (its end of file is waiting): its stream's place is freed within a
-    second, not at the next failed write. The plain socket's peek, even under TLS."""
+    second, not at the next failed write. A poll that never waits, then the plain socket's peek
+    (even under TLS: the bytes stay for the TLS layer)."""
+    poller = select.poll()
+    poller.register(sock.fileno(), select.POLLIN)
+    ready = poller.poll(0)
+    if not ready:
+        return False
+    if ready[0][1] & (select.POLLERR | select.POLLHUP | select.POLLNVAL):
+        return True
     try:
         return socket.socket.recv(sock, 1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
     except (BlockingIOError, InterruptedError):
