@@ -5,6 +5,8 @@ deadlines (a slowloris trickling bytes is still closed), event-stream caps; on r
 from __future__ import annotations
 
 import http.client
+import logging
+import os
 import resource
 import socket
 import subprocess
@@ -240,3 +242,32 @@ def test_a_hard_limit_too_small_for_the_connections_is_a_config_error() -> None:
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert done.returncode == 1
     assert "ConfigError: dashboard: max_connections 128 needs 384 open files; the limit is 256" in done.stderr
+
+
+def test_out_of_descriptors_the_accept_loop_frees_one_and_does_not_spin(server: GuardedServer,
+                                                                      caplog: pytest.LogCaptureFixture) -> None:
+    """With the open-file limit reached, ``accept()`` fails at once and the listening socket stays
+    readable: the loop closes the oldest idle connection (or pauses) instead of spinning a core."""
+    port = server.server_address[1]
+    child = ("import resource, socket, time\n"
+             "resource.setrlimit(resource.RLIMIT_NOFILE, (256, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))\n"
+             f"held = [socket.create_connection(('127.0.0.1', {port}), timeout=5) for _ in range(40)]\n"
+             "time.sleep(3)\n")
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    room = len(os.listdir("/proc/self/fd")) + 3  # the child's pipe, then two connections
+    resource.setrlimit(resource.RLIMIT_NOFILE, (room, hard))
+    caplog.set_level(logging.WARNING, logger="edgedsm.publish.http_guard")
+    try:
+        holder = subprocess.Popen([sys.executable, "-c", child])
+        time.sleep(1.0)  # the 40 connect; the server runs out of descriptors on the way
+        cpu = time.process_time()
+        time.sleep(1.5)
+        cpu = time.process_time() - cpu
+        counts = server.limiter.counts()
+    finally:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    assert holder.wait(timeout=10) == 0
+    assert cpu < 0.15, cpu  # a spinning accept loop burns ~1.5 CPU-s here
+    assert any("cannot accept a connection: Too many open files" in r.getMessage() for r in caplog.records)
+    assert counts["evicted"] >= 1 and counts["open"] <= 4
+    assert _get(server) == (200, b"hello")
