@@ -177,9 +177,10 @@ class ConnectionLimiter:
     def waiting(self, conn: Connection) -> None:
         """Its thread now reads the next request's headers: evictable, with a deadline."""
         with self._cond:
-            timeout = self.limits.header_timeout_s if conn.requests == 0 else self.limits.idle_timeout_s
+            if conn.requests > 0:  # the first request keeps the deadline of its admission (TLS handshake included)
+                conn.deadline = time.monotonic() + self.limits.idle_timeout_s
             conn.requests += 1
-            conn.waiting, conn.deadline = True, time.monotonic() + timeout
+            conn.waiting = True
             self._cond.notify()
 
     def active(self, conn: Connection) -> None:
