@@ -2,7 +2,7 @@
 
 Each command module exposes ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
 Errors edgedsm raises on purpose are printed as one clear message and end the process with the
-error's ``exit_code``: 78 configuration, 65 bad data, 69 device unavailable, 1 otherwise.
+error's ``exit_code`` and named by its ``kind`` (edgedsm.errors).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import logging
 import sys
 
 from edgedsm import __version__
-from edgedsm.errors import ConfigError, DataError, DeviceError, EdgedsmError
+from edgedsm.errors import ConfigError, EdgedsmError
 from edgedsm.estimators.jit import configure_threading
 
 COMMANDS = ("demo", "simulate", "analyze", "thsp", "tune", "record", "reproduce", "bench", "run", "check-config",
@@ -21,9 +21,6 @@ COMMANDS = ("demo", "simulate", "analyze", "thsp", "tune", "record", "reproduce"
 
 EXIT_ERROR = 1
 EXIT_USAGE = 2
-_KIND = {DataError.exit_code: "bad data", DeviceError.exit_code: "device unavailable"}
-
-
 def command_named(argv: list[str]) -> str | None:
     """The command ``argv`` names (its first word that is not an option; the program's own options
     take no values), if it is one of ``COMMANDS``."""
@@ -78,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"edgedsm: configuration error:\n{exc}", file=sys.stderr)
         return exc.exit_code
     except EdgedsmError as exc:
-        print(f"edgedsm: {_KIND.get(exc.exit_code, 'error')}: {exc}", file=sys.stderr)
+        print(f"edgedsm: {exc.kind}: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("edgedsm: interrupted", file=sys.stderr)

@@ -1,7 +1,8 @@
 """Exception hierarchy shared by every part of edgedsm.
 
 Each error the CLI may end on carries its process exit code (sysexits.h), so that systemd can
-act on it (``RestartPreventExitStatus=78``): 78 configuration, 65 bad data, 69 device unavailable.
+act on it (``RestartPreventExitStatus=78 65``): 78 configuration, 65 bad data, 66 missing input, 69 device
+unavailable, 73 output exists, 74 write failed.
 """
 
 
@@ -9,6 +10,8 @@ class EdgedsmError(Exception):
     """Base class of every error edgedsm raises on purpose."""
 
     exit_code = 1
+    #: What the CLI's one line calls it (``edgedsm: <kind>: <message>``).
+    kind = "error"
 
 
 class ConfigError(EdgedsmError):
@@ -25,6 +28,7 @@ class DataError(EdgedsmError):
     the file. Exit code 65 (EX_DATAERR): restarting would not help."""
 
     exit_code = 65
+    kind = "bad data"
 
 
 class EstimatorError(EdgedsmError, ValueError):
@@ -39,6 +43,7 @@ class DeviceError(EdgedsmError):
     """A camera or relay misbehaved. Exit code 69 (EX_UNAVAILABLE): it may work after a restart."""
 
     exit_code = 69
+    kind = "device unavailable"
 
 
 class DeviceUnavailable(DeviceError):

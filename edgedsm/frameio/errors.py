@@ -13,3 +13,4 @@ class InputMissing(ReaderError):
     """The input named does not exist (exit code 66, EX_NOINPUT)."""
 
     exit_code = 66
+    kind = "no input"

@@ -50,12 +50,14 @@ class WriteFailed(EdgedsmError):
     (EX_IOERR). The frames written before stay readable."""
 
     exit_code = 74
+    kind = "write failed"
 
 
 class OutputExists(EdgedsmError):
     """The output file exists already (exit code 73, EX_CANTCREAT): recordings are not overwritten."""
 
     exit_code = 73
+    kind = "output exists"
 
 
 def page_description(seq: int, t_ns: int, laser: str, header: dict[str, Any] | None = None) -> str:

@@ -54,7 +54,7 @@ def test_analyze_refuses_each_case_in_one_line_writing_nothing(tmp_path, name):
     print(f"analyze {name}: exit {got}, peak RSS {rss:.0f} MiB")
     assert got == code, stderr
     line = _one_refusal(stderr, path, fragment)
-    assert line.startswith("edgedsm: bad data: " if code == 65 else "edgedsm: error: ")
+    assert line.startswith("edgedsm: bad data: " if code == 65 else "edgedsm: no input: ")
     assert not out.exists() or list(out.iterdir()) == []
     assert rss < RSS_LIMIT_MIB
 

@@ -20,6 +20,14 @@ def test_each_error_carries_its_exit_code():
     assert EdgedsmError.exit_code == 1
 
 
+def test_a_missing_input_exits_66_and_says_no_input(tmp_path, capsys):
+    assert main(["analyze", str(tmp_path / "absent.npy"), "--estimator", "s1", "--window", "4",
+                 "--lag", "1", "-o", str(tmp_path / "map.npy")]) == 66
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("edgedsm: no input: "), err
+    assert not (tmp_path / "map.npy").exists()
+
+
 def _folder(tmp_path, sizes):
     folder = tmp_path / "frames"
     folder.mkdir()
