@@ -388,6 +388,8 @@ def test_the_viewer_login_is_required_when_configured(tmp_path: Path) -> None:
     assert still_in.status == 200  # a session already open is not locked out
 
 
+@pytest.mark.alone  # with the flood tests: the module's plant (daemon, browser) is started once
+@pytest.mark.timeout(120)
 def test_the_browser_logs_in_and_sees_live_data(plant: Plant) -> None:
     dashboard = DashboardProcess(["--broker", f"127.0.0.1:{plant.broker.port}", "--listen", "127.0.0.1:0",
                                   "--database", str(plant.tmp / "login.sqlite3")],
