@@ -9,6 +9,7 @@ import hashlib
 import hmac
 import ipaddress
 import logging
+import re
 import secrets
 import socket
 import ssl
@@ -35,6 +36,7 @@ FAILURE_WINDOW_S = 60.0
 FAILURES_PER_CLIENT = 5  # wrong passwords from one address per window, then 429 until the window passes
 FAILURES_TOTAL = 30  # from all addresses per window (a distributed guess), then 429 for everyone
 MAX_SESSIONS = 256  # the oldest session is dropped beyond this
+MAX_FAILING_CLIENTS = 4096  # addresses remembered with their failures (beyond, only the total counts)
 LOGIN_BODY = 4096
 LOGIN_CSP = ("default-src 'none'; style-src 'unsafe-inline'; form-action 'self'; frame-ancestors 'none'; "
              "base-uri 'none'")
@@ -55,8 +57,6 @@ class AccessSettings(StrictModel):
     @field_validator("allowed_hosts")
     @classmethod
     def _names(cls, names: list[str]) -> list[str]:
-        import re
-
         for name in names:
             if not re.match(HOST_NAME_PATTERN, name):
                 raise ValueError(f"{name!r} is not a host name (letters, digits, '.', '-'; no port)")
@@ -175,11 +175,9 @@ class ViewerLogin:
         now = time.monotonic()
         with self._lock:
             self._prune(now)
-            if client not in self._failures and len(self._failures) >= 4096:
-                return  # still counted in the total below
-            self._failures.setdefault(client, deque()).append(now)
-        with self._lock:
             self._all_failures.append(now)
+            if client in self._failures or len(self._failures) < MAX_FAILING_CLIENTS:  # memory stays bounded
+                self._failures.setdefault(client, deque()).append(now)
 
     def _prune(self, now: float) -> None:
         while self._all_failures and self._all_failures[0] < now - FAILURE_WINDOW_S:
