@@ -76,6 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "behind a reverse proxy every viewer is the proxy)")
     web.add_argument("--max-event-streams", type=int, metavar="N",
                      help=f"open pages (live event streams) at once (default {_limit('max_event_streams')})")
+    web.add_argument("--max-event-streams-per-client", type=int, metavar="N",
+                     help=f"open pages from one address (default {_limit('max_event_streams_per_client')}; "
+                          "behind a reverse proxy every viewer is the proxy)")
     web.add_argument("--header-timeout", type=float, metavar="S",
                      help=f"a new connection's request headers must arrive within S seconds "
                           f"(default {_limit('header_timeout_s')})")
@@ -100,14 +103,16 @@ def access_settings(args: argparse.Namespace):  # -> AccessSettings (import kept
     from edgedsm.publish.http_guard import ConnectionLimits
 
     given = {"max_connections": args.max_connections, "max_per_client": args.max_per_client,
-             "max_event_streams": args.max_event_streams, "header_timeout_s": args.header_timeout,
-             "idle_timeout_s": args.idle_timeout}
+             "max_event_streams": args.max_event_streams,
+             "max_event_streams_per_client": args.max_event_streams_per_client,
+             "header_timeout_s": args.header_timeout, "idle_timeout_s": args.idle_timeout}
     limits = {key: value for key, value in given.items() if value is not None}
-    if "max_event_streams" in limits:
+    if "max_event_streams" in limits and "max_event_streams_per_client" not in limits:
         limits["max_event_streams_per_client"] = min(limits["max_event_streams"],
                                                      ConnectionLimits.model_fields["max_event_streams_per_client"].default)
     options = {"max_connections": "--max-connections", "max_per_client": "--max-per-client",
-               "max_event_streams": "--max-event-streams", "header_timeout_s": "--header-timeout",
+               "max_event_streams": "--max-event-streams",
+               "max_event_streams_per_client": "--max-event-streams-per-client", "header_timeout_s": "--header-timeout",
                "idle_timeout_s": "--idle-timeout", "allowed_hosts": "--allowed-host", "tls_cert": "--tls-cert",
                "tls_key": "--tls-key"}
     try:

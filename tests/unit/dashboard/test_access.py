@@ -87,6 +87,11 @@ def _args(*argv: str) -> argparse.Namespace:
     return parser.parse_args(list(argv))
 
 
+def test_behind_a_proxy_the_per_client_caps_can_reach_the_totals() -> None:
+    limits = command.access_settings(_args("--max-per-client", "128", "--max-event-streams-per-client", "32")).limits
+    assert (limits.max_per_client, limits.max_event_streams_per_client) == (128, 32)
+
+
 def test_the_options_make_the_settings() -> None:
     settings = command.access_settings(_args("--allowed-host", "Dash.Plant.Local", "--max-connections", "64",
                                              "--max-per-client", "16", "--max-event-streams", "4",
@@ -102,6 +107,7 @@ def test_the_options_make_the_settings() -> None:
     (["--max-per-client", "0"], "--max-per-client: Input should be greater than or equal to 1"),
     (["--max-connections", "8", "--max-per-client", "9"], "max_per_client must not exceed max_connections"),
     (["--header-timeout", "0"], "--header-timeout: Input should be greater than 0"),
+    (["--max-event-streams-per-client", "33"], "max_event_streams_per_client must not exceed max_event_streams"),
     (["--allowed-host", "evil.example:80"], "--allowed-host"),
     (["--tls-cert", "x.pem"], "tls_cert and tls_key go together"),
 ])
