@@ -41,6 +41,8 @@ def test_the_unit_runs_the_dashboard_without_devices() -> None:
     # this machine only: the plant network through a TLS proxy or a drop-in with HTTPS and a viewer login
     assert f"ExecStart={INSTALLED} dashboard --config-dir /etc/edgedsm --listen 127.0.0.1:8080" in text
     assert "LoadCredential=dashboard-viewer-password:/etc/edgedsm/credentials/dashboard.viewer-password" in text
+    # the key that signs rebaseline and dark for the daemons (edgedsm.publish.command_auth)
+    assert "LoadCredential=command-key:/etc/edgedsm/credentials/dashboard.command-key" in text
     assert "PrivateDevices=yes" in text and "DevicePolicy=closed" in text and "DeviceAllow" not in text
     assert "RestartPreventExitStatus=78" in text
 
