@@ -20,6 +20,7 @@ import sys
 import tempfile
 import zlib
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -353,7 +354,7 @@ def mask_cases(d: Path) -> dict[str, Path]:
 #: ru_maxrss includes the RSS of the process it was forked from (the high-water mark survives
 #: exec), so the command is started by this small interpreter, not by the test process whose
 #: RSS grows with every test it ran.
-_MEASURE = """
+MEASURE_SCRIPT = """
 import os, sys
 pid = os.posix_spawn(sys.argv[2], sys.argv[2:], os.environ)
 _, status, usage = os.wait4(pid, 0)
@@ -362,14 +363,24 @@ with open(sys.argv[1], "w") as out:
 """
 
 
-def run_measured(command: list[str], timeout: float = 60.0, **popen: Any) -> tuple[int, str, float]:
-    """Run ``command`` (its first item an absolute path): (its exit code, negative for a signal
-    as Popen gives it; its stderr; its own peak RSS in MiB). Killed, with its session, at the timeout."""
+@dataclass
+class Measured:
+    """How a command ended: its exit code (negative for a signal), its output and its own peak RSS."""
+
+    code: int
+    out: str
+    err: str
+    rss: int  # bytes
+
+
+def measure(command: list[str], timeout: float = 60.0, **popen: Any) -> Measured:
+    """Run ``command`` (its first item an absolute path) under MEASURE_SCRIPT; killed, with its
+    session, at the timeout."""
     with tempfile.TemporaryDirectory() as folder:
-        report, err_path = Path(folder) / "report", Path(folder) / "stderr"
-        with open(err_path, "wb") as err:
-            process = subprocess.Popen([sys.executable, "-I", "-c", _MEASURE, str(report), *command],
-                                       stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
+        report, out_path, err_path = Path(folder) / "report", Path(folder) / "stdout", Path(folder) / "stderr"
+        with open(out_path, "wb") as out, open(err_path, "wb") as err:
+            process = subprocess.Popen([sys.executable, "-I", "-c", MEASURE_SCRIPT, str(report), *command],
+                                       stdin=subprocess.DEVNULL, stdout=out, stderr=err,
                                        start_new_session=True, **popen)
             try:
                 process.wait(timeout)
@@ -378,4 +389,12 @@ def run_measured(command: list[str], timeout: float = 60.0, **popen: Any) -> tup
                 process.wait()
                 raise AssertionError(f"{command} did not end within {timeout} s") from None
         code, rss_kib = report.read_text().split()
-        return int(code), err_path.read_text(errors="replace"), int(rss_kib) / 1024
+        return Measured(int(code), out_path.read_text(errors="replace"), err_path.read_text(errors="replace"),
+                        int(rss_kib) * 1024)
+
+
+def run_measured(command: list[str], timeout: float = 60.0, **popen: Any) -> tuple[int, str, float]:
+    """Run ``command`` (its first item an absolute path): (its exit code, negative for a signal
+    as Popen gives it; its stderr; its own peak RSS in MiB). Killed, with its session, at the timeout."""
+    done = measure(command, timeout, **popen)
+    return done.code, done.err, done.rss / 2 ** 20

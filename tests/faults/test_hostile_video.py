@@ -12,11 +12,7 @@ analysed, and the maps equal what the estimator gives on the frames written.
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
-import threading
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +22,7 @@ from helpers_faults import RelayRig
 from helpers_mqtt import child_env
 
 from edgedsm.estimators import s1
+from tests.hostile_files import Measured, measure
 from tests.hostile_video import colour_palette, colours, dib_avi, expected, hostile_avis, indices
 
 pytestmark = [pytest.mark.faults, pytest.mark.integration]
@@ -36,38 +33,12 @@ CASES = ("empty", "garbage", "riff only", "headers only", "cut in the frames", "
          "100000x100000", "16000x16000", "45000x4", "45000x4, no count", "FFV1 cut in the frames")
 
 
-@dataclass
-class Exited:
-    code: int
-    out: str
-    err: str
-    rss: int  # peak resident set size, bytes
+def run_measured(args: list[str], timeout: float = CLI_TIMEOUT_S, cwd: Path | None = None) -> Measured:
+    """``python -m edgedsm ARGS``: its exit, output and its own peak RSS (not the test process's)."""
+    return measure([sys.executable, "-m", "edgedsm", *args], timeout, env=child_env(), cwd=cwd)
 
 
-def run_measured(args: list[str], timeout: float = CLI_TIMEOUT_S, cwd: Path | None = None) -> Exited:
-    """``python -m edgedsm ARGS`` as a child of its own; its exit, output and peak RSS (wait4)."""
-    with open(os.devnull, "rb") as stdin, subprocess.Popen(
-            [sys.executable, "-m", "edgedsm", *args], stdin=stdin, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, env=child_env(), cwd=cwd) as child:
-        streams: dict[str, bytes] = {}
-        readers = [threading.Thread(target=lambda name=name, pipe=pipe: streams.__setitem__(name, pipe.read()))
-                   for name, pipe in (("out", child.stdout), ("err", child.stderr))]
-        for reader in readers:
-            reader.start()
-        killer = threading.Timer(timeout, child.kill)
-        killer.start()
-        try:
-            _, status, usage = os.wait4(child.pid, 0)
-        finally:
-            killer.cancel()
-        child.returncode = os.waitstatus_to_exitcode(status)
-        for reader in readers:
-            reader.join(10)
-    return Exited(child.returncode, streams.get("out", b"").decode(errors="replace"),
-                  streams.get("err", b"").decode(errors="replace"), usage.ru_maxrss * 1024)
-
-
-def assert_refused(done: Exited, path: Path, what: str) -> str:
+def assert_refused(done: Measured, path: Path, what: str) -> str:
     """Exit 65, one line on stderr naming the file, no traceback, under the RSS limit."""
     lines = [line for line in done.err.splitlines() if line.strip()]
     assert done.code == 65, f"{what}: exit {done.code}\n{done.err}"
