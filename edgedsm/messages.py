@@ -29,6 +29,8 @@ from edgedsm import _json
 RegionStateName = Literal["warming_up", "wet", "drying", "dry", "fault"]
 #: The laser as the daemon knows it: ``unknown`` after any relay error (never guessed).
 LaserState = Literal["on", "off", "unknown"]
+#: Whether the daemon that published a state is running (the ``<base>/availability`` words).
+Availability = Literal["online", "offline"]
 #: What a published τc is (``edgedsm.estimators.correlation_time`` statuses): ``measured``; ``above``:
 #: no decorrelation within K lags, τc is at least the value (K·Δt); ``below``: decorrelated within one
 #: frame, τc is at most the value (Δt/3); ``no_signal``: σ = 0 (laser off, saturated), value 0.
@@ -139,13 +141,22 @@ class StateReport(Message):
     estimator: str = Field(description="estimator the states are judged on (s1, s2, s3, tau_c, contrast, fujii, im, "
                                        "gd, band_ratio)")
     laser: LaserState = Field("off", description="the laser relay as last confirmed")
+    availability: Availability = Field("online", description="offline: the daemon stopped and this is its last "
+                                                             "word (laser as confirmed at stop, no time to dry)")
     regions: dict[str, RegionState] = Field(default_factory=dict, description="by region name")
+
+    def stopped(self, t: float, laser: LaserState) -> StateReport:
+        """The report a stopping daemon leaves retained: ``offline``, the laser as confirmed at
+        stop, each region's last state kept but no time to dry (nothing extrapolates any more)."""
+        regions = {name: region.model_copy(update={"time_to_dry_s": None}) for name, region in self.regions.items()}
+        return self.model_copy(update={"t": t, "laser": laser, "availability": "offline", "regions": regions})
 
     def moved_from(self, previous: StateReport) -> bool:
         """Whether this report says something ``previous`` did not: a state, the laser, a region,
         an activity (by more than ``ACTIVITY_MOVE``) or a time to dry (by more than
         ``TIME_TO_DRY_MOVE`` of itself, or ``TIME_TO_DRY_MOVE_S``) changed — worth republishing."""
-        if self.laser != previous.laser or self.regions.keys() != previous.regions.keys():
+        if (self.laser != previous.laser or self.availability != previous.availability
+                or self.regions.keys() != previous.regions.keys()):
             return True
         return any(_region_moved(region, previous.regions[name]) for name, region in self.regions.items())
 

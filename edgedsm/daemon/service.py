@@ -158,6 +158,8 @@ class Service:
         try:
             return self._run_pipelines()
         finally:
+            # the retained state's last word: offline, the laser off (or unknown: not confirmed)
+            self.sinks.fanout.stopping("unknown" if self.laser_not_off is not None else "off")
             self.sinks.close(1.0)  # 'offline' out within the 2 s a SIGTERM allows
 
     def _run_pipelines(self) -> int:

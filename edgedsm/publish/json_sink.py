@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from edgedsm.messages import Alert, MapFrame, StateReport, Stats
+from edgedsm.messages import Alert, LaserState, MapFrame, StateReport, Stats
 from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.mqtt import MqttPublisher
 from edgedsm.publish.session import MqttSession
@@ -40,6 +40,8 @@ class MqttSink:
         self.publisher = MqttPublisher(settings, state_dir, on_command, password=password)
         self._regions_file = Path(state_dir) / RETAINED_REGIONS_FILE
         self._region_topics: set[str] | None = None  # None: not read yet
+        self._last_report: StateReport | None = None
+        self._stopped = False
 
     @property
     def topics(self) -> Topics:
@@ -60,6 +62,9 @@ class MqttSink:
     def publish_state(self, report: StateReport) -> None:
         """The combined state, then each region's on ``state/<region>`` (all retained); a region
         published before (by this or an earlier run) and absent now has its topic cleared."""
+        if self._stopped:  # a late evaluation must not overwrite the daemon's last word
+            return
+        self._last_report = report
         self.publisher.publish_state(report.to_json())
         topics = {self.topics.region_state(name): region for name, region in report.regions.items()}
         for topic, region in topics.items():
@@ -104,6 +109,18 @@ class MqttSink:
 
     def flush(self, timeout_s: float) -> bool:
         return self.publisher.flush_maps(timeout_s)
+
+    def stopping(self, laser: LaserState, t: float) -> None:
+        """The daemon stops (``FanOut.stopping``, before :meth:`close`): the retained state and
+        each region's become its last word, ``availability: offline`` with the laser as confirmed
+        at stop and no time to dry, so a reader of the retained state alone is not told the
+        laser is on. Nothing is published without an earlier state (no region to speak of)."""
+        report = self._last_report
+        if report is None or self._stopped:
+            return
+        final = report.stopped(t, laser)
+        self.publish_state(final)
+        self._stopped = True
 
     def close(self, timeout_s: float) -> None:
         self.publisher.close(timeout=timeout_s)

@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Iterable
 from typing import Protocol, runtime_checkable
 
-from edgedsm.messages import Alert, MapFrame, StateReport, Stats
+from edgedsm.messages import Alert, LaserState, MapFrame, StateReport, Stats
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +84,19 @@ class FanOut:
 
     def publish_map(self, frame: MapFrame) -> None:
         self._each("map", lambda sink: sink.publish_map(frame))
+
+    def stopping(self, laser: LaserState) -> None:
+        """The daemon stops, the laser as confirmed (``off``; ``unknown`` when the relay did not
+        confirm): each sink with a ``stopping(laser, t)`` says so before :meth:`close` (the MQTT
+        JSON sink's retained state; the others' ``offline``, NDEATH or server end say enough)."""
+        now = time.time()
+
+        def stop(sink: Sink) -> None:
+            stopping = getattr(sink, "stopping", None)
+            if stopping is not None:
+                stopping(laser, now)
+
+        self._each("stop", stop)
 
     def flush(self, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
