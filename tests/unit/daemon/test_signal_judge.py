@@ -96,13 +96,13 @@ def test_a_model_from_the_frames_is_kept_and_a_floor_reused_while_the_light_hold
     frames = _static(frames=120)
     estimates = _estimates(frames)
     judge.assess({"a": _patch(frames)}, {"a": estimates})
-    model, floor = judge.model, judge._floors["a"]
+    model, floor = judge.model, judge.floor("a")
     assert model is not None and model.source == "frames"
     judge.assess({"a": _patch(frames)}, {"a": estimates})
-    assert judge.model is model and judge._floors["a"] is floor  # nothing recomputed
+    assert judge.model is model and judge.floor("a") is floor  # nothing recomputed
     for _ in range(REFRESH_EVERY):
         judge.assess({"a": _patch(frames)}, {"a": estimates})
-    assert judge._floors["a"] is not floor  # refreshed at least every REFRESH_EVERY assessments
+    assert judge.floor("a") is not floor  # refreshed at least every REFRESH_EVERY assessments
 
 
 def test_s3_above_the_noise_follows_the_current_s1_between_two_assessments():
@@ -115,7 +115,7 @@ def test_s3_above_the_noise_follows_the_current_s1_between_two_assessments():
     estimates = _estimates(frames)
     judge.assess({"a": _patch(frames)}, {"a": estimates})
     floor = region_floor(frames, "s3", 2, judge.model, q=1.0, top=255.0)
-    kept = judge._floors["a"]
+    kept = judge.floor("a")
     assert kept.floor == floor.floor and kept.noise_variance == floor.noise_variance and kept.share == floor.share
     now = judge.judged("a", estimates["s3"], estimates)
     assert now == judge.signals["a"].above_noise and 0.0 < now < estimates["s3"]
