@@ -92,10 +92,16 @@ def connect_in_background(client: mqtt.Client, settings: MqttSettings, *, clean_
     client.loop_start()
 
 
+def refuses_credentials(reason: ReasonCode | str) -> bool:
+    """Whether a CONNACK refusal is about who we are (user name, password, authorisation): the
+    same credentials will be refused again, whatever the retries."""
+    return str(reason) in _AUTH_CODES
+
+
 def describe_refusal(reason: ReasonCode | str, settings: MqttSettings, password_given: bool) -> str:
     """A CONNACK refusal as one sentence that says what to check."""
     text = f"broker {settings.host}:{settings.port} refused the connection: {reason}"
-    if str(reason) in _AUTH_CODES:
+    if refuses_credentials(reason):
         who = f"user {settings.username!r}" if settings.username else "no user name"
         secret = "a password" if password_given else f"no password (set {PASSWORD_ENV})"
         text += f" (sent {who} with {secret})"

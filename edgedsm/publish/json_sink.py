@@ -13,11 +13,12 @@ import os
 from pathlib import Path
 from typing import Any
 
+from edgedsm.errors import ConfigError
 from edgedsm.messages import Alert, LaserState, MapFrame, StateReport, Stats
 from edgedsm.publish.command_channel import CommandHandler
 from edgedsm.publish.mqtt import MqttPublisher
 from edgedsm.publish.session import MqttSession
-from edgedsm.publish.settings import MqttSettings
+from edgedsm.publish.settings import CREDENTIAL_NAME, PASSWORD_ENV, MqttSettings
 from edgedsm.publish.topics import Topics
 
 log = logging.getLogger(__name__)
@@ -25,6 +26,10 @@ log = logging.getLogger(__name__)
 #: In ``device.state_dir``: the per-region state topics this device left retained, so a region
 #: removed while the daemon was stopped is cleared at the next start.
 RETAINED_REGIONS_FILE = "retained-region-topics.json"
+#: How long :meth:`MqttSink.start` waits for the broker's first answer (at most
+#: ``connect_timeout_s``): long enough for a CONNACK on a plant network, short enough that a
+#: broker that does not answer delays measuring by no more than this.
+FIRST_ANSWER_S = 2.0
 
 
 class MqttSink:
@@ -53,8 +58,19 @@ class MqttSink:
         return self.publisher.session
 
     def start(self) -> MqttSink:
-        """Start connecting in the background (returns at once)."""
+        """Start connecting in the background, waiting at most ``FIRST_ANSWER_S`` for the broker's
+        first answer: credentials it refuses then (bad user name or password, not authorised) can
+        never work, a ConfigError (exit 78: not restarted by systemd; a reload is refused). A
+        broker down or slow to answer is retried in the background, measuring goes on."""
         self.publisher.start()
+        session = self.session
+        session.answered.wait(min(FIRST_ANSWER_S, session.settings.connect_timeout_s))
+        if session.refused_credentials:
+            refusal = session.refusal
+            self.publisher.close(timeout=0.5)
+            raise ConfigError(f"mqtt.username: {refusal}: these credentials will be refused every time; fix the "
+                              f"user name or the password (${PASSWORD_ENV}, the credential {CREDENTIAL_NAME!r}) "
+                              f"or the broker's ACL")
         return self
 
     # -- the Sink protocol ------------------------------------------------------------------------
@@ -134,6 +150,17 @@ class MqttSink:
     @property
     def connected(self) -> bool:
         return self.publisher.connected
+
+    @property
+    def refusal(self) -> str | None:
+        """The broker's refusal of our credentials (None while it accepts them, or refuses for
+        another reason): ``/healthz`` reports the service unhealthy meanwhile."""
+        return self.session.refusal if self.session.refused_credentials else None
+
+    @property
+    def last_error(self) -> str | None:
+        """The latest connection problem, or None while all is well."""
+        return self.publisher.last_error
 
     def flush_alerts(self, timeout_s: float) -> bool:
         """Wait (bounded) until every alert is acknowledged by the broker; True if so."""

@@ -34,7 +34,7 @@ ENGINE_FRAMES = 64
 
 
 class LinkHealth(Protocol):
-    """What the metrics read from the MQTT sink (``MqttSink`` has both)."""
+    """What the metrics read from the MQTT sink (``MqttSink`` has them all)."""
 
     @property
     def connected(self) -> bool: ...
@@ -42,13 +42,23 @@ class LinkHealth(Protocol):
     @property
     def pending_alerts(self) -> int: ...
 
+    @property
+    def refusal(self) -> str | None:
+        """The broker's refusal of the daemon's credentials, None while it accepts them."""
+
+    @property
+    def last_error(self) -> str | None:
+        """The latest connection problem, None while all is well."""
+
 
 class MetricsSink:
     """Implements :class:`edgedsm.publish.sink.Sink`; :meth:`frame_taken` and :meth:`frame_pushed`
     are the pipeline's probes (wired by the daemon).
 
     ``stale_after_s``: :meth:`healthy` is False when no frame was taken for this long (or none
-    yet). ``link``: the MQTT sink, for ``edgedsm_mqtt_connected`` and ``edgedsm_alerts_pending``.
+    yet), or while the broker refuses the MQTT link's credentials (nothing is published: the
+    service does not do its job). ``link``: the MQTT sink, for ``edgedsm_mqtt_connected``,
+    ``edgedsm_alerts_pending`` and the MQTT part of ``/healthz``.
     """
 
     def __init__(self, stale_after_s: float, link: LinkHealth | None = None,
@@ -115,15 +125,24 @@ class MetricsSink:
 
     # -- reading -------------------------------------------------------------------------------------
     def healthy(self) -> tuple[bool, str]:
-        """(frames flow, one line saying so) for ``/healthz``."""
+        """(frames flow and the broker takes the credentials, one line saying so) for ``/healthz``.
+        A broker down or unreachable is said but not unhealthy: measuring goes on, alerts are
+        kept for it, and restarting the daemon would not bring the broker back."""
         with self._lock:
             last = self._last_frame_t
+        link = self.link
+        mqtt = ""
+        if link is not None:
+            refusal = link.refusal
+            if refusal is not None:
+                return False, f"MQTT: {refusal}"
+            mqtt = "; MQTT connected" if link.connected else f"; MQTT not connected: {link.last_error or 'connecting'}"
         if last is None:
-            return False, "no frame yet"
+            return False, "no frame yet" + mqtt
         age = self._monotonic() - last
         if age > self.stale_after_s:
-            return False, f"no frame for {age:.1f} s (more than {self.stale_after_s:g} s)"
-        return True, f"frames flowing (last {age:.1f} s ago)"
+            return False, f"no frame for {age:.1f} s (more than {self.stale_after_s:g} s)" + mqtt
+        return True, f"frames flowing (last {age:.1f} s ago)" + mqtt
 
     def exposition(self) -> bytes:
         """The text exposition format of every metric."""
@@ -152,7 +171,8 @@ class MetricsSink:
         pushed = CounterMetricFamily("edgedsm_engine_frames", "frames pushed into the engine")
         pushed.add_metric([], pushes)
         yield pushed
-        healthy = GaugeMetricFamily("edgedsm_healthy", "1 while frames flow (what /healthz answers 200 to)")
+        healthy = GaugeMetricFamily("edgedsm_healthy", "1 while frames flow and the broker takes the credentials "
+                                    "(what /healthz answers 200 to)")
         healthy.add_metric([], 1.0 if self.healthy()[0] else 0.0)
         yield healthy
         if self.link is not None:

@@ -33,6 +33,7 @@ from edgedsm.publish.connection import (
     describe_refusal,
     diagnose,
     make_client,
+    refuses_credentials,
 )
 from edgedsm.publish.errors import PublishError
 from edgedsm.publish.settings import MqttSettings, resolve_password
@@ -85,6 +86,10 @@ class MqttSession:
         #: Set once connected AND the broker answered the subscriptions made at that connection.
         self.ready = threading.Event()
         self.refusal: str | None = None  # the broker's refusal of our CONNECT, None once accepted
+        #: The refusal is about the credentials (bad user name or password, not authorised).
+        self.refused_credentials = False
+        #: Set at the first answer to a connection attempt: accepted, refused or failed.
+        self.answered = threading.Event()
         self.last_error: str | None = None  # the latest problem, None while all is well
         self.connects = self.disconnects = 0
         self._problems = ProblemLog(logger)
@@ -286,10 +291,14 @@ class MqttSession:
         if reason.is_failure:
             message = describe_refusal(reason, self.settings, self.password is not None)
             self.refusal = self.last_error = message
+            self.refused_credentials = refuses_credentials(reason)
+            self.answered.set()
             self._problems.report(f"{self.label}: {message}", logging.ERROR)
             self._run_all("refused", message)
             return
         self.refusal = self.last_error = None
+        self.refused_credentials = False
+        self.answered.set()
         self._problems.reset()
         self.connects += 1
         self._log.info("%s connected to %s:%d as %r", self.label, self.settings.host, self.settings.port,
@@ -329,6 +338,7 @@ class MqttSession:
         if self._problems.due() or self.last_error is None:
             # Costs one extra connection attempt, so only when we are about to log anyway.
             self.last_error = diagnose(self.settings, self.ssl_context)
+        self.answered.set()
         self._problems.report(f"{self.label}: {self.last_error}; retrying", logging.WARNING)
 
     def _on_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason: ReasonCode,

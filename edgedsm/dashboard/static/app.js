@@ -67,6 +67,22 @@ function regionStates(device) {
   return out;
 }
 
+function isStale(device) {
+  // offline (a clean stop or the broker's last will): what the page holds is the last word, not now
+  return device.availability === "offline";
+}
+
+function laserText(device) {
+  // a stopped daemon vouches only for its retained last word (off at a clean stop); the stats before it are older
+  const state = device.state || {};
+  if (isStale(device)) return state.availability === "offline" && typeof state.laser === "string" ? state.laser : "unknown";
+  return (device.stats && device.stats.laser) || state.laser || "–";
+}
+
+function staleLine(device) {
+  return `offline · laser ${laserText(device)} · last heard ${clock(device.last_seen)} · the figures are the last received`;
+}
+
 const SIGNALS = ["ok", "low", "dark", "saturated", "not_speckle"];
 
 function signalBadge(signal) {
@@ -103,11 +119,13 @@ function renderCard(name) {
 function card(name) {
   const device = devices.get(name);
   const availability = device.availability || "unknown";
-  const node = el("div", { class: "device-card" + (name === selected ? " selected" : ""), "data-device": name },
+  const stale = isStale(device);
+  const node = el("div", { class: "device-card" + (name === selected ? " selected" : "") + (stale ? " stale" : ""), "data-device": name },
     el("div", { class: "name" }, name, " ", el("span", { class: `badge ${availability === "online" ? "online" : availability === "offline" ? "offline" : "unknown"}` }, availability)));
   const stats = device.stats;
-  node.append(el("div", { class: "muted" }, stats ? `${fmt(stats.fps, 3)} fps · laser ${stats.laser}` : "no statistics yet"));
-  const regions = el("div", { class: "regions" });
+  node.append(el("div", { class: "muted status-line" }, stale ? `laser ${laserText(device)} · last heard ${clock(device.last_seen)}`
+    : stats ? `${fmt(stats.fps, 3)} fps · laser ${stats.laser}` : "no statistics yet"));
+  const regions = el("div", { class: "regions" + (stale ? " stale" : "") });
   for (const [region, value] of Object.entries(regionStates(device))) {
     regions.append(el("span", { class: `badge ${stateClass(value.state)}`, "data-region": region }, `${region}: ${value.state}`));
   }
@@ -134,19 +152,22 @@ function renderDetail() {
   $("detail-title").textContent = selected;
   const stats = device.stats || {};
   const drops = Object.entries(stats.drops || {}).map(([k, v]) => `${k} ${v}`).join(", ") || "none";
+  const stale = isStale(device);
   $("device-stats").replaceChildren(
     el("span", { class: `badge ${device.availability === "online" ? "online" : "offline"}` }, device.availability || "unknown"), " ",
-    `laser ${stats.laser || (device.state && device.state.laser) || "–"} · ${fmt(stats.fps, 3)} fps · frames ${stats.frames ?? "–"} · drops ${drops} · ambient ${fmt(stats.ambient_level)} · estimator ${stats.estimator || "–"}`,
-    stats.warning ? el("span", { class: "badge drying" }, `warning: ${stats.warning}`) : "");
+    stale ? el("span", { class: "stale-line" }, staleLine(device))
+      : `laser ${laserText(device)} · ${fmt(stats.fps, 3)} fps · frames ${stats.frames ?? "–"} · drops ${drops} · ambient ${fmt(stats.ambient_level)} · estimator ${stats.estimator || "–"}`,
+    !stale && stats.warning ? el("span", { class: "badge drying" }, `warning: ${stats.warning}`) : "");
   const rows = Object.entries(regionStates(device)).map(([name, value]) =>
-    el("tr", { class: "region-row", "data-region": name },
+    el("tr", { class: "region-row" + (stale ? " stale" : ""), "data-region": name },
       el("td", {}, name),
       el("td", {}, el("span", { class: `badge ${stateClass(value.state)}` }, value.state)),
       // judged on τc: the activity is the region's correlation time, in seconds
       el("td", {}, fmt(value.activity) + (stats.estimator === "tau_c" ? " s (τc)" : "")),
       el("td", {}, signalBadge(value.signal)),
       el("td", { class: "above-noise" }, aboveNoise(value.signal)),
-      el("td", {}, duration(value.time_to_dry_s)),
+      // a stopped daemon extrapolates nothing: no time to dry
+      el("td", { class: "time-to-dry" }, stale ? "–" : duration(value.time_to_dry_s)),
       el("td", {}, clock(value.since))));
   $("regions").tBodies[0].replaceChildren(...rows);
   const regionSelect = $("region-select");

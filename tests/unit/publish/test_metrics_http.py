@@ -20,6 +20,8 @@ from tests.ports import free_port
 class Link:
     connected = True
     pending_alerts = 3
+    refusal: str | None = None
+    last_error: str | None = None
 
 
 class FakeClock:
@@ -149,7 +151,7 @@ def test_before_any_frame_metrics_have_no_stats_and_no_engine_figure(sink: Metri
 
 def test_healthz_is_200_while_frames_flow_and_503_otherwise(sink: MetricsSink, clock: FakeClock) -> None:
     status, body = _get(sink, "/healthz")
-    assert (status, body) == (503, b"no frame yet\n")
+    assert (status, body) == (503, b"no frame yet; MQTT connected\n")
     sink.frame_taken(_frame(1), 1)
     clock.now += 4.9
     assert _get(sink, "/healthz")[0] == 200
@@ -157,6 +159,22 @@ def test_healthz_is_200_while_frames_flow_and_503_otherwise(sink: MetricsSink, c
     clock.now += 0.2
     status, body = _get(sink, "/healthz")
     assert status == 503 and b"no frame for 5.1 s" in body
+
+
+def test_healthz_says_the_mqtt_link_and_a_refused_password_is_unhealthy(sink: MetricsSink, clock: FakeClock) -> None:
+    sink.frame_taken(_frame(1), 1)
+    assert _get(sink, "/healthz") == (200, b"frames flowing (last 0.0 s ago); MQTT connected\n")
+    link = sink.link
+    assert isinstance(link, Link)
+    link.connected, link.last_error = False, "cannot reach 127.0.0.1:1883: Connection refused"
+    status, body = _get(sink, "/healthz")  # a broker down: measuring goes on, restarting would not help
+    assert status == 200 and body.endswith(b"; MQTT not connected: cannot reach 127.0.0.1:1883: Connection refused\n")
+    link.refusal = "broker 127.0.0.1:1883 refused the connection: Not authorized (sent user 'line3' with a password)"
+    status, body = _get(sink, "/healthz")  # frames flow, but nothing is published
+    assert status == 503 and body == f"MQTT: {link.refusal}\n".encode()
+    assert _samples(_get(sink, "/metrics")[1])[("edgedsm_healthy", ())] == 0
+    link.refusal = None
+    assert _get(sink, "/healthz")[0] == 200
 
 
 def test_stats_with_more_frames_count_as_flowing_without_probes(sink: MetricsSink, clock: FakeClock) -> None:
