@@ -164,6 +164,10 @@ class FrameReader(abc.ABC):
                               f"{start + count - 1} were asked for")
         return stack
 
+    def __iter__(self) -> Iterator[np.ndarray]:
+        """Every frame from the first, as :meth:`frames` gives them: ``for frame in open_frames(path)``."""
+        return self.frames()
+
     def __enter__(self) -> Self:
         return self
 

@@ -130,3 +130,11 @@ def test_a_closed_reader_reads_nothing(tmp_path):
     reader.close()
     with pytest.raises(ReaderError, match="read after close"):
         next(reader.frames())
+
+
+def test_a_reader_is_iterable_like_its_frames(tmp_path):
+    stack = np.arange(5 * 3 * 4, dtype=np.uint16).reshape(5, 3, 4)
+    np.save(tmp_path / "s.npy", stack)
+    with open_frames(tmp_path / "s.npy") as reader:
+        got = [frame.copy() for frame in reader]
+    assert len(got) == 5 and all(np.array_equal(a, b) for a, b in zip(got, stack, strict=True))
