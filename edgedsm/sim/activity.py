@@ -40,3 +40,24 @@ def region_masks(scene: Scene) -> dict[str, np.ndarray]:
     masks["regions"] = owner >= 0
     masks["background"] = owner < 0
     return masks
+
+
+def decorrelation_lags(scene: Scene, frames: np.ndarray, tau_c: float | None = None) -> np.ndarray:
+    """The truth of a drying scene's decorrelation time: for each frame t of ``frames`` (ints), the
+    lag τ (Δt, float64) at which ∫_{t-τ}^{t} dt'/τc(t') = 1, i.e. the speckle at t has decorrelated
+    to 1/e from the frame τ before it; inf where even frame 0 is closer than that.
+
+    The simulator's phase step into frame i (i >= 1) has variance Δt/(τc·factor(i)) (``Drying``;
+    ``tau_c``: the surface's τc before drying, default the background's ``activity.tau_c``), so
+    the phase difference between frames s and t has variance Σ_{s<i<=t} 1/(τc·factor(i)) and the
+    intensity correlation is exp(-that) (Gaussian field, g2 - 1 = |g1|²); the rate is taken as
+    constant within each frame interval, which makes the lag continuous."""
+    drying = scene.activity.drying
+    base = scene.activity.tau_c if tau_c is None else float(tau_c)
+    at = np.asarray(frames, np.int64)
+    last = int(at.max(initial=0))
+    factors = np.ones(last) if drying is None else np.array([drying.factor(i) for i in range(1, last + 1)])
+    reached = np.concatenate([[0.0], np.cumsum(1.0 / (base * factors))])  # ∫_0^i dt/τc at frame i
+    target = reached[at] - 1.0
+    start = np.interp(target, reached, np.arange(last + 1, dtype=np.float64))
+    return np.where(target >= 0.0, at - start, np.inf)
