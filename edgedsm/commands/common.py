@@ -15,9 +15,8 @@ T = TypeVar("T")
 def scene_argument(value: str) -> Scene:
     """A scene file path, or 'default' for the built-in logo scene."""
     from edgedsm.sim import load_scene
-    from edgedsm.sim.defaults import default_scene
 
-    return default_scene() if value == "default" else load_scene(value)
+    return load_scene(value)
 
 
 def progress(items: Iterable[T], total: int | None, description: str, enabled: bool = True) -> Iterator[T]:

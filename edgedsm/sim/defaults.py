@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from edgedsm.sim import scene as scene_files
 from edgedsm.sim.scene import Scene, scene_from_dict
+
+#: The name that stands for the built-in scene wherever a scene file is asked for (CLI and API).
+DEFAULT_NAME = "default"
 
 
 def _logo(text: str, y: float) -> dict:
@@ -20,3 +26,8 @@ DEFAULT_SCENE = {
 def default_scene() -> Scene:
     """A fresh copy of the built-in default scene."""
     return scene_from_dict(DEFAULT_SCENE, "<built-in default scene>")
+
+
+def load_scene(path: str | Path) -> Scene:
+    """A scene TOML file, or the built-in default scene for ``"default"`` (as the CLI's ``--scene``)."""
+    return default_scene() if str(path) == DEFAULT_NAME else scene_files.load_scene(path)

@@ -118,3 +118,10 @@ def test_default_scene_dict_is_not_mutated():
     scene.scene.seed = 99
     assert DEFAULT_SCENE["scene"]["seed"] == 1
     assert default_scene().scene.seed == 1
+
+
+def test_load_scene_takes_default_as_the_cli_does(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # not read from the repository: the built-in scene
+    assert load_scene("default") == default_scene()
+    with pytest.raises(ConfigError):
+        load_scene("defaults")  # any other name is a file, and there is none
