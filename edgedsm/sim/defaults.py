@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from edgedsm.sim import scene as scene_files
 from edgedsm.sim.scene import Scene, scene_from_dict
+from edgedsm.sim.scene import load_scene as load_scene_file
 
 #: The name that stands for the built-in scene wherever a scene file is asked for (CLI and API).
 DEFAULT_NAME = "default"
@@ -30,4 +30,4 @@ def default_scene() -> Scene:
 
 def load_scene(path: str | Path) -> Scene:
     """A scene TOML file, or the built-in default scene for ``"default"`` (as the CLI's ``--scene``)."""
-    return default_scene() if str(path) == DEFAULT_NAME else scene_files.load_scene(path)
+    return default_scene() if str(path) == DEFAULT_NAME else load_scene_file(path)
