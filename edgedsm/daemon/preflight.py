@@ -89,7 +89,7 @@ def _devices(config: DaemonConfig) -> None:
             problems.append(f"camera.pixel_format: {camera.pixel_format}: the scene's {sim.bits}-bit detector "
                             f"delivers {sim.delivers}")
     if config.laser is not None and config.laser.spec.kind != "sim" and config.laser.spec.is_url:
-        from edgedsm.devices.laser._serial import open_port
+        from edgedsm.devices.laser import open_port
 
         try:
             open_port(config.laser.spec, do_not_open=True)

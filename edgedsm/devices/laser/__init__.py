@@ -14,7 +14,7 @@ Drivers: ``LcusRelay`` (LCUS/CH340), ``NumatoRelay`` (Numato ASCII), ``KmtronicR
 
 from __future__ import annotations
 
-from edgedsm.devices.laser._serial import PortLocked, SerialRelay
+from edgedsm.devices.laser._serial import PortLocked, SerialRelay, open_port
 from edgedsm.devices.laser.base import LaserRelay, RelayStatus
 from edgedsm.devices.laser.kmtronic import KmtronicRelay
 from edgedsm.devices.laser.lcus import LcusRelay
@@ -69,6 +69,7 @@ __all__ = [
     "SimulatedRelay",
     "Switching",
     "forget_simulated_boards",
+    "open_port",
     "open_relay",
     "parse_relay_uri",
     "simulated_board",
