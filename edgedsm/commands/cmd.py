@@ -3,9 +3,12 @@
 The command goes to ``<prefix>/<device>/cmd/NAME`` with a fresh ``request_id``; the reply with
 that id on ``<prefix>/<device>/cmd/NAME/reply`` decides the exit status:
 
-  0  the daemon accepted and carried out the command
-  1  the daemon refused it (the reason is printed)
-  2  no reply within --timeout (daemon not running, wrong --device, broker dropped it)
+  0   the daemon accepted and carried out the command
+  1   the daemon refused it (the reason is printed)
+  2   no reply: within --timeout (daemon not running, wrong --device, broker dropped it), or
+      at once when the daemon's retained availability says offline (it stopped)
+  69  the broker cannot be reached (down, wrong host or port, TLS handshake failed)
+  78  the broker refused the connection (user name, password, certificate or ACL)
 
 Commands (docs/mqtt.md): laser {"state": "on"|"off"|"auto"}, rebaseline, dark, publish_maps,
 record {"seconds": S} (a clip, with [recording]).
@@ -46,17 +49,42 @@ from edgedsm.commands.broker_options import add_credential_options, host_port, m
 from edgedsm.errors import ConfigError, DataError
 from edgedsm.publish.command_auth import sign, signing_key
 from edgedsm.publish.commands import COMMANDS, CommandReply
-from edgedsm.publish.connection import build_ssl_context, connect_in_background, describe_refusal, make_client
+from edgedsm.publish.connection import (
+    build_ssl_context,
+    connect_in_background,
+    describe_refusal,
+    diagnose,
+    make_client,
+)
 from edgedsm.publish.errors import PublishError
 from edgedsm.publish.settings import MqttSettings, resolve_command_keys, resolve_password
 from edgedsm.publish.topics import Topics
 
 NAME = "cmd"
-HELP = "send a command to a running daemon and wait for its reply (exit 0 accepted, 1 refused, 2 no reply)"
+HELP = ("send a command to a running daemon and wait for its reply (exit 0 accepted, 1 refused, 2 no reply or "
+        "offline, 69 broker unreachable, 78 broker refused the credentials)")
 
 EXIT_REFUSED = 1
 EXIT_NO_REPLY = 2
 CONNECT_WAIT_S = 10.0
+
+
+class BrokerUnreachable(PublishError):
+    """No connection to the broker (exit 69, EX_UNAVAILABLE: try again later)."""
+
+    exit_code = 69
+    kind = "broker unreachable"
+
+
+class BrokerRefused(PublishError):
+    """The broker refused the connection: credentials, certificate, ACL (exit 78: fix the settings)."""
+
+    exit_code = 78
+    kind = "broker refused"
+
+
+class Offline(Exception):
+    """The daemon's retained availability says ``offline``: nobody will answer."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -120,7 +148,10 @@ def send(settings: MqttSettings, name: str, arguments: dict[str, Any], timeout_s
          password: str | None = None, keys: Mapping[str, bytes] | None = None,
          key_id: str | None = None) -> CommandReply | None:
     """Publish the command (signed with ``keys``, default :func:`resolve_command_keys`) and wait
-    for the reply carrying its request id (None: no reply in time)."""
+    for the reply carrying its request id (None: no reply in time). :class:`Offline` at once
+    when the daemon's retained availability says ``offline`` (before the command is sent when
+    the broker hands it over first, as mosquitto does); :class:`BrokerUnreachable` or
+    :class:`BrokerRefused` when there is no connection."""
     topics = Topics.from_settings(settings)
     payload = signed(topics.command(name), name, arguments,
                      resolve_command_keys(settings) if keys is None else keys, key_id)
@@ -129,17 +160,34 @@ def send(settings: MqttSettings, name: str, arguments: dict[str, Any], timeout_s
     subscribed, answered = threading.Event(), threading.Event()
     found: list[CommandReply] = []
     refusal: list[str] = []
+    failed: list[str] = []
+    offline: list[bool] = []
+    ssl_context = build_ssl_context(settings.tls) if settings.tls else None
     client = make_client(settings, client_id=f"edgedsm-cmd-{os.getpid()}-{uuid.uuid4().hex[:6]}",
-                         password=password, ssl_context=build_ssl_context(settings.tls) if settings.tls else None,
-                         protocol="3.1.1")
+                         password=password, ssl_context=ssl_context, protocol="3.1.1")
+    subscriptions: dict[int, str] = {}
 
     def on_connect(client: mqtt.Client, userdata: Any, flags: Any, reason: Any, properties: Any) -> None:
         if reason.is_failure:
             refusal.append(describe_refusal(reason, settings, password is not None))
             return
-        client.subscribe(reply_topic, qos=1)
+        # availability first: its retained word arrives before the SUBACK of the replies' topic
+        client.subscribe(topics.availability, qos=1)
+        subscriptions[client.subscribe(reply_topic, qos=1)[1] or 0] = reply_topic
+
+    def on_subscribe(client: mqtt.Client, userdata: Any, mid: int, *_: Any) -> None:
+        if subscriptions.get(mid) == reply_topic:
+            subscribed.set()
+
+    def on_connect_fail(client: mqtt.Client, userdata: Any) -> None:
+        failed.append(diagnose(settings, ssl_context))
 
     def on_message(client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
+        if message.topic == topics.availability:
+            if message.payload == b"offline":
+                offline.append(True)
+                answered.set()
+            return
         try:
             reply = CommandReply.model_validate_json(message.payload)
         except ValidationError:
@@ -149,23 +197,31 @@ def send(settings: MqttSettings, name: str, arguments: dict[str, Any], timeout_s
             answered.set()
 
     client.on_connect = on_connect
-    client.on_subscribe = lambda *_: subscribed.set()
+    client.on_connect_fail = on_connect_fail
+    client.on_subscribe = on_subscribe
     client.on_message = on_message
     connect_in_background(client, settings)
     try:
         deadline = time.monotonic() + CONNECT_WAIT_S
         while not subscribed.wait(0.05):
             if refusal:
-                raise PublishError(refusal[0])
+                raise BrokerRefused(refusal[0])
+            if failed:  # the first attempt failed: a broker restarting is 'try again later' too
+                raise BrokerUnreachable(failed[0])
             if time.monotonic() > deadline:
-                raise PublishError(f"no connection to the MQTT broker {settings.host}:{settings.port} "
-                                   f"within {CONNECT_WAIT_S:g} s")
-        client.publish(topics.command(name), _json.dumps({**payload, "request_id": request_id}), qos=1)
-        answered.wait(timeout_s)
+                raise BrokerUnreachable(f"no connection to the MQTT broker {settings.host}:{settings.port} "
+                                        f"within {CONNECT_WAIT_S:g} s")
+        if not offline:
+            client.publish(topics.command(name), _json.dumps({**payload, "request_id": request_id}), qos=1)
+            answered.wait(timeout_s)
     finally:
         client.disconnect()
         client.loop_stop()
-    return found[0] if found else None
+    if found:
+        return found[0]
+    if offline:
+        raise Offline(topics.base)
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -173,9 +229,16 @@ def run(args: argparse.Namespace) -> int:
     settings = settings_of(args)
     # an explicit --command-key-file wins over the environment
     keys = resolve_command_keys(settings, environ={} if args.command_key_file is not None else None)
-    reply = send(settings, args.name, arguments, args.timeout, password=resolve_password(), keys=keys,
-                 key_id=args.key_id)
     base = Topics.from_settings(settings).base
+    try:
+        reply = send(settings, args.name, arguments, args.timeout, password=resolve_password(), keys=keys,
+                     key_id=args.key_id)
+    except Offline:
+        if args.json:
+            print(json.dumps({"ok": None, "command": args.name, "error": "offline", "base": base}))
+        print(f"edgedsm cmd: {base} is offline (its retained availability): the daemon is not running",
+              file=sys.stderr)
+        return EXIT_NO_REPLY
     if reply is None:
         if args.json:
             print(json.dumps({"ok": None, "command": args.name, "error": "no reply", "base": base}))

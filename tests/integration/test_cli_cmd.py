@@ -1,16 +1,18 @@
-"""`edgedsm cmd` against a real daemon on a real mosquitto: exit 0 accepted, 1 refused, 2 no reply."""
+"""`edgedsm cmd` against a real daemon on a real mosquitto: exit 0 accepted, 1 refused, 2 no reply (at
+once when the daemon is offline), 69 broker unreachable, 78 broker refused the credentials."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 from helpers_daemon import Daemon, base_config, write_config
-from helpers_mqtt import WAIT_S, Broker, child_env, wait_until
+from helpers_mqtt import WAIT_S, Broker, child_env, free_port, tool, wait_until
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -69,3 +71,37 @@ def test_cmd_exit_status_says_accepted_refused_or_no_reply(tmp_path: Path, broke
     bad = _cmd("laser", "--device", "line3", "--broker", broker_arg, "--args", "[1]")
     assert bad.returncode == 65 and "--args must be a JSON object" in bad.stderr
     assert daemon.process.poll() is None  # still measuring
+
+
+@pytest.mark.timeout(120)
+def test_cmd_tells_an_offline_daemon_and_an_unreachable_or_refusing_broker_apart(
+        tmp_path: Path, broker: Broker, daemon: Daemon, make_broker: Callable[..., Broker]) -> None:
+    broker_arg = f"127.0.0.1:{broker.port}"
+    wait_until(lambda: _cmd("publish_maps", "--device", "line3", "--broker", broker_arg, "--timeout", "1")
+               .returncode == 0, WAIT_S, "the daemon accepting publish_maps")
+    code, _ = daemon.terminate()
+    assert code == 0
+    started = time.monotonic()
+    stopped = _cmd("publish_maps", "--device", "line3", "--broker", broker_arg, "--timeout", "10", "--json")
+    took = time.monotonic() - started
+    assert stopped.returncode == 2, stopped.stderr
+    assert "edgedsm/line3 is offline (its retained availability)" in stopped.stderr
+    assert json.loads(stopped.stdout) == {"ok": None, "command": "publish_maps", "error": "offline",
+                                          "base": "edgedsm/line3"}
+    assert took < 5.0  # at once, not after --timeout 10 (the interpreter's start included)
+
+    nobody = _cmd("publish_maps", "--device", "line3", "--broker", f"127.0.0.1:{free_port()}")
+    assert nobody.returncode == 69, nobody.stderr
+    assert "edgedsm: broker unreachable: cannot reach 127.0.0.1:" in nobody.stderr
+
+    passwords = tmp_path / "passwd"
+    made = subprocess.run([tool("mosquitto_passwd", "mosquitto"), "-b", "-c", str(passwords), "line3", "s3cret"],
+                          capture_output=True, text=True, timeout=30)
+    assert made.returncode == 0, made.stderr
+    guarded = make_broker(password_file=passwords)
+    refused = subprocess.run([sys.executable, "-m", "edgedsm", "cmd", "publish_maps", "--device", "line3",
+                              "--broker", f"127.0.0.1:{guarded.port}", "--username", "line3"],
+                             capture_output=True, text=True, timeout=WAIT_S + 20,
+                             env={**child_env(), "EDGEDSM_MQTT_PASSWORD": "wrong"})
+    assert refused.returncode == 78, refused.stderr
+    assert "edgedsm: broker refused: " in refused.stderr and "user 'line3'" in refused.stderr
