@@ -107,6 +107,39 @@ class RegionSignal(Message):
     reason: str | None = Field(None, description="why the signal is not ok, or why there is no floor yet")
 
 
+class RegionActivity(Message):
+    """What a region's drying thresholds judge, with what it is of and its unit (``activity`` in
+    the stats: the same number as the state report's ``activity``)."""
+
+    value: float | None = Field(description="the judged value; None: held (the light cannot be judged) or none yet")
+    estimator: str = Field(description="what it is of: the report's estimator, or 'tau_c' for a region judged on τc")
+    unit: str = Field(description="its unit ('1': dimensionless; τc: 's'), from the estimators' registry")
+    basis: Literal["above_noise", "plain"] = Field(description="above_noise: above the camera's noise floor "
+                                                               "(estimator.noise_floor); plain: the region mean "
+                                                               "(or τc) itself: no noise model yet, floor off, τc")
+
+
+def judged_activity(report: StateReport, signal: Mapping[str, RegionSignal]) -> dict[str, RegionActivity]:
+    """Each region's judged activity of ``report`` (its ``activity``), for the stats: its
+    estimator, unit (``edgedsm.estimators.registry``) and whether it is above the noise floor
+    (the region's ``signal`` has a floor and it is not judged on τc)."""
+    from edgedsm.estimators import registry  # imported when used: `edgedsm cmd` starts without it
+
+    def unit(name: str) -> str:
+        try:
+            return registry.get(name).unit
+        except KeyError:
+            return "?"
+
+    activity = {}
+    for name, region in report.regions.items():
+        estimator = region.estimator or report.estimator
+        floored = estimator != "tau_c" and name in signal and signal[name].noise_floor is not None
+        activity[name] = RegionActivity(value=region.activity, estimator=estimator, unit=unit(estimator),
+                                        basis="above_noise" if floored else "plain")
+    return activity
+
+
 class RegionTau(Message):
     """A region's correlation time from its pooled correlations (docs/tau_c.md), in seconds."""
 
@@ -228,8 +261,11 @@ class Stats(Message):
     drops: dict[str, int] = Field(default_factory=dict, description="frames dropped, by cause")
     camera: dict[str, float | int | str | None] = Field(default_factory=dict, description="camera driver counters")
     ambient_level: float | None = Field(None, description="mean of the latest dark frames, grey levels")
+    activity: dict[str, RegionActivity] = Field(default_factory=dict,
+                                                description="region -> the value its thresholds judge (the state "
+                                                            "report's activity), its estimator and unit")
     regions: dict[str, dict[str, MapStats]] = Field(default_factory=dict,
-                                                    description="region -> estimator -> statistics")
+                                                    description="region -> map -> statistics of the plain map")
     states: dict[str, RegionStateName] = Field(default_factory=dict, alias="state",
                                                description="region -> drying state")
     warning: str | None = Field(None, description="a condition that makes a map unreliable")

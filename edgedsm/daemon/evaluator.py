@@ -26,7 +26,18 @@ from edgedsm.daemon.tau import TauRegions, map_block
 from edgedsm.daemon.worker import SerialWorker
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
-from edgedsm.messages import Alert, AlertKind, Clock, MapFrame, MapStats, RegionState, RegionTau, StateReport, Stats
+from edgedsm.messages import (
+    Alert,
+    AlertKind,
+    Clock,
+    MapFrame,
+    MapStats,
+    RegionState,
+    RegionTau,
+    StateReport,
+    Stats,
+    judged_activity,
+)
 from edgedsm.priority import lower_priority
 from edgedsm.publish.sink import Sink
 
@@ -197,7 +208,8 @@ class Evaluator:
                       ambient_level=status.ambient_level, regions=regions,
                       states={name: region.state for name, region in report.regions.items()},
                       warning=status.warning, tau_c=taus, frame_interval_s=interval_s,
-                      recording=status.recording, signal=dict(self.signal.signals) if self.signal.on else {})
+                      recording=status.recording, signal=dict(self.signal.signals) if self.signal.on else {},
+                      activity=judged_activity(report, self.signal.signals if self.signal.on else {}))
         self.sink.publish_stats(stats)
         # on a transition, and at most once per stats interval when time to dry or activity moved
         if transitions or self._last_report is None or report.moved_from(self._last_report):
