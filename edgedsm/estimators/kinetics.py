@@ -158,14 +158,10 @@ class Kinetics:
         self.noise = noise
         self.top = top
         self.flatten = box
-        rows, cols = np.flatnonzero(region.any(axis=1)), np.flatnonzero(region.any(axis=0))
-        half = box // 2
-        # the frame's pixels the local means read: the region's bounding box and half a box around
-        self._outer = (max(rows[0] - half, 0), min(rows[-1] + 1 + half, region.shape[0]),
-                       max(cols[0] - half, 0), min(cols[-1] + 1 + half, region.shape[1]))
-        r0, r1, c0, c1 = self._outer
-        self._inner = region[r0:r1, c0:c1]
-        self.pixels = int(region.sum())
+        self._layout = _Layout(region, box)
+        self.pixels = self._layout.pixels
+        self._dark_level = _lit_level(noise)  # DN above μ_dark: DARK_SNR noise σ
+        self._luts: dict[np.dtype, tuple[np.ndarray, float | None]] = {}
         slots = self.lower.size
         self._pool = np.zeros((slots + 1, self.pixels), np.float32)  # r = (I - μ_dark)/M per pixel
         self._mean = np.zeros(slots + 1)  # <r> of each buffer's frame
@@ -192,12 +188,10 @@ class Kinetics:
         if image.shape != self.shape or not (np.issubdtype(image.dtype, np.integer)
                                              or np.issubdtype(image.dtype, np.floating)):
             raise EstimatorError(f"frame must be a numeric {self.shape} array, got {image.dtype} {image.shape}")
-        r0, r1, c0, c1 = self._outer
-        window = image[r0:r1, c0:c1]
-        if np.issubdtype(window.dtype, np.floating) and not np.isfinite(window).all():
+        if np.issubdtype(image.dtype, np.floating) and not np.isfinite(self._layout.outer(image)).all():
             raise EstimatorError("frame contains NaN or inf")
         buffer = self._advance()
-        self._verdict = self._store(window, buffer)
+        self._verdict = self._store(image, buffer)
 
     def _advance(self) -> int:
         """The cascade of :func:`slot_schedule` for push number n = frames_seen: slots 0..K-1
@@ -218,35 +212,42 @@ class Kinetics:
         self.frames_seen = n + 1
         return released
 
-    def _store(self, window: np.ndarray, buffer: int) -> str:
+    def _store(self, image: np.ndarray, buffer: int) -> str:
         """Write the new frame's r = (I - μ_dark)/M into ``buffer`` with its <r> and β; its verdict."""
-        level = window.astype(np.float64) - self.noise.dark_mean
-        values = level[self._inner]
-        if self.flatten:
-            local, count = _box_mean(level, self.flatten)
-            local, count = local[self._inner], count[self._inner]
-        else:
-            local, count = np.full(values.size, values.mean()), float(values.size)
-        noise = self.noise.variance(values + self.noise.dark_mean)  # DN², the pixel's own level
-        sigma = np.sqrt(self.noise.variance(np.maximum(local, 0.0) + self.noise.dark_mean))
-        lit = local >= DARK_SNR * sigma
-        top = self.top if self.top is not None else _dtype_top(window.dtype)
-        saturated = float((values + self.noise.dark_mean >= top).mean()) if top is not None else 0.0
-        scale = np.where(lit & (local > 0), local, np.maximum(DARK_SNR * sigma, np.finfo(float).tiny))
-        ratio = values / scale
+        layout, dark = self._layout, self.noise.dark_mean
+        values = layout.values(image)  # the region's pixels, DN, the frame's dtype
+        level = values - dark
+        local = layout.local_means(image) - dark if self.flatten else np.float64(level.mean())
+        lut, top = self._lut(image.dtype)
+        noise = self.noise.variance(values) if lut is None else lut[values]  # DN², each pixel's own level
+        lit = local > self._dark_level
+        inverse = 1.0 / np.where(lit, local, self._dark_level)
+        ratio = level * inverse
         self._pool[buffer] = ratio
-        mean = float(ratio.mean())
+        count = float(self.pixels)
+        mean = float(ratio.sum()) / count
         self._mean[buffer] = mean
-        noise_share = float((noise / scale**2 * (1.0 - 1.0 / count)).mean())
-        self._beta[buffer] = (float((ratio * ratio).mean()) - noise_share) / (mean * mean) - 1.0 \
+        noise_share = float(np.dot(noise * layout.shrink, inverse * inverse)) / count if self.flatten \
+            else float(noise.sum()) * layout.shrink * float(inverse) ** 2 / count
+        self._beta[buffer] = (float(np.dot(ratio, ratio)) / count - noise_share) / (mean * mean) - 1.0 \
             if mean > 0 else 0.0
-        if saturated > SATURATED_MAX:
+        if top is not None and np.count_nonzero(values >= top) > SATURATED_MAX * count:
             return SATURATED
-        if 1.0 - float(lit.mean()) > DARK_MAX or mean <= 0:
+        if np.count_nonzero(lit) < (1.0 - DARK_MAX) * (count if self.flatten else 1.0) or mean <= 0:
             return DARK
         if self._beta[buffer] < MIN_CONTRAST**2:
             return NOT_SPECKLE
         return OK
+
+    def _lut(self, dtype: np.dtype) -> tuple[np.ndarray | None, float | None]:
+        """The noise variance of every grey level of an integer dtype (None for floats: computed per
+        pixel) and the full scale, made once per dtype."""
+        if dtype not in self._luts:
+            integer = np.issubdtype(dtype, np.integer)
+            top = self.top if self.top is not None else (float(np.iinfo(dtype).max) if integer else None)
+            lut = self.noise.variance(np.arange(np.iinfo(dtype).max + 1.0)) if integer and dtype.itemsize <= 2 else None
+            self._luts[dtype] = (lut, top)
+        return self._luts[dtype]
 
     def correlation(self) -> Correlation:
         """c and g of the newest frame against every kept one (module docstring)."""
@@ -305,21 +306,69 @@ def decorrelation_time(ages: np.ndarray, g: np.ndarray) -> tuple[str, float | No
     return OK, math.exp(a0 + share * (a1 - a0)), None
 
 
-def _box_mean(image: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray]:
-    """Mean of ``image`` over a ``side`` × ``side`` box about every pixel, and each box's pixel
-    count (boxes cut at the image's edge average what they cover), by a summed-area table."""
-    half = side // 2
-    height, width = image.shape
-    table = np.zeros((height + 1, width + 1))
-    np.cumsum(np.cumsum(image, axis=0), axis=1, out=table[1:, 1:])
-    top = np.clip(np.arange(height) - half, 0, height)
-    bottom = np.clip(np.arange(height) + half + 1, 0, height)
-    left = np.clip(np.arange(width) - half, 0, width)
-    right = np.clip(np.arange(width) + half + 1, 0, width)
-    total = (table[bottom][:, right] - table[top][:, right] - table[bottom][:, left] + table[top][:, left])
-    count = (bottom - top)[:, None] * (right - left)[None, :]
-    return total / count, count.astype(np.float64)
+def _lit_level(noise: NoiseModel) -> float:
+    """The level above μ_dark (DN) from which a local mean counts as lit: DARK_SNR noise σ at that
+    level (signal_quality's bound), by bisection (level - DARK_SNR·σ(level) changes sign once)."""
+    def short(level: float) -> bool:
+        return level <= DARK_SNR * math.sqrt(float(noise.variance(level + noise.dark_mean)))
+
+    low, high = 0.0, 1.0
+    while short(high):
+        low, high = high, 2.0 * high
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if short(middle) else (low, middle)
+    return max(high, float(np.finfo(np.float32).tiny))  # > 0: a noise-free model lights any level > 0
 
 
-def _dtype_top(dtype: np.dtype) -> float | None:
-    return float(np.iinfo(dtype).max) if np.issubdtype(dtype, np.integer) else None
+class _Layout:
+    """Where a region's pixels and their local means are read from a frame: the region's bounding
+    box, the frame's pixels around it that its boxes reach, and each box's pixel count (boxes cut
+    at the frame's edge average what they cover)."""
+
+    def __init__(self, region: np.ndarray, side: int) -> None:
+        height, width = region.shape
+        rows, cols = np.flatnonzero(region.any(axis=1)), np.flatnonzero(region.any(axis=0))
+        self.rows = slice(int(rows[0]), int(rows[-1]) + 1)
+        self.cols = slice(int(cols[0]), int(cols[-1]) + 1)
+        self.inner = region[self.rows, self.cols]
+        self.full = bool(self.inner.all())  # a rectangle: its pixels are a view, no gather
+        self.pixels = int(self.inner.sum())
+        half = side // 2
+        self.outer_rows = slice(max(self.rows.start - half, 0), min(self.rows.stop + half, height))
+        self.outer_cols = slice(max(self.cols.start - half, 0), min(self.cols.stop + half, width))
+
+        def edges(inside: slice, outside: slice) -> tuple[np.ndarray, np.ndarray]:
+            at = np.arange(inside.start, inside.stop)
+            low = np.clip(at - half, outside.start, outside.stop) - outside.start
+            return low, np.clip(at + half + 1, outside.start, outside.stop) - outside.start
+
+        self.row_low, self.row_high = edges(self.rows, self.outer_rows)
+        self.col_low, self.col_high = edges(self.cols, self.outer_cols)
+        count = np.outer(self.row_high - self.row_low, self.col_high - self.col_low).astype(np.float64)
+        self.inverse_count = 1.0 / count
+        # Var(n_p/M_p) ≈ σ_p²/M_p²·(1 - 1/B): the pixel's own noise is 1/B of its box mean's
+        self.shrink = (1.0 - 1.0 / self.pick(count)) if side else 1.0 - 1.0 / self.pixels
+
+    def pick(self, box: np.ndarray) -> np.ndarray:
+        """The region's pixels of a bounding-box array, flat."""
+        return box.reshape(-1) if self.full else box[self.inner]
+
+    def outer(self, image: np.ndarray) -> np.ndarray:
+        return image[self.outer_rows, self.outer_cols]
+
+    def values(self, image: np.ndarray) -> np.ndarray:
+        return self.pick(image[self.rows, self.cols])
+
+    def local_means(self, image: np.ndarray) -> np.ndarray:
+        """Each region pixel's box mean (DN, float64), by cumulative sums along each axis (exact
+        integer sums for integer frames)."""
+        outer = self.outer(image)
+        kind = np.int64 if np.issubdtype(outer.dtype, np.integer) else np.float64
+        down = np.zeros((outer.shape[0] + 1, outer.shape[1]), kind)
+        np.cumsum(outer, axis=0, dtype=kind, out=down[1:])
+        band = down[self.row_high] - down[self.row_low]
+        across = np.zeros((band.shape[0], band.shape[1] + 1), kind)
+        np.cumsum(band, axis=1, out=across[:, 1:])
+        total = across[:, self.col_high] - across[:, self.col_low]
+        return self.pick(total * self.inverse_count)
