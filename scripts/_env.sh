@@ -45,7 +45,8 @@ ensure_venv() {
     # Re-install only when pyproject.toml or a lock changed (the install of edgedsm is editable).
     local stamp="$VENV/.edgedsm-$name"
     local digest
-    digest="$(cat "$ROOT/pyproject.toml" "$req/pip.lock" "$req/build.lock" "$lock" | sha256sum | cut -d' ' -f1)"
+    digest="$(cat "$ROOT/pyproject.toml" "$ROOT/lab/pyproject.toml" "$req/pip.lock" "$req/build.lock" "$lock" |
+              sha256sum | cut -d' ' -f1)"
     if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$digest" ]; then
         return 0
     fi
@@ -61,13 +62,17 @@ ensure_venv() {
     # pip first, at its locked version (--build-constraint needs pip >= 25.3; Debian 12's venv has 23.0).
     # Then the lock's wheels and sdists, --no-deps: the lock is the whole set. Each sdist (pycairo,
     # PyGObject) builds in an isolated environment that build.lock pins, hash-checked as well. Then
-    # edgedsm itself, editable (which has no hash to check), built with build.lock's setuptools.
+    # edgedsm itself, editable (which has no hash to check), built with build.lock's setuptools; for
+    # the tests also the lab (lab/: the benchmarks and the paper's reproduction, which the product's
+    # wheel leaves out), editable the same way; its dependencies are in test.lock.
+    local projects=(-e "$ROOT")
+    [ "$name" != test ] || projects+=(-e "$ROOT/lab")
     if ! "${pip[@]}" install --require-hashes --no-deps -r "$req/pip.lock" 2> >("${quiet[@]}" >&2) ||
        ! "${pip[@]}" install --require-hashes --no-deps --build-constraint "$req/build.lock" -r "$lock" \
             2> >("${quiet[@]}" >&2) ||
-       ! "${pip[@]}" install --quiet --no-deps --build-constraint "$req/build.lock" -e "$ROOT" \
+       ! "${pip[@]}" install --quiet --no-deps --build-constraint "$req/build.lock" "${projects[@]}" \
             2> >("${quiet[@]}" >&2); then  # (--quiet twice: errors only, not setuptools' editable notice)
-        echo "edgedsm: pip could not install requirements/$name.lock and edgedsm into $VENV" >&2
+        echo "edgedsm: pip could not install requirements/$name.lock and edgedsm${projects[2]:+ and its lab} into $VENV" >&2
         return 1
     fi
     local broken

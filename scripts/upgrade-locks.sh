@@ -74,7 +74,9 @@ compile() {
 }
 
 # test.lock first: every other lock takes its versions where they share a package (-c), so demo's
-# and the builds' numpy, setuptools, pycairo ... are the ones the suite ran.
+# and the builds' numpy, setuptools, pycairo ... are the ones the suite ran. The lab (lab/pyproject.toml,
+# installed into the test venv too) is not an input: its one requirement beyond edgedsm, matplotlib,
+# is in the test extra (tests/unit/test_locks.py checks), and edgedsm itself is no index's to resolve.
 compile test.lock "everything \`pip install -e .[test]\` installs (scripts/test.sh)." \
     pyproject.toml --extra test
 compile demo.lock "everything \`pip install -e .[fast]\` installs (scripts/demo.sh)." \

@@ -10,8 +10,10 @@
   edgedsm bench compression  lossless and lossy codecs: ratio, MB/s per core, map accuracy (docs/compression.md)
   edgedsm bench recording    what continuous [recording] costs the daemon's zero-drop rate (docs/bench-recording.md)
   edgedsm bench video    video decoders: PyAV against OpenCV, frames/s and exactness (docs/bench-video.md)
+  edgedsm bench dashboard  the dashboard under N devices' traffic: CPU, broker load, page (docs/scaling.md)
 
-Every benchmark prints a markdown table and can write it to a file (--output).
+Every benchmark prints a markdown table and can write it to a file (--output). The benchmarks are
+the lab's (edgedsm_lab), which installs apart from edgedsm: `pip install -e ./lab` in the repository.
 """
 
 from __future__ import annotations
@@ -19,16 +21,24 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from edgedsm.commands.common import LAB_INSTALL, LabNotInstalled, lab_installed
+
 NAME = "bench"
 HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers, daemon end to end)"
-#: Each suite and the module of the lab (edgedsm_lab, beside the package) that runs it.
+#: Each suite and the module of the lab (edgedsm_lab, installed apart: lab/) that runs it.
 SUITES = {name: f"edgedsm_lab.bench.{module}" for name, module in (
     ("sim", "sim"), ("engine", "engine"), ("devices", "devices"), ("e2e", "e2e_report"), ("ambient", "ambient"),
     ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"), ("recording", "recording"),
-    ("light", "light"), ("video", "video"))}
+    ("light", "light"), ("video", "video"), ("dashboard", "dashboard"))}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    if not lab_installed():
+        # any suite and its options parse, so that the run says how to install the lab (exit 69)
+        parser.add_argument("suite", nargs=argparse.REMAINDER,
+                            help=f"a suite of the lab, which is not installed: {LAB_INSTALL}")
+        parser.set_defaults(bench_run=None)
+        return
     sub = parser.add_subparsers(dest="suite", metavar="SUITE", required=True)
     for name, module_name in SUITES.items():
         try:
@@ -44,4 +54,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.bench_run is None:
+        raise LabNotInstalled(f"edgedsm bench needs the lab (edgedsm_lab), which is not installed: {LAB_INSTALL}")
     return int(args.bench_run(args) or 0)

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 from collections.abc import Iterable, Iterator
+from types import ModuleType
 from typing import TYPE_CHECKING, TypeVar
+
+from edgedsm.errors import EdgedsmError
 
 if TYPE_CHECKING:
     from edgedsm.sim import Scene
@@ -30,3 +34,33 @@ def progress(items: Iterable[T], total: int | None, description: str, enabled: b
 def add_progress_flag(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", dest="progress", action="store_false",
                         help="do not show a progress bar")
+
+
+#: The lab's one-line install hint (its project is lab/ in the repository; ./scripts/test.sh installs it).
+LAB_INSTALL = "pip install -e ./lab in the edgedsm repository (./scripts/test.sh installs it)"
+
+
+class LabNotInstalled(EdgedsmError):
+    """The lab (edgedsm_lab: the benchmarks and the paper's reproduction) ships apart from the
+    product and is not installed. Exit code 69 (EX_UNAVAILABLE: a support program is missing)."""
+
+    exit_code = 69
+    kind = "not installed"
+
+
+def lab_installed() -> bool:
+    try:
+        importlib.import_module("edgedsm_lab")
+    except ModuleNotFoundError as exc:
+        if exc.name == "edgedsm_lab":
+            return False
+        raise
+    return True
+
+
+def lab_module(name: str, what: str) -> ModuleType:
+    """The lab's module ``name``, loaded by name: edgedsm never imports the lab, which installs
+    apart (docs/architecture.md, "Layers"); ``what`` names the command that needs it."""
+    if not lab_installed():
+        raise LabNotInstalled(f"{what} needs the lab (edgedsm_lab), which is not installed: {LAB_INSTALL}")
+    return importlib.import_module(name)

@@ -26,6 +26,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import TYPE_CHECKING
+
+from edgedsm.commands.common import lab_module
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 NAME = "reproduce"
 HELP = "reproduce the paper's §2 noise analysis (Figs. 2-7) as a markdown report with figures"
@@ -51,8 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    # imported here: the report pulls in scipy.stats, which every other command can do without
-    from edgedsm_lab.report import ProgressBar, Settings, plan_runs, reproduce
+    # the lab's report, loaded by name here: it installs apart (exit 69 with how, when it is missing) and
+    # pulls in scipy.stats, which every other command can do without
+    lab = lab_module("edgedsm_lab.report", "edgedsm reproduce")
+    Settings, plan_runs, reproduce = lab.Settings, lab.plan_runs, lab.reproduce
 
     settings = Settings.make(size=args.size, frames=args.frames, seed=args.seed,
                              repeats=args.repeats, quick=args.quick)
@@ -60,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"reproduce: {runs} simulations of {settings.frames} frames at "
           f"{settings.size}x{settings.size} px -> {args.output}", file=sys.stderr)
 
-    def progress(total: int) -> ProgressBar:
+    def progress(total: int) -> tqdm:  # the lab's ProgressBar
         from tqdm import tqdm
 
         return tqdm(total=total, desc="reproduce", unit="frame", file=sys.stderr,

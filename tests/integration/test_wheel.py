@@ -1,7 +1,8 @@
 """Installable as a package: a wheel built offline from this tree carries the example configs,
 scenes and the systemd unit, and an installed (non-editable) edgedsm uses them: `check-config`
 on the shipped demo config, `init`, and the unit's `laser off --config`, all from a fresh venv
-and away from the repository.
+and away from the repository. The lab (edgedsm_lab, its own project lab/) is not in the wheel:
+there `edgedsm bench` and `edgedsm reproduce` say how to install it and exit 69.
 
 The venv is made with --system-site-packages and edgedsm installed with --no-deps; the
 dependencies come from the environment running the tests (a .pth file lists its site-packages,
@@ -40,7 +41,7 @@ def test_wheel_installs_and_runs_from_package_data(tmp_path: Path) -> None:
     source = tmp_path / "src"
     source.mkdir()
     ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
-    for name in ("edgedsm", "config", "systemd"):
+    for name in ("edgedsm", "config", "systemd", "edgedsm_lab"):  # the lab beside it, as in the repository
         shutil.copytree(REPO / name, source / name, symlinks=True, ignore=ignore)
     for name in ("pyproject.toml", "README.md"):
         shutil.copy2(REPO / name, source / name)
@@ -55,6 +56,8 @@ def test_wheel_installs_and_runs_from_package_data(tmp_path: Path) -> None:
                 for root, _, files in os.walk(data, followlinks=True) for name in files}
     assert packaged <= names and len(packaged) >= len(SHIPPED)
     assert not any(name.startswith(("config/", "systemd/")) for name in names)  # only inside the package
+    benches = {name for name in names if name.startswith("edgedsm_lab/") or "bench" in name.rpartition("/")[2]}
+    assert benches == {"edgedsm/commands/bench.py"}, "benchmark code in the wheel"
 
     venv = tmp_path / "venv"
     run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(venv)], cwd=tmp_path)
@@ -88,3 +91,10 @@ def test_wheel_installs_and_runs_from_package_data(tmp_path: Path) -> None:
     assert stat.S_IMODE(written.stat().st_mode) == 0o640
     assert 'name = "line9"' in written.read_text()
     run([edgedsm, "check-config", str(written)], cwd=work, env=env)
+
+    for command in (["bench", "sim", "--quick"], ["reproduce", "--quick", "-o", str(work / "repro")]):
+        missing = subprocess.run([edgedsm, *command], cwd=work, env=env, capture_output=True, text=True, timeout=120)
+        assert missing.returncode == 69, missing
+        assert missing.stderr.count("\n") == 1 and "not installed" in missing.stderr, missing.stderr
+        assert "pip install -e ./lab" in missing.stderr
+    assert not (work / "repro").exists()

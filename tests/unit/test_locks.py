@@ -45,6 +45,16 @@ def test_each_lock_pins_a_version_of_everything_pyproject_asks_for(lock: str) ->
     assert not problems, f"pyproject.toml and requirements/{lock}.lock disagree: {problems}; {RELOCK}"
 
 
+def test_the_test_lock_pins_what_the_lab_needs() -> None:
+    """scripts/_env.sh installs the lab (lab/pyproject.toml) into the test venv with --no-deps: each of
+    its dependencies but edgedsm itself (installed beside it, editable) comes from test.lock."""
+    lab = tomllib.loads((REPO / "lab" / "pyproject.toml").read_text())
+    asked = [text for text in lab["project"]["dependencies"] if Requirement(text).name != "edgedsm"]
+    assert asked, "the lab's own dependencies (matplotlib for the figures)"
+    problems = unmet(asked, "test")
+    assert not problems, f"lab/pyproject.toml and requirements/test.lock disagree: {problems}; {RELOCK}"
+
+
 def test_the_build_lock_pins_what_the_builds_need() -> None:
     build_in = [line.split("#")[0].strip() for line in (REPO / "requirements/build.in").read_text().splitlines()]
     asked = PYPROJECT["build-system"]["requires"] + [line for line in build_in if line]

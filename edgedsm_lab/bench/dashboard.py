@@ -1,4 +1,4 @@
-"""What the dashboard costs at plant scale: ``python -m edgedsm.dashboard.loadbench``.
+"""What the dashboard costs at plant scale: ``edgedsm bench dashboard`` (docs/scaling.md).
 
 Starts a private mosquitto, ``edgedsm dashboard`` as its own process with one page attached
 (an SSE reader, as a browser would hold), and a load generator publishing for N simulated
@@ -9,6 +9,10 @@ dashboard's CPU (user + system, % of one core, from /proc), events pushed to the
 ``--browser`` the page is also opened in Debian's chromium (headless, through Selenium and
 chromium-driver) and its responsiveness measured: the longest delay of a 50 ms timer (how long
 the page could not react to a click) and the number of tasks over 50 ms.
+
+Examples:
+  edgedsm bench dashboard --devices 1 16 64 --seconds 30 --browser -o docs/scaling-dashboard.md
+  edgedsm bench dashboard --devices 4 --seconds 5 --warmup 1      # a quick look
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ from paho.mqtt.enums import CallbackAPIVersion
 from edgedsm.localbroker import LocalBroker
 from edgedsm.messages import Alert, AlertKind, MapStats, RegionState, StateReport, Stats
 from edgedsm.publish.mapcodec import encode_map
+from edgedsm_lab.bench.report import Report, add_output_argument, load_average
+
+HELP = "the dashboard under N devices' traffic: its CPU, the broker's load, the page's responsiveness"
 
 REGIONS = ("left", "middle", "right")
 STATES = ("wet", "drying", "dry")
@@ -171,24 +178,33 @@ def measure(devices: int, rate: float, seconds: float, warmup: float, tmp: str,
             "long_tasks": lag["long"]}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--devices", type=int, nargs="+", default=[1, 16, 64])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--devices", type=int, nargs="+", default=[1, 16, 64], help="device counts, one row each")
     parser.add_argument("--rate", type=float, default=1.0, help="updates per second per device")
     parser.add_argument("--seconds", type=float, default=30.0, help="measured time per row")
-    parser.add_argument("--warmup", type=float, default=5.0)
-    parser.add_argument("--tmp", default="/tmp")
+    parser.add_argument("--warmup", type=float, default=5.0, help="seconds before each measurement")
+    parser.add_argument("--tmp", default="/tmp", help="directory for the dashboards' databases and the browser profile")
     parser.add_argument("--browser", action="store_true", help="also measure the page in chromium (headless)")
-    args = parser.parse_args(argv)
-    print(f"{'devices':>7} {'updates/s':>9} {'msg/s':>8} {'KiB/s':>8} {'dashboard CPU':>14} {'page events/s':>14}"
-          + (f" {'page max delay':>15} {'tasks > 50 ms':>14}" if args.browser else ""))
+    add_output_argument(parser, "the table in docs/scaling.md")
+
+
+def run(args: argparse.Namespace) -> int:
+    load = load_average()
+    rows = []
     for count in args.devices:
         row = measure(count, args.rate, args.seconds, args.warmup, args.tmp, args.browser)
-        page = f" {row['lag_ms']:>12.0f} ms {row['long_tasks']:>14d}" if args.browser else ""
-        print(f"{row['devices']:>7} {row['rate']:>9.1f} {row['msg_s']:>8.1f} {row['kb_s']:>8.1f} "
-              f"{row['cpu']:>12.1f} % {row['events_s']:>14.1f}{page}", flush=True)
+        print(f"bench dashboard: {count} devices: {row['cpu']:.1f} % of a core", file=sys.stderr, flush=True)
+        page = [f"{row['lag_ms']:.0f} ms", str(row["long_tasks"])] if args.browser else []
+        rows.append([str(row["devices"]), f"{row['rate']:.1f}", f"{row['msg_s']:.1f}", f"{row['kb_s']:.1f}",
+                     f"{row['cpu']:.1f} %", f"{row['events_s']:.1f}", *page])
+    report = Report("The dashboard at plant scale")
+    report.line(report.machine(f"edgedsm bench dashboard --devices {' '.join(map(str, args.devices))}", load=load)
+                + f" {args.seconds:g} s measured per row after {args.warmup:g} s of warm-up.")
+    report.line()
+    header = ["devices", "updates/s each", "messages/s", "KiB/s on the broker", "dashboard CPU (% of one core)",
+              "events/s to the page"]
+    report.table(header + (["page: longest timer delay", "page: tasks > 50 ms"] if args.browser else []), rows,
+                 align="r" * (len(header) + (2 if args.browser else 0)))
+    if args.output:
+        report.save(args.output)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
