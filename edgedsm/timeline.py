@@ -22,57 +22,59 @@ sums: about 41 bytes per pixel instead of 250 at K = 20 and 8 bits), with the en
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from edgedsm.analysis import RegionBox
+from edgedsm.config import DaemonConfig
+from edgedsm.config.estimator import EstimatorSection
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import ESTIMATORS, SlidingWindow, noise, signal_quality
-from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL, TauC
+from edgedsm.estimators import registry
+from edgedsm.estimators.correlation_time import TauC
 from edgedsm.estimators.noise import NoiseModel
-from edgedsm.estimators.noise_summary import above_of, region_floor
 from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
-from edgedsm.noise_patches import NoisePatches, PatchWindow
+from edgedsm.measurement import Core, EngineSpec, RegionReading
+from edgedsm.measurement.core import TAU_STATUS
+from edgedsm.validation import validate
 
-STATUS_NAMES = {MEASURED: "measured", ABOVE: "above", BELOW: "below", NO_SIGNAL: "no_signal"}
-COLUMNS = ("frame", "time_s", "region", "s1", "s2", "s3", "tau_c_frames", "tau_c_s", "tau_c_status",
-           "mean_intensity", "signal", "s1_above_noise", "s2_above_noise", "s3_above_noise")
+STATUS_NAMES = TAU_STATUS
+PAPER = registry.paper_maps()  # S1, S2, S3: always columns
+COLUMNS = ("frame", "time_s", "region", *PAPER, "tau_c_frames", "tau_c_s", "tau_c_status",
+           "mean_intensity", "signal", *(f"{name}_above_noise" for name in PAPER),
+           "estimator", "activity", "noise_floor", "noise_view")
 #: the columns of the light and the activity above the camera's noise (docs/noise.md)
 NOISE_COLUMNS = COLUMNS[9:]
 #: the field's descriptors the engine streams, which ``descriptors`` may add as columns (the bands:
 #: split at ``band_split``, Hz of the timeline's ``dt``)
-DESCRIPTORS = ("contrast", "fujii", "im", "gd", "band_low", "band_high", "band_ratio")
+DESCRIPTORS = tuple(name for name in registry.names() if name not in (*PAPER, "tau_c")
+                    and registry.get(name).modes)
+NAN = float("nan")
 
 
-PATCH_SIDE = 64  # the daemon's default estimator.noise_patch
-_NO_NOISE = (float("nan"), "off", float("nan"), float("nan"), float("nan"))
+def analysis_config(window: int, lag: int, q: float = 0.0, mode: str = "sliding", activity: str = "s2",
+                    max_lag: int | None = None, noise_floor: bool = True, base: DaemonConfig | None = None
+                    ) -> DaemonConfig:
+    """The config ``analyze`` measures with: ``base``'s (the daemon's: its camera's noise, its
+    regions' thresholds) or a default one, its ``[estimator]`` with the window, lag, q (0 for
+    Fujii), mode and activity analysed (validated: a lag too long is refused as in a config)."""
+    if base is None:
+        base = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<analyze>")
+    asked = {"window": window, "lag": lag, "q": 0.0 if activity == "fujii" else q, "mode": mode,
+             "activity": activity, "max_lag": max_lag, "noise_floor": noise_floor}
+    estimator = validate(EstimatorSection, {**base.estimator.model_dump(exclude_unset=True), **asked}, "estimator")
+    return base.model_copy(update={"estimator": estimator})
 
 
-class _Light:
-    """A region's light and its activity above the noise at one sample (the daemon's rules,
-    docs/noise.md §5c, without its warnings): the model given, else the last the frames gave."""
-
-    def __init__(self, model: NoiseModel | None) -> None:
-        self.model = model
-        self.given = model is not None
-
-    def judge(self, patch: PatchWindow, estimates: dict[str, float], lag: int, verdict_of: str) -> tuple:
-        if not self.given:
-            with contextlib.suppress(EstimatorError):  # activity faster than a few frames, or dark: keep the last
-                self.model = noise.from_frames(patch.frames, saturation=patch.top, mask=patch.mask)
-        above = {}
-        if self.model is not None:
-            for name in ESTIMATORS:
-                floor = region_floor(patch.frames, name, lag, self.model, mask=patch.mask, top=patch.top)
-                above[name] = above_of(floor, estimates)
-        light = signal_quality.light_stats(patch.frames, self.model or noise.from_datasheet(0.0, 0.0), patch.top,
-                                           patch.mask)
-        quality = signal_quality.signal_quality(light, above.get(verdict_of))
-        return (light.mean, quality.verdict, *(float(above[n].value) if n in above else float("nan")
-                                               for n in ESTIMATORS))
+def _noise_cells(reading: RegionReading | None) -> tuple:
+    """mean_intensity … noise_view of one region's reading (NaN / "off" without the noise floor)."""
+    if reading is None or reading.signal is None:
+        return (NAN, "off", NAN, NAN, NAN, reading.estimator if reading else "", NAN if reading is None or
+                reading.activity is None else reading.activity, NAN, reading.view if reading else "")
+    signal = reading.signal
+    return (signal.mean, signal.signal, *(reading.above.get(name, NAN) for name in PAPER), reading.estimator,
+            NAN if reading.activity is None else reading.activity,
+            reading.floors.get(reading.estimator, NAN) if reading.estimator != "tau_c" else NAN, reading.view)
 
 
 @dataclass
@@ -109,7 +111,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
              histogram_range: tuple[float, float] | None = None, bits: int | None = None,
              times_s: Sequence[float] | None = None, mode: str | None = None, with_tau: bool = True,
              with_noise: bool = True, noise_model: NoiseModel | None = None,
-             descriptors: Sequence[str] = (), band_split: float | None = None) -> Timeline:
+             descriptors: Sequence[str] = (), band_split: float | None = None, q: float = 0.0,
+             activity: str = "s2", noise_patch: int | None = None, config: DaemonConfig | None = None) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
     The first sample is at the frame that fills the window (index window-1), time = frame · dt,
@@ -121,13 +124,18 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     ``window`` (see the module docstring), else sliding. Without ``with_tau`` the engine keeps
     no τc sums (they are most of its memory: lag products and the window's edge frames for every
     pixel) and the τc columns read NaN with status "off".
-    With ``with_noise`` each region's light and its S1, S2, S3 above the camera's noise floor
-    (docs/noise.md) are judged on a patch at its centre, as the daemon judges them
-    (:mod:`edgedsm.noise_patches`): ``noise_model`` (a datasheet's), else the last model the
-    frames gave; the above-noise columns read NaN while there is none, the signal column
-    "off" without ``with_noise``. ``descriptors``: some of :data:`DESCRIPTORS`, whose region
-    means follow as columns (the histogram may be of one of them); ``band_split``: the bands'
-    split in Hz (of ``dt``), default half the Nyquist frequency.
+    The samples are the measurement core's readings (:class:`edgedsm.measurement.Core`, the daemon's
+    engine, reduction and judge): with ``with_noise`` each region's light, its S1, S2, S3 above the
+    camera's noise floor (docs/noise.md) and its ``activity`` (the column ``activity``: the value the
+    daemon's thresholds judge, above the floor of ``activity``'s map, NaN while held) are judged on
+    every pixel of the region (``noise_patch`` None, the column ``noise_view`` "region") or, as the
+    daemon does, on a square of ``noise_patch`` pixels at its centre; ``noise_model`` (a
+    datasheet's), else the last model the frames gave. The above-noise columns read NaN while there
+    is none, the signal column "off" without ``with_noise``. ``config``: the daemon config whose
+    camera and regions' thresholds the judge takes (window, lag, ``q``, mode and ``activity`` as
+    given here). ``descriptors``: some of :data:`DESCRIPTORS`, whose region means follow as columns
+    (the histogram may be of one of them); ``band_split``: the bands' split in Hz (of ``dt``),
+    default half the Nyquist frequency.
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
@@ -136,56 +144,48 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     if unknown := [name for name in descriptors if name not in DESCRIPTORS]:
         raise EstimatorError(f"the timeline streams the descriptors {', '.join(DESCRIPTORS)}, not {unknown}")
     extra = tuple(name for name in DESCRIPTORS if name in descriptors)
-    if histogram_estimator not in ("s1", "s2", "s3", *extra):
-        raise EstimatorError(f"histogram estimator must be one of {', '.join(('s1', 's2', 's3', *extra))}, "
+    if histogram_estimator not in (*PAPER, *extra):
+        raise EstimatorError(f"histogram estimator must be one of {', '.join((*PAPER, *extra))}, "
                              f"got {histogram_estimator!r}")
     result = Timeline(dt=dt, max_lag=max_lag, histogram_estimator=histogram_estimator, descriptors=extra)
     if mode is None:
         mode = "tumbling" if every % window == 0 else "sliding"
-    engine: SlidingWindow | None = None
+    settings = analysis_config(window, lag, q, mode, activity if activity != "tau_c" else "s3",
+                               max_lag=max_lag if with_tau else None, noise_floor=with_noise, base=config)
+    core: Core | None = None
     pooled: TumblingRegionTau | None = None  # tumbling: the regions' τc without per-pixel lag products
-    patches: NoisePatches | None = None
-    light = _Light(noise_model)
     count = 0
     for index, frame in enumerate(frames):
-        if engine is None:
-            for name, mask in regions.items():
-                if mask.shape != frame.shape:
-                    raise EstimatorError(f"region {name!r} is {mask.shape[1]}x{mask.shape[0]}, "
-                                         f"the frames {frame.shape[1]}x{frame.shape[0]}")
+        if core is None:
             depth = bits or 8 * frame.dtype.itemsize
             in_engine = with_tau and (mode != "tumbling" or int64_problem(frame.shape, window, depth) is not None)
-            estimators = ("s1", "s2", "s3", *extra, *(("tau_c",) if in_engine else ()))
-            engine = SlidingWindow(frame.shape, window, lag, bits=bits, mode=mode, estimators=estimators,
-                                   max_lag=max_lag if in_engine else None, dt=dt, band_split=band_split)
+            spec = EngineSpec.of_sections(settings.estimator, tau_c=in_engine, dt=dt, band_split=band_split,
+                                           extra=extra)
+            core = Core(settings, regions, patch=noise_patch, floored=PAPER, dt=dt, spec=spec)
+            if noise_model is not None:
+                core.judgement.judge.keeper.model = noise_model
             if with_tau and not in_engine:
                 pooled = TumblingRegionTau(frame.shape, regions, window, max_lag, depth)
-            if with_noise:
-                patches = NoisePatches({name: RegionBox.of(mask) for name, mask in regions.items()}, window,
-                                       PATCH_SIDE, frame.dtype, bits)
-        engine.push(frame)
-        if patches is not None:
-            patches.push(frame)
+        core.push(frame, bits)
         if pooled is not None:
             pooled.push(frame)
         count = index + 1
-        if not engine.ready or (index - (window - 1)) % every:
+        if not core.ready or (index - (window - 1)) % every:
             continue
-        maps = engine.maps(("s1", "s2", "s3", *extra))  # τc per region below: not the per-pixel τc map
         time = index * dt if times_s is None else float(times_s[index])
-        windows = patches.take() if patches is not None else {}
+        readings = core.read(time).readings
+        assert core.engine is not None
         for name, mask in regions.items():
-            means = (float(maps["s1"][mask].mean()), float(maps["s2"][mask].mean()), float(maps["s3"][mask].mean()))
+            reading = readings.get(name)
+            values = reading.values if reading is not None else {}
             if with_tau:
-                tau: TauC = pooled.last[name] if pooled is not None and pooled.last else engine.region_tau_c(mask)
+                tau: TauC = pooled.last[name] if pooled is not None and pooled.last else core.engine.region_tau_c(mask)
                 taus = (float(tau.tau), float(tau.tau) * dt, STATUS_NAMES[int(tau.status)])
             else:
-                taus = (float("nan"), float("nan"), "off")
-            judged = light.judge(windows[name], dict(zip(ESTIMATORS, means, strict=True)), lag,
-                                 histogram_estimator) if name in windows else _NO_NOISE
-            result.rows.append((index, time, name, *means, *taus, *judged,
-                                *(float(maps[key][mask].mean()) for key in extra)))
-        values = maps[histogram_estimator]
+                taus = (NAN, NAN, "off")
+            result.rows.append((index, time, name, *(values.get(key, NAN) for key in PAPER), *taus,
+                                *_noise_cells(reading), *(values.get(key, NAN) for key in extra)))
+        values = core.engine.maps((histogram_estimator,))[histogram_estimator]
         if histogram_range is None:
             top = 1.25 * float(np.percentile(values, 99.5))
             histogram_range = (0.0, top if top > 0 else 1.0)
@@ -194,7 +194,7 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         result.histogram_edges = edges
         result.sample_frames.append(index)
         result.sample_times.append(time)
-        del maps, values  # the next sample's maps are not allocated beside these
+        del values  # the next sample's map is not allocated beside this one
     if not result.rows:
         raise EstimatorError(f"{count} frames do not fill one window of N = {window}")
     return result

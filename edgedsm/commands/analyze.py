@@ -56,12 +56,15 @@ from edgedsm.commands.common import add_progress_flag, progress
 from edgedsm.commands.timeline_output import add_timeline_arguments, open_reader, run_timeline
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import ESTIMATORS
+from edgedsm.estimators.batch import s1
 from edgedsm.estimators.descriptors import DESCRIPTORS, compute
 from edgedsm.estimators.noise import from_datasheet
-from edgedsm.estimators.noise_summary import RegionNoise, region_noise
+from edgedsm.estimators.noise_summary import model_summary
 from edgedsm.frameio import CHANNELS, FrameReader
 from edgedsm.imageio import save_map_png, write_atomic
+from edgedsm.measurement import judge_window
 from edgedsm.timeline import DESCRIPTORS as TIMELINE_DESCRIPTORS
+from edgedsm.timeline import analysis_config
 
 NAME = "analyze"
 HELP = "compute an S1/S2/S3 activity map from frames"
@@ -135,16 +138,14 @@ def run(args: argparse.Namespace) -> int:
         save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}" + (
             f"  m={args.lag}" if descriptor.uses_lag else ""))
         message += f", {png}"
-    if descriptor.noise_floor:  # s1, s2, s3, fujii, im, gd (docs/noise.md)
-        summary = region_noise(frames, result, args.estimator, args.lag, q=args.q, bits=bits, model=(
-            None if args.noise_gain is None else from_datasheet(args.noise_gain, args.dark_noise, args.dark_mean)))
-        noise_fields = _noise_fields(summary)
-        noise_line = _noise_line(summary)
+    if descriptor.noise_floor:  # the maps with a floor (docs/noise.md): judged as the measurement core judges
+        noise_fields = _judged(frames, result, bits, args)
+        noise_line = _noise_line(noise_fields)
     else:
         reason = f"no noise floor is known for {args.estimator} yet (docs/noise.md covers s1-s3, fujii, im, gd)"
         noise_fields = {"noise_floor": None, "noise_floor_reason": reason, "above_noise": None,
                         "above_noise_spread": None, "above_noise_verdict": None, "signal": None,
-                        "noise_model": None, "noise_model_error": None}
+                        "noise_model": None, "noise_model_error": None, "activity": None, "noise_view": None}
         noise_line = f"above noise: unknown ({reason})"
     if args.json:
         print(json.dumps({"estimator": args.estimator, "unit": descriptor.unit, "start": args.start,
@@ -158,23 +159,40 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _noise_fields(summary: RegionNoise) -> dict[str, object]:
-    """The JSON keys of the noise summary."""
-    return {"noise_floor": summary.noise_floor, "above_noise": summary.above_noise,
-            "above_noise_spread": summary.spread, "above_noise_verdict": summary.verdict,
-            "signal": {"quality": summary.signal, "dark_fraction": summary.dark_fraction,
-                       "saturated_fraction": summary.saturated_fraction,
-                       "speckle_contrast": summary.speckle_contrast},
-            "noise_model": summary.model, "noise_model_error": summary.model_error}
+def _judged(frames: np.ndarray, result: np.ndarray, bits: int | None, args: argparse.Namespace) -> dict[str, object]:
+    """The JSON keys of the map's noise summary: the map's mean as the measurement core judges it
+    (:func:`edgedsm.measurement.judge_window`, the judge of the daemon and ``--timeline``) over the
+    whole frame, or the daemon's patch at its centre with --noise-patch (``noise_view`` says which)."""
+    values = {args.estimator: float(result.mean())}
+    if "s1" not in values:  # the judge reads S1 beside every map (S3's floor is S1's)
+        values["s1"] = float(s1(frames, args.lag).mean())
+    config = analysis_config(len(frames), args.lag, args.q, activity=args.estimator)
+    model = None if args.noise_gain is None else from_datasheet(args.noise_gain, args.dark_noise, args.dark_mean)
+    reading, above, judgement = judge_window(config, frames, values, bits=bits, patch=args.noise_patch, model=model)
+    signal = reading.signal
+    assert signal is not None
+    return {"noise_floor": None if above is None else above.floor, "activity": reading.activity,
+            "above_noise": None if above is None else above.value,
+            "above_noise_spread": None if above is None else above.spread,
+            "above_noise_verdict": None if above is None else above.verdict,
+            "signal": {"quality": signal.signal, "dark_fraction": signal.dark_fraction,
+                       "saturated_fraction": signal.saturated_fraction, "speckle_contrast": signal.speckle_contrast},
+            "noise_model": None if judgement.judge.model is None else model_summary(judgement.judge.model),
+            "noise_model_error": None if judgement.judge.model is not None else (
+                judgement.judge.keeper.error or signal.reason),
+            "noise_view": reading.view}
 
 
-def _noise_line(summary: RegionNoise) -> str:
+def _noise_line(fields: dict) -> str:
     """One line: the activity above the camera's noise and the signal's quality."""
-    if summary.above_noise is None:
-        return f"above noise: unknown ({summary.model_error}); signal {summary.signal}"
-    return (f"above noise: {summary.above_noise:.4g} ± {summary.spread:.2g} (floor {summary.noise_floor:.4g}, "
-            f"{summary.verdict}; noise model from the {summary.model['source'] if summary.model else '?'}); "
-            f"signal {summary.signal} (dark {summary.dark_fraction:.0%}, saturated {summary.saturated_fraction:.0%})")
+    signal = fields["signal"]
+    if fields["above_noise"] is None:
+        return f"above noise: unknown ({fields['noise_model_error']}); signal {signal['quality']}"
+    model = fields["noise_model"]
+    return (f"above noise: {fields['above_noise']:.4g} ± {fields['above_noise_spread']:.2g} (floor "
+            f"{fields['noise_floor']:.4g}, {fields['above_noise_verdict']}; noise model from the "
+            f"{model['source'] if model else '?'}; judged on the {fields['noise_view']}); signal {signal['quality']} "
+            f"(dark {signal['dark_fraction']:.0%}, saturated {signal['saturated_fraction']:.0%})")
 
 
 def read_window(reader: FrameReader, args: argparse.Namespace) -> np.ndarray:

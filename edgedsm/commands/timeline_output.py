@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from edgedsm.commands.common import progress
+from edgedsm.config import DaemonConfig
 from edgedsm.errors import EstimatorError
+from edgedsm.estimators import registry
 from edgedsm.frameio import FrameReader, open_frames
 from edgedsm.timeline import DESCRIPTORS, Timeline, timeline
 
@@ -38,6 +40,9 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--no-tau-c", dest="with_tau", action="store_false",
                        help="leave τc out: its sums cost about 41 bytes per pixel on disjoint sets (K = 20) and "
                             "250 on overlapping ones, against 45 for S1-S3; the τc columns then read 'off'")
+    group.add_argument("--noise-patch", type=int, metavar="SIDE",
+                       help="judge each region's noise on a square of SIDE pixels at its centre, as the daemon "
+                            "does (estimator.noise_patch; column noise_view), instead of on every pixel of it")
     group.add_argument("--dt", type=float, metavar="SECONDS",
                        help="frame interval (default: the scene's, the config's camera.frame_interval_s, else 1)")
     group.add_argument("--frames", dest="frame_count", type=int, metavar="COUNT",
@@ -84,9 +89,9 @@ def _frames(args: argparse.Namespace, stack: contextlib.ExitStack
 
 
 def _regions(args: argparse.Namespace, shape: tuple[int, int]
-             ) -> tuple[dict[str, np.ndarray], float | None, tuple[str, ...]]:
-    """The regions, the config's frame interval and the descriptor columns: analyze's --estimator
-    and the config's estimator.activity when they are streaming descriptors."""
+             ) -> tuple[dict[str, np.ndarray], DaemonConfig | None, tuple[str, ...]]:
+    """The regions, the config and the descriptor columns: analyze's --estimator and the config's
+    estimator.activity when they are streaming descriptors."""
     wanted = {getattr(args, "estimator", None)}
     if args.config is None:
         return {"frame": np.ones(shape, bool)}, None, tuple(name for name in DESCRIPTORS if name in wanted)
@@ -96,7 +101,16 @@ def _regions(args: argparse.Namespace, shape: tuple[int, int]
     check_regions(config, shape)
     wanted.add(config.estimator.activity)
     return ({region.name: region.mask(shape, config.base_dir) for region in config.regions},
-            config.camera.frame_interval_s, tuple(name for name in DESCRIPTORS if name in wanted))
+            config, tuple(name for name in DESCRIPTORS if name in wanted))
+
+
+def _activity(args: argparse.Namespace, config: DaemonConfig | None) -> str:
+    """What the timeline's ``activity`` column judges: --estimator when the daemon can judge on it,
+    else the config's estimator.activity, else S2."""
+    estimator = getattr(args, "estimator", None)
+    if estimator in registry.activities():
+        return estimator
+    return config.estimator.activity if config is not None else "s2"
 
 
 def _datasheet(args: argparse.Namespace):
@@ -121,13 +135,11 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     first = next(frames, None)
     if first is None:
         raise EstimatorError(f"{args.frames}: no frames")
-    regions, config_dt, descriptors = _regions(args, first.shape)
+    regions, config, descriptors = _regions(args, first.shape)
     split = getattr(args, "split", None)  # the bands' split in Hz: --split, else the config's band_split_hz
-    if split is None and args.config is not None:
-        from edgedsm.config import load_config
-
-        split = load_config(args.config).estimator.band_split_hz
-    dt = args.dt or scene_dt or config_dt or 1.0
+    if split is None and config is not None:
+        split = config.estimator.band_split_hz
+    dt = args.dt or scene_dt or (config.camera.frame_interval_s if config is not None else None) or 1.0
 
     read = [0]
 
@@ -141,7 +153,8 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     result = timeline(all_frames(), regions, window, args.lag, args.every or max(1, window // 4), dt=dt,
                       max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times,
                       with_tau=args.with_tau, with_noise=args.with_noise, noise_model=_datasheet(args),
-                      descriptors=descriptors, band_split=split)
+                      descriptors=descriptors, band_split=split, q=getattr(args, "q", 0.0),
+                      activity=_activity(args, config), noise_patch=args.noise_patch, config=config)
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)

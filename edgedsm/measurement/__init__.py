@@ -4,8 +4,8 @@ statistics into per-region values, noise floors, judged activity, signal quality
 (:mod:`~edgedsm.measurement.core`). Below the daemon: the daemon, ``analyze`` and ``tune`` use it;
 it imports the estimators, the config's sections and the state machine, never the daemon."""
 
-from edgedsm.measurement.core import REGION_VIEW, Core, Evaluation, Judgement, RegionReading, view_of
+from edgedsm.measurement.core import REGION_VIEW, Core, Evaluation, Judgement, RegionReading, judge_window, view_of
 from edgedsm.measurement.spec import EngineSpec, engine_estimators
 
 __all__ = ["REGION_VIEW", "Core", "EngineSpec", "Evaluation", "Judgement", "RegionReading", "engine_estimators",
-           "view_of"]
+           "judge_window", "view_of"]

@@ -36,12 +36,15 @@ from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL
+from edgedsm.estimators.noise import NoiseModel
+from edgedsm.estimators.noise_floor import AboveNoise
+from edgedsm.estimators.noise_summary import full_scale
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.measurement.judge import SignalJudge, SignalWarning
 from edgedsm.measurement.spec import EngineSpec
 from edgedsm.messages import RegionSignal
-from edgedsm.noise_patches import MAX_PATCH_FRAMES, NoisePatches, PatchWindow
+from edgedsm.noise_patches import MAX_PATCH_FRAMES, NoisePatches, PatchWindow, patch_of
 
 TAU_STATUS = {MEASURED: "measured", ABOVE: "above", BELOW: "below", NO_SIGNAL: "no_signal"}
 #: ``view`` of a reading whose noise is judged on every pixel of the region
@@ -237,3 +240,26 @@ class Core:
                         else values.get(activity)) for name, values in estimates.items()}
         patches = self.patches.take() if assess and self.patches is not None and self.patches.full else {}
         return self.judgement.evaluate(now, plain, estimates, patches, ready=True, taus=taus)
+
+
+def judge_window(config: DaemonConfig, frames: np.ndarray, values: Mapping[str, float], *, bits: int | None = None,
+                mask: np.ndarray | None = None, patch: int | None = None, region: str = "frame",
+                model: NoiseModel | None = None) -> tuple[RegionReading, AboveNoise | None, Judgement]:
+    """One region's reading from one (N, H, W) window of ``frames`` whose map means are ``values``
+    (``analyze``'s map: a batch map's mean), judged as :class:`Core` judges a sample with the same
+    frames in its patch: ``mask`` the region (default every pixel), ``patch`` the side of the
+    square at its centre (None: all of it), ``model`` a datasheet's (default: from the frames).
+    Returns the reading, the judged map's value above its floor with its verdict, and the judgement
+    (its judge's model)."""
+    stack = np.asarray(frames)
+    region_mask = np.ones(stack.shape[1:], bool) if mask is None else np.asarray(mask, bool)
+    box = RegionBox.of(region_mask)
+    rows, cols, inside = patch_of(box, patch if patch is not None else max(stack.shape[1:]))
+    window = PatchWindow(np.ascontiguousarray(stack[:, rows, cols]), inside, full_scale(stack, bits))
+    activity = config.estimator.activity
+    judgement = Judgement(config, view=view_of(patch))
+    if model is not None:
+        judgement.judge.keeper.model = model
+    evaluation = judgement.evaluate(0.0, {region: values.get(activity)}, {region: dict(values)}, {region: window})
+    return (evaluation.readings[region], judgement.judge.above(region, activity, values) if judgement.on else None,
+            judgement)

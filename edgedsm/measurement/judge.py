@@ -86,16 +86,17 @@ def change_reason(ratio: float, factor: float) -> str | None:
 
 class ModelKeeper:
     """The camera's noise model: the datasheet's, else the best the patches' frames give (looked for
-    at the first round of patches, then every REFRESH_EVERY rounds; a new estimate replaces the
-    last, as the camera's gain may have been changed; a failed one keeps it). One keeper may
-    serve several judges (``edgedsm tune`` judges S1, S2 and S3 at once): a round of patches seen
-    by one is not looked at again by the next."""
+    at every round of patches until one is found, as a wet film's fast activity defeats the
+    estimate until it slows; then every REFRESH_EVERY rounds: a new estimate replaces the last, as
+    the camera's gain may have been changed; a failed one keeps it). One keeper may serve several
+    judges: a round of patches seen by one is not looked at again by the next."""
 
     def __init__(self, datasheet: NoiseModel | None) -> None:
         self.model = datasheet
         self._rounds = 0
         self._tried: int | None = None  # the round that last estimated a model from the frames
         self._seen: Mapping[str, PatchWindow] | None = None
+        self.error: str | None = None  # why the last estimate from the frames failed (None: it did not)
 
     def see(self, patches: Mapping[str, PatchWindow]) -> None:
         if patches is self._seen:
@@ -103,7 +104,7 @@ class ModelKeeper:
         self._seen = patches
         self._rounds += 1
         estimating = self.model is None or self.model.source == "frames"
-        if estimating and (self._tried is None or self._rounds - self._tried >= REFRESH_EVERY):
+        if estimating and (self.model is None or self._tried is None or self._rounds - self._tried >= REFRESH_EVERY):
             self._tried = self._rounds
             self._estimate(patches)
 
@@ -112,12 +113,13 @@ class ModelKeeper:
         for patch in patches.values():
             try:
                 model = noise.from_frames(patch.frames, saturation=patch.top, mask=patch.mask)
-            except EstimatorError:
+            except EstimatorError as exc:
+                self.error = str(exc)
                 continue  # activity too fast to separate, or too dark: keep what we have
             if best is None or model.relative_error < best.relative_error:
                 best = model
         if best is not None:
-            self.model = best
+            self.model, self.error = best, None
 
 
 class SignalJudge:
