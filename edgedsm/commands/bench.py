@@ -55,5 +55,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.bench_run is None:
-        raise LabNotInstalled(f"edgedsm bench needs the lab (edgedsm_lab), which is not installed: {LAB_INSTALL}")
+        raise LabNotInstalled(f"edgedsm bench needs the lab (edgedsm_lab): {LAB_INSTALL}")
     return int(args.bench_run(args) or 0)

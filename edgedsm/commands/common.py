@@ -62,5 +62,5 @@ def lab_module(name: str, what: str) -> ModuleType:
     """The lab's module ``name``, loaded by name: edgedsm never imports the lab, which installs
     apart (docs/architecture.md, "Layers"); ``what`` names the command that needs it."""
     if not lab_installed():
-        raise LabNotInstalled(f"{what} needs the lab (edgedsm_lab), which is not installed: {LAB_INSTALL}")
+        raise LabNotInstalled(f"{what} needs the lab (edgedsm_lab): {LAB_INSTALL}")
     return importlib.import_module(name)
