@@ -30,11 +30,12 @@ hold the two equal bit for bit (tests/unit/estimators/test_activity_values.py).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 
+from edgedsm.estimators.registry import VALUES, KernelSpec
 from edgedsm.estimators.value_set import INT64_MAX, window_spreads
 
 try:
@@ -184,33 +185,43 @@ def contrast_values(sigma: np.ndarray, mean: np.ndarray, out: np.ndarray) -> Non
     np.divide(sigma, mean, out=out, where=mean > 0.0)
 
 
-def values_numpy(exponential: bool, flags: tuple[bool, ...], abs_sum: np.ndarray, ratio_sum: np.ndarray,
+def fujii_values(s2: np.ndarray, out: np.ndarray) -> None:
+    """:func:`fujii_value` of every pixel, into ``out``."""
+    np.multiply(200.0, s2, out=out)
+
+
+def im_values(sq_sum: np.ndarray, pairs: int, out: np.ndarray) -> None:
+    """:func:`im_value` of every pixel, into ``out``."""
+    np.divide(sq_sum.astype(np.float64), pairs, out=out)
+
+
+def values_numpy(exponential: bool, spec: KernelSpec | tuple[bool, ...], abs_sum: np.ndarray, ratio_sum: np.ndarray,
                  second: np.ndarray, fourth: np.ndarray, sq_sum: np.ndarray, pairs: int, ratio_unit: float, n: int,
-                 weight: float, out: dict[str, np.ndarray]) -> None:
-    """:func:`pixel_values` of every pixel, into the arrays ``out`` (s1, s2, s3, sigma, contrast,
-    fujii, im) of the values ``flags`` (as :func:`edgedsm.estimators.value_set.flags_of`) asks for."""
-    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
+                 weight: float, out: Mapping[str, np.ndarray]) -> None:
+    """:func:`pixel_values` of every pixel, into the arrays ``out`` (by the names of
+    :data:`~edgedsm.estimators.registry.VALUES`) of the values ``spec`` asks for."""
+    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = spec.flags if isinstance(spec, KernelSpec) else spec
+    s1, s2, s3, sigma, contrast, fujii, im = (out[name] for name in VALUES)
     if do_abs:
         if exponential:
-            out["s1"][:] = abs_sum
+            s1[:] = abs_sum
         else:
-            s1_values(abs_sum, pairs, out["s1"])
+            s1_values(abs_sum, pairs, s1)
     if do_s2:
         if exponential:
-            out["s2"][:] = ratio_sum
+            s2[:] = ratio_sum
         else:
-            s2_values(ratio_sum, ratio_unit, pairs, out["s2"])
+            s2_values(ratio_sum, ratio_unit, pairs, s2)
         if do_fujii:
-            np.multiply(200.0, out["s2"], out=out["fujii"])
+            fujii_values(s2, fujii)
     if do_s3 or do_contrast:
-        sigma = out["sigma"]
         sigma[:] = np.sqrt(fourth / weight) if exponential else window_sigmas(second, fourth, n)
         if do_s3:
-            s3_values(out["s1"], sigma, out["s3"])
+            s3_values(s1, sigma, s3)
         if do_contrast:
-            contrast_values(sigma, second if exponential else second.astype(np.float64) / n, out["contrast"])
+            contrast_values(sigma, second if exponential else second.astype(np.float64) / n, contrast)
     if do_im:
         if exponential:
-            out["im"][:] = sq_sum
+            im[:] = sq_sum
         else:
-            np.divide(sq_sum.astype(np.float64), pairs, out=out["im"])
+            im_values(sq_sum, pairs, im)

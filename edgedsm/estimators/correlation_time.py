@@ -52,13 +52,14 @@ from typing import NamedTuple
 import numpy as np
 
 from edgedsm.errors import EstimatorError
+from edgedsm.estimators import registry
 from edgedsm.estimators.batch import check_frames
 
 MEASURED, ABOVE, BELOW, NO_SIGNAL = 0, 1, -1, 2
 TAU_FLOOR = 1.0 / 3.0  # frames: e^-3 = 5 % correlation left after one frame
 #: Window modes τc can be estimated in: its finite-window bias correction models a window of N
 #: equally weighted frames, which an exponential window is not.
-TAU_MODES = ("sliding", "tumbling")
+TAU_MODES = tuple(sorted(registry.get("tau_c").modes))  # the registry's
 
 
 def longest_lag(window: int) -> int:
@@ -101,10 +102,7 @@ def tau_threshold_problem(wet_below_s: float, dry_above_s: float, hysteresis: fl
 
 def tau_mode_problem(mode: str) -> str | None:
     """Why τc cannot be estimated in window ``mode`` (None: it can); the one statement of it."""
-    if mode in TAU_MODES:
-        return None
-    return (f"τc needs mode 'sliding' or 'tumbling', not {mode!r} (its finite-window bias correction has no "
-            f"{mode} counterpart)")
+    return registry.mode_problem("tau_c", mode)
 LAG1_MIN = 0.05  # fitted lag-1 correlation below this: nothing left to time
 DEFAULT_MAX_LAG = 20
 DENSE_LAGS = 4  # every lag up to this one

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.errors import EstimatorError
+from edgedsm.estimators import registry
 from edgedsm.estimators.bands import band_members, frequencies, ratio
 from edgedsm.estimators.value_set import window_spreads
 
@@ -130,10 +131,7 @@ def error_bound(window: int, spread: float | np.ndarray) -> float | np.ndarray:
 def band_mode_problem(mode: str) -> str | None:
     """Why the bands cannot stream in window ``mode`` (None: they can); the one statement of it
     (engine, config)."""
-    if mode in ("sliding", "tumbling"):
-        return None
-    return (f"the frequency bands (band_low, band_high, band_ratio) need a finite window: mode 'sliding' or "
-            f"'tumbling', not {mode!r} (docs/engine.md)")
+    return registry.mode_problem(BAND_NAMES[0], mode)  # every band's one statement
 
 
 def band_plan(estimators: tuple[str, ...], mode: str, window: int, dt: float | None,

@@ -25,25 +25,22 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators import tau_stream
-from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags, tau_mode_problem
+from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags
 from edgedsm.estimators.dft_bins import BAND_NAMES, DftBins, band_plan
 from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import Layout, Moments
-from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
-from edgedsm.estimators.value_set import flags_of, gd_mode_problem, gd_of_sum
+from edgedsm.estimators.registry import PAIR_SUM, KernelSpec, get, names
+from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, derived_maps
+from edgedsm.estimators.value_set import gd_of_sum
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
 
 MODES: tuple[str, ...] = ("sliding", "exponential", "tumbling")
 KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
-#: Names of the maps the engine can keep: the paper's S1-S3 and τc, and the field's descriptors that
-#: stream at O(1) per pixel from the same sums (issue 24, docs/descriptors.md): the temporal
-#: contrast σ/⟨I⟩, Fujii (200·S2 at q = 0) and the inertia moment mean (ΔI)² at lag m; and the
-#: generalized differences (GD), sliding and tumbling modes, O(N) per pixel per push; the frequency
-#: bands, O(bins) per pixel per push (edgedsm.estimators.dft_bins).
-ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd", *BAND_NAMES, "bands")
+#: The engine's multi-band map (a (K, H, W) map of the powers in ``bands``; no registry record).
+BANDS = "bands"
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
@@ -62,6 +59,13 @@ def load_kernels(kernel: str) -> ModuleType:
                 "kernel='numba' needs numba (install the 'fast' extra: pip install 'edgedsm[fast]')"
                 f"; import failed: {exc}") from exc
         return importlib.import_module(fallback)
+
+
+def estimator_names() -> tuple[str, ...]:
+    """Names of the maps the engine can keep, in the order of its maps: every registry record that
+    streams (edgedsm.estimators.registry: the paper's S1-S3 and τc, the field's descriptors of
+    docs/descriptors.md, the frequency bands), and "bands"."""
+    return (*names(streams=True), BANDS)
 
 
 def check_int(name: str, value: Any, low: int, high: int) -> int:
@@ -145,14 +149,16 @@ class SlidingWindow:
             raise EstimatorError(f"q must be a finite number >= 0, got {q}")
         self.q = float(q)
         self.estimators = self._check_estimators(estimators)
-        self._do_gd = "gd" in self.estimators
-        if self._do_gd and (problem := gd_mode_problem(self.mode)):
-            raise EstimatorError(f"estimator 'gd': {problem}")
+        for name in self.estimators:  # the registry's statements: modes, q
+            record = None if name == BANDS else get(name)
+            if record is not None and (problem := record.mode_problem(self.mode)):
+                raise EstimatorError(f"estimator {name!r}: {problem}")
+            if record is not None and record.needs_q_zero and self.q != 0.0:
+                raise EstimatorError(f"estimator {name!r} is {record.summary} (BSLTL's {record.bsltl}.m): construct "
+                                     f"the engine with q=0, got q={self.q}")
+        self._do_gd = any(get(name).source == "pair_sum" for name in self.estimators if name != BANDS)
         if self._do_gd and self.window * (self.window - 1) // 2 * 65535 > 2**63 - 1:
-            raise EstimatorError(f"estimator 'gd': a window of {self.window} frames overflows its int64 sum")
-        if "fujii" in self.estimators and self.q != 0.0:
-            raise EstimatorError(f"estimator 'fujii' is 200·S2 at q = 0 (BSLTL's fujii.m): construct the engine "
-                                 f"with q=0, got q={self.q}")
+            raise EstimatorError(f"estimator {PAIR_SUM!r}: a window of {self.window} frames overflows its int64 sum")
         self._bins = DftBins(self.window, band_plan(self.estimators, self.mode, self.window, dt, band_split, bands))
         if kernel not in KERNELS:
             raise EstimatorError(f"kernel must be one of {', '.join(KERNELS)}; got {kernel!r}")
@@ -172,9 +178,7 @@ class SlidingWindow:
         self.pairs = self.window - self.lag  # N - m pairs per window (Eq. 1-3)
         self.ratio_kind = ""  # how S2 terms are formed, and K: known with the bit depth
         self.scale_bits = 0
-        self._do_tau = "tau_c" in self.estimators
-        if self._do_tau and (problem := tau_mode_problem(self.mode)):
-            raise EstimatorError(f"estimator 'tau_c': {problem}")
+        self._do_tau = any(get(name).source == "tau" for name in self.estimators if name != BANDS)
         self.max_lag = tau_stream.max_lag_of(self.window, max_lag)
         self.tau_lags = tau_lags(self.max_lag)  # the lags τc keeps products for (frames)
         if self._do_tau and self.window < 3:
@@ -234,12 +238,13 @@ class SlidingWindow:
 
     @staticmethod
     def _check_estimators(estimators: Iterable[str] | str) -> tuple[str, ...]:
-        names = (estimators,) if isinstance(estimators, str) else tuple(estimators)
-        unknown = [name for name in names if name not in ESTIMATORS]
-        if unknown or not names:
+        asked = (estimators,) if isinstance(estimators, str) else tuple(estimators)
+        known = estimator_names()
+        unknown = [name for name in asked if name not in known]
+        if unknown or not asked:
             raise EstimatorError(
-                f"estimators must be a non-empty subset of {ESTIMATORS}, got {estimators!r}")
-        return tuple(name for name in ESTIMATORS if name in names)
+                f"estimators must be a non-empty subset of {known}, got {estimators!r}")
+        return tuple(name for name in known if name in asked)
 
     def _check_frame(self, frame: Any) -> int:
         """Validate one frame (nothing is changed); returns its bit depth."""
@@ -321,7 +326,7 @@ class SlidingWindow:
         bits = self.bits if self.bits is not None else 8
         n_px = self.shape[0] * self.shape[1]
         sums = {**self._moments.layout(n_px, bits), "products": self._tau.layout(n_px, bits)["products"],
-                **{name: value for name, value in self._layout(bits).items() if name in ("gd", "bins")}}  # own sums
+                **{name: value for name, value in self._layout(bits).items() if name in (PAIR_SUM, "bins")}}
         moved = sum(math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in sums.values())
         return self._frame_reads() * (1 if bits <= 8 else 2) + 2 * moved / n_px
 
@@ -356,15 +361,16 @@ class SlidingWindow:
         if unknown := sorted(set(wanted) - set(self.estimators)):
             raise EstimatorError(f"maps {unknown} were not requested from this engine (it has {self.estimators})")
         self._check_ready()
-        only_tau = set(wanted) <= {"tau_c", "gd", "bands", *BAND_NAMES}
-        flat = {} if only_tau else self._moments.maps(self._sums(), self.shape[0] * self.shape[1])
-        if "gd" in wanted:
-            flat["gd"] = gd_of_sum(self._sums()["gd"], self.window)
-        if bands := tuple(name for name in wanted if name in BAND_NAMES or name == "bands"):
+        sources = {name: "bins" if name == BANDS else get(name).source for name in wanted}
+        fused = KernelSpec.of(name for name in wanted if name != BANDS).any
+        flat = self._moments.maps(self._sums(), self.shape[0] * self.shape[1]) if fused else {}
+        flat.update(derived_maps(wanted, flat))
+        if PAIR_SUM in wanted:
+            flat[PAIR_SUM] = gd_of_sum(self._sums()[PAIR_SUM], self.window)
+        if bands := tuple(name for name in wanted if sources[name] == "bins"):
             flat.update(self._bins.maps(self._sums(), bands, self.q))
-        return {name: self.tau_c_bounds().tau if name == "tau_c" else flat[name].reshape((*flat[name].shape[:-1],
-                                                                                          *self.shape))
-                for name in wanted}
+        return {name: self.tau_c_bounds().tau if sources[name] == "tau" else
+                flat[name].reshape((*flat[name].shape[:-1], *self.shape)) for name in wanted}
 
     def sigma(self) -> np.ndarray:
         """σ of Eq. 4 over the current window (grey levels), float64 (H, W); needs "s3"."""
@@ -441,20 +447,20 @@ class SlidingWindow:
 
     def _snapshot_of(self, estimators: Iterable[str] | None, into: EngineSnapshot | None,
                      how: str) -> EngineSnapshot:
-        if estimators is not None and "bands" in estimators:
-            raise EstimatorError("a snapshot does not carry 'bands' (maps() gives it)")
-        wanted = tuple(name for name in self.estimators if name != "bands") if estimators is None \
+        if estimators is not None and BANDS in estimators:
+            raise EstimatorError(f"a snapshot does not carry {BANDS!r} (maps() gives it)")
+        wanted = tuple(name for name in self.estimators if name != BANDS) if estimators is None \
             else self._check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
-        flags = flags_of(wanted)
+        spec = KernelSpec.of(wanted)
         bands = bool(set(wanted) & set(BAND_NAMES))
-        spread = flags[2] or flags[3] or bands  # S3, the contrast and the bands need σ
-        needed = {"abs": flags[0], "ratio": flags[1], "total": spread, "total_sq": spread, "m2": spread,
-                  "mean": flags[3], "sq": flags[5], "gd": "gd" in wanted, "bins": bands}
+        spread = spec.sigma or bands  # S3, the contrast and the bands need σ
+        needed = {"abs": spec.s1, "ratio": spec.s2, "total": spread, "total_sq": spread, "m2": spread,
+                  "mean": spec.contrast, "sq": spec.im, PAIR_SUM: PAIR_SUM in wanted, "bins": bands}
         source_sums, old = self._sums(), into.sums if into is not None else {}
         sums = {}
-        for name in (*self._moments.snapshot_names, *(("gd",) if self._do_gd else ()),
+        for name in (*self._moments.snapshot_names, *((PAIR_SUM,) if self._do_gd else ()),
                      *(("bins",) if self._bins.on else ())):
             source = source_sums.get(name)
             if not needed[name] or source is None:
@@ -469,7 +475,7 @@ class SlidingWindow:
             shape=self.shape, mode=self.mode, estimators=wanted, window=self.window,
             pairs=self.pairs, ratio_unit=2.0**-self.scale_bits, frames_seen=self.frames_seen,
             sums=sums, weight_frames=self._moments.weight_frames,
-            maps_step=self._moments.maps_step(self._kernels, flags), value_names=self._moments.value_names,
+            maps_step=self._moments.maps_step(self._kernels, spec), value_names=self._moments.value_names,
             bands=functools.partial(self._bins.maps, q=self.q) if bands else None)
 
     def _snapshot(self) -> dict[str, Any]:

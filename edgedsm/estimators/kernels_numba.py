@@ -33,6 +33,8 @@ import numpy as np
 
 from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.jit import kernel_variant
+from edgedsm.estimators.registry import KernelSpec
+from edgedsm.estimators.value_set import maps_kernel_args
 
 KERNEL = "numba"
 
@@ -193,18 +195,26 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     return kernel
 
 
-@functools.cache
-def maps_kernel(do_abs: bool, do_ratio: bool, do_s3: bool, parallel: bool = True, exponential: bool = False,
-                do_contrast: bool = False, do_fujii: bool = False, do_im: bool = False) -> Callable[..., None]:
-    """Kernel turning a window's sums into float64 maps, all pixels, one pass.
+def maps_kernel(spec: KernelSpec | bool, *legacy: bool, **options: bool) -> Callable[..., None]:
+    """Kernel turning a window's sums into float64 maps, all pixels, one pass: the values the
+    named :class:`~edgedsm.estimators.registry.KernelSpec` asks for
+    (``maps_kernel(spec, parallel=True, exponential=False)``; earlier callers' positional
+    booleans are accepted, :func:`edgedsm.estimators.value_set.maps_kernel_args`).
 
     ``kernel(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, s1, s2, s3,
     sigma, contrast, fujii, im, weight)`` writes the values :func:`edgedsm.estimators.activity.pixel_values`
-    forms of every pixel (``do_ratio``: S2, which Fujii is formed from; σ with S3 or contrast;
+    forms of every pixel (``spec.s2``: S2, which Fujii is formed from; σ with S3 or contrast;
     window modes: the integer sums, ΣI and ΣI² as ``second`` and ``fourth``; ``exponential``: the
     weighted means, mean and M2 as ``second`` and ``fourth``, Σλ^k as ``weight``). Arrays of
     values not formed may be empty.
     """
+    return _maps_kernel(*maps_kernel_args(spec, *legacy, **options))
+
+
+@functools.cache
+def _maps_kernel(spec: KernelSpec, parallel: bool, exponential: bool) -> Callable[..., None]:
+    # the spec's booleans as plain closure constants: numba folds the branches on them away
+    do_abs, do_ratio, do_s3, do_contrast, do_fujii, do_im = spec.flags
 
     @kernel_variant(parallel)
     def kernel(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, s1, s2, s3, sigma, contrast,

@@ -19,6 +19,8 @@ import numpy as np
 
 from edgedsm.estimators.activity import values_numpy
 from edgedsm.estimators.activity import window_sigmas as sigma_from_sums
+from edgedsm.estimators.registry import VALUES, KernelSpec
+from edgedsm.estimators.value_set import maps_kernel_args
 
 KERNEL = "numpy"
 __all__ = ["CHUNK", "KERNEL", "batch_products_kernel", "batch_slide_kernel", "dft_kernel", "exponential_kernel",
@@ -156,16 +158,17 @@ def exponential_kernel(do_abs: bool, do_ratio: bool, do_sigma: bool,
     return kernel
 
 
-@functools.cache
-def maps_kernel(do_abs: bool, do_ratio: bool, do_s3: bool, parallel: bool = True, exponential: bool = False,
-                do_contrast: bool = False, do_fujii: bool = False, do_im: bool = False) -> Callable[..., None]:
+def maps_kernel(spec: KernelSpec | bool, *legacy: bool, **options: bool) -> Callable[..., None]:
     """See kernels_numba.maps_kernel (the NumPy twins of edgedsm.estimators.activity)."""
-    flags = (do_abs, do_ratio, do_s3, do_contrast, do_fujii, do_im)
+    return _maps_kernel(*maps_kernel_args(spec, *legacy, **options))
 
+
+@functools.cache
+def _maps_kernel(spec: KernelSpec, parallel: bool, exponential: bool) -> Callable[..., None]:
     def kernel(abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, s1, s2, s3, sigma, contrast, fujii,
                im, weight) -> None:
-        out = {"s1": s1, "s2": s2, "s3": s3, "sigma": sigma, "contrast": contrast, "fujii": fujii, "im": im}
-        values_numpy(exponential, flags, abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, weight,
+        out = dict(zip(VALUES, (s1, s2, s3, sigma, contrast, fujii, im), strict=True))
+        values_numpy(exponential, spec, abs_sum, ratio_sum, second, fourth, sq_sum, pairs, ratio_unit, n, weight,
                      out)
 
     return kernel

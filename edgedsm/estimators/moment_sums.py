@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from edgedsm.estimators.fixed_point import _NO_LUT, ratio_lut
-from edgedsm.estimators.value_set import flags_of, value_sizes
+from edgedsm.estimators.registry import KernelSpec
 
 _INT32_MAX = 2**31 - 1
 
@@ -59,11 +59,11 @@ class Moments:
         self.window = window
         self.pairs = window - lag  # N - m pairs per window (Eq. 1-3)
         self.q = q
-        #: activity.pixel_values' flags of the maps asked for (see activity.flags_of)
-        self.map_flags = flags_of(estimators)
-        self.do_abs, self.do_ratio = self.map_flags[:2]
-        self.do_sigma = self.map_flags[2] or self.map_flags[3]  # σ's sums serve S3 and the contrast
-        self.do_sq = self.map_flags[5]
+        #: the values the fused maps pass forms for the maps asked for (the registry's inputs)
+        self.spec = KernelSpec.of(estimators)
+        self.do_abs, self.do_ratio = self.spec.s1, self.spec.s2
+        self.do_sigma = self.spec.sigma  # σ's sums serve S3 and the contrast
+        self.do_sq = self.spec.im
         self.ratio_unit = 1.0  # 2^-K, the S2 fixed-point unit (window modes)
         self.weights = (0.0, 0.0)  # exponential mode: Σλ^k over the frames and over the pairs
         self._maps: Callable[..., None] | None = None
@@ -85,19 +85,18 @@ class Moments:
         """S1, S2, S3, σ, contrast, Fujii, IM (flat float64, those formed for the maps asked for;
         others empty) from ``sums``, one fused pass of the maps kernel."""
         assert self._maps is not None, "bind() first"
-        out = {name: np.empty(size) for name, size in value_sizes(self.map_flags, pixels).items()}
+        out = {name: np.empty(size) for name, size in self.spec.sizes(pixels).items()}
         inputs = (sums[name] if name != "sq" else _sq(sums, self.exponential) for name in self.value_names)
         self._maps(*inputs, self.pairs, self.ratio_unit, self.window, *out.values(), self.weight_frames)
         return out
 
-    def maps_kernel(self, kernels: ModuleType, flags: tuple[bool, ...], parallel: bool) -> Callable[..., None]:
-        """The maps kernel of ``flags`` (activity.flags_of), all pixels."""
-        do_abs, do_ratio, do_s3, do_contrast, do_fujii, do_im = flags
-        return kernels.maps_kernel(do_abs, do_ratio, do_s3, parallel, self.exponential, do_contrast, do_fujii, do_im)
+    def maps_kernel(self, kernels: ModuleType, spec: KernelSpec, parallel: bool) -> Callable[..., None]:
+        """The maps kernel of ``spec``, all pixels."""
+        return kernels.maps_kernel(spec, parallel=parallel, exponential=self.exponential)
 
-    def maps_step(self, kernels: ModuleType, flags: tuple[bool, ...]) -> Callable[..., None]:
-        """The maps kernel of ``flags`` for one thread (snapshots: maps on another thread)."""
-        return self.maps_kernel(kernels, flags, False)
+    def maps_step(self, kernels: ModuleType, spec: KernelSpec) -> Callable[..., None]:
+        """The maps kernel of ``spec`` for one thread (snapshots: maps on another thread)."""
+        return self.maps_kernel(kernels, spec, False)
 
 
 class WindowMoments(Moments):
@@ -134,13 +133,15 @@ class WindowMoments(Moments):
         self.ratio_unit = 2.0**-scale_bits
         self.scale = float(2**scale_bits)
         self.lut = ratio_lut(self.q, scale_bits) if kind == "lut" and self.do_ratio else _NO_LUT
-        sum_flags = (self.do_abs, self.do_ratio, self.do_totals)
+        sums = {"do_abs": self.do_abs, "do_ratio": self.do_ratio, "do_sq": self.do_sq}
         # "grow": add only (tumbling, and sliding until N frames are in); "slide": add and remove
-        self._grow = kernels.window_kernel(*sum_flags, kind, False, parallel, self.do_sq)
+        self._grow = kernels.window_kernel(do_sigma=self.do_totals, ratio_kind=kind, remove=False,
+                                           parallel=parallel, **sums)
         if slide:
-            self._slide = kernels.window_kernel(*sum_flags, kind, True, parallel, self.do_sq)
-            self._pairs = kernels.pairs_kernel(self.do_abs, self.do_ratio, kind, parallel, self.do_sq)
-        self._maps = self.maps_kernel(kernels, self.map_flags, parallel)
+            self._slide = kernels.window_kernel(do_sigma=self.do_totals, ratio_kind=kind, remove=True,
+                                                parallel=parallel, **sums)
+            self._pairs = kernels.pairs_kernel(ratio_kind=kind, parallel=parallel, **sums)
+        self._maps = self.maps_kernel(kernels, self.spec, parallel)
 
     def add(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, lagged: np.ndarray) -> None:
         """Frame i (``new``, then written into ``slot``) and the pair (i-m, i) join the sums;
@@ -201,8 +202,9 @@ class ExponentialMoments(Moments):
                 "ratio": ((ratio,), np.float64), **({"sq": ((sq,), np.float64)} if self.do_sq else {})}
 
     def bind(self, kernels: ModuleType, parallel: bool) -> None:
-        self._step = kernels.exponential_kernel(*self.flags, parallel, self.do_sq)
-        self._maps = self.maps_kernel(kernels, self.map_flags, parallel)
+        self._step = kernels.exponential_kernel(do_abs=self.do_abs, do_ratio=self.do_ratio, do_sigma=self.do_sigma,
+                                                parallel=parallel, do_sq=self.do_sq)
+        self._maps = self.maps_kernel(kernels, self.spec, parallel)
 
     def push(self, sums: Mapping[str, np.ndarray], new: np.ndarray, slot: np.ndarray, has_pair: bool) -> None:
         """Frame i (``new``) joins the weighted means, and the pair (i-m, i) with frame i-m read

@@ -34,7 +34,7 @@ cache finds them again in the next process (a closure over another compiled clos
 cache key in every process: seconds of compiling at every start).
 
 Without numba (the optional extra ``fast``) the maps are computed from the sums and reduced by
-:func:`edgedsm.analysis_kernels.masked_moments` (slower, same numbers).
+:func:`edgedsm.estimators.masked_moments.masked_moments` (slower, same numbers).
 """
 
 from __future__ import annotations
@@ -46,20 +46,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, percentiles
-from edgedsm.analysis_kernels import masked_moments
 from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.dft_bins import BAND_NAMES
 from edgedsm.estimators.jit import kernel_variant
+from edgedsm.estimators.masked_moments import masked_moments
+from edgedsm.estimators.registry import PAIR_SUM, VALUES, KernelSpec, names
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
-from edgedsm.estimators.value_set import flags_of, gd_of_sum
+from edgedsm.estimators.value_set import gd_of_sum
 
 try:
     import numba
 except ImportError:  # numba is the optional 'fast' extra
     numba = None
 
-#: Map names in the order of the kernels' outputs.
-MAPS = ("s1", "s2", "s3", "contrast", "fujii", "im")
+#: Map names in the order of the kernels' outputs: the fused pass's values that are maps (the
+#: registry's VALUES but σ).
+MAPS = tuple(name for name in VALUES if name != "sigma")
 #: Pixels per block of rows: one task of the parallel pass, and one compensated partial sum.
 BLOCK_PIXELS = 1 << 16
 #: The shift c of the one-pass sums is the mean of every SHIFT_STRIDE-th pixel of the sample.
@@ -193,7 +195,7 @@ class Moments:
 
 def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | RegionLayout, maps: Sequence[str],
                    spread: bool = True, parallel: bool = True) -> dict[str, dict[str, Moments]]:
-    """Moments of ``maps`` (among :data:`MAPS`, "gd" and the bands) over each region, from a window's sums.
+    """Moments of ``maps`` (every streamed map of the registry but τc) over each region, from a window's sums.
 
     ``sums``: an engine snapshot, or the live sums (``SlidingWindow.snapshot(live=True)``; then on
     the thread that pushes, before the next push). ``regions``: plans by name, or their
@@ -203,19 +205,30 @@ def region_moments(sums: EngineSnapshot, regions: Mapping[str, RegionPlan] | Reg
     its own exact sum, :func:`~edgedsm.estimators.value_set.gd_of_sum`): its values over each
     region's box are formed and reduced as without numba (same sample, same rounding class). Nor
     are the frequency bands (their values come from B DFT bins per pixel): each region's box is
-    formed by the engine's band maps and reduced likewise.
+    formed by the engine's band maps and reduced likewise. A registry map "derived" from the fused
+    pass's values is formed over the whole frame (:func:`~edgedsm.estimators.snapshot.maps_from`)
+    and reduced over each region's box likewise.
     """
     wanted = tuple(name for name in MAPS if name in maps)
     bands = tuple(name for name in BAND_NAMES if name in maps)
-    if sums.mode not in ("sliding", "tumbling", "exponential") or not (wanted or "gd" in maps or bands):
+    derived = tuple(name for name in names(source="derived") if name in maps)
+    if sums.mode not in ("sliding", "tumbling", "exponential") or not (wanted or PAIR_SUM in maps or bands
+                                                                           or derived):
         raise ValueError(f"no region moments of {maps} for mode {sums.mode!r}")
     layout = regions if isinstance(regions, RegionLayout) else RegionLayout.of(regions)
     result = _fused_moments(sums, layout, wanted, spread, parallel) if wanted else {name: {} for name in layout.plans}
-    if "gd" in maps:
-        gd_sums = sums.sums["gd"].reshape(sums.shape)
+    if derived:
+        if unknown := [name for name in derived if name not in sums.estimators]:
+            raise ValueError(f"the snapshot carries no sums of {unknown}")
+        whole = maps_from(sums)
+        for name, plan in layout.plans.items():
+            for key in derived:
+                result[name][key] = _box_moments(whole[key][plan.box.rows, plan.box.cols], plan.box, spread)
+    if PAIR_SUM in maps:
+        gd_sums = sums.sums[PAIR_SUM].reshape(sums.shape)
         for name, plan in layout.plans.items():
             box = plan.box
-            result[name]["gd"] = _box_moments(gd_of_sum(gd_sums[box.rows, box.cols], sums.window), box, spread)
+            result[name][PAIR_SUM] = _box_moments(gd_of_sum(gd_sums[box.rows, box.cols], sums.window), box, spread)
     if bands:  # from the DFT bins and σ² of each region's box (dft_bins.DftBins.maps)
         assert sums.bands is not None, "a snapshot of the bands carries their maps function"
         height, width = sums.shape
@@ -390,8 +403,8 @@ def _kernels(want_s1: bool, want_s2: bool, want_s3: bool, kind: str, parallel: b
     if numba is None:
         return None
     want = (want_s1, want_s2, want_s3, want_contrast, want_fujii, want_im)
-    flags = flags_of([name for name, on in zip(MAPS, want, strict=True) if on])
-    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
+    spec = KernelSpec.of([name for name, on in zip(MAPS, want, strict=True) if on])
+    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = spec.flags
     exponential = kind == "exponential"
 
     @kernel_variant(parallel)

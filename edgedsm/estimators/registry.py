@@ -45,10 +45,13 @@ WINDOW_MODES = frozenset({"sliding", "tumbling"})
 #: order: the maps kernel's output arrays. "sigma" (Eq. 4) is no map of its own.
 VALUES: tuple[str, ...] = ("s1", "s2", "s3", "sigma", "contrast", "fujii", "im")
 
+#: GD's exact pair sum Σ_{i<j} |I_i - I_j| (int64): the engine's array and the snapshot's sum carry
+#: the name of the map it forms.
+PAIR_SUM = "gd"
 #: The engine's sums a record may need: Σ|ΔI| ("abs", Eq. 1), the S2 terms ("ratio", Eq. 2), ΣI and
 #: ΣI² ("total", "total_sq"; exponential mode: "mean", "m2"), Σ(ΔI)² ("sq"), GD's pair sum
-#: ("pair_sum"), the DFT bins ("bins") and τc's lag products ("products").
-SUMS = frozenset({"abs", "ratio", "total", "total_sq", "sq", "pair_sum", "bins", "products"})
+#: (:data:`PAIR_SUM`), the DFT bins ("bins") and τc's lag products ("products").
+SUMS = frozenset({"abs", "ratio", "total", "total_sq", "sq", PAIR_SUM, "bins", "products"})
 
 #: Cost classes per pixel per pushed frame: O(1) (a few running sums), O(N) (reads the window),
 #: O(B) (B DFT bins), O(K) (K lag products); "batch": no streaming form.
@@ -78,7 +81,8 @@ class Record:
     sums: frozenset[str]  # the engine sums it is formed from (SUMS)
     inputs: tuple[str, ...] = ()  # the fused pass's values (VALUES) it is formed from
     modes: frozenset[str] = frozenset()  # the window modes the engine forms it in (empty: batch only)
-    mode_reason: str = ""  # why not in the other modes ("" when in all, or batch only)
+    mode_reason: str = ""  # why not in the other modes ("{mode}": the mode refused; "" when in all)
+    mode_subject: str = ""  # who needs the mode in the statement (default: the name)
     uses_lag: bool = False  # depends on the lag m
     activity: bool = False  # the daemon can judge drying on it (estimator.activity)
     paper: bool = False  # S1, S2, S3: always formed, published and reduced by the daemon
@@ -134,7 +138,8 @@ class Record:
         if not self.modes:
             return f"{self.name} is a batch map only (edgedsm analyze), the engine does not stream it"
         allowed = " or ".join(repr(m) for m in MODES if m in self.modes)
-        return f"{self.name} needs mode {allowed}, not {mode!r} ({self.mode_reason})"
+        why = self.mode_reason.format(mode=mode)
+        return f"{self.mode_subject or self.name} needs mode {allowed}, not {mode!r} ({why})"
 
     def streaming(self) -> str:
         """Its streaming cost, in words (docs/descriptors.md's table)."""
@@ -159,8 +164,9 @@ class KernelSpec:
 
     @classmethod
     def of(cls, maps: Iterable[str]) -> KernelSpec:
-        """The spec that forms every fused-pass input of the registered ``maps``."""
-        values = {value for name in maps for value in get(name).inputs}
+        """The spec that forms every fused-pass input of ``maps`` (names outside the registry, the
+        engine's multi-band "bands", need none)."""
+        values = {value for name in maps if name in REGISTRY for value in REGISTRY[name].inputs}
         return cls(**{f.name: f.name in values for f in fields(cls)})
 
     @property
@@ -194,11 +200,14 @@ _ACT, _NF, _DESC, _BATCH, _VS = (_lazy("activity"), _lazy("noise_floor"), _lazy(
                                  _lazy("value_set"))
 _EVERY = frozenset(MODES)
 _WINDOWED = WINDOW_MODES
-_GD_WHY = "its exact sum reads the window's frames, and the exponential mode keeps none"
-_BANDS_WHY = "the bands need a finite window: the exponential mode keeps none"
-_TAU_WHY = "τc's bias model is that of a finite window"
+_GD_WHY = "its exact sum reads the window's frames, and the {mode} mode keeps none"
+_BANDS_WHY = "a band's DFT bins need a finite window, and the {mode} mode keeps none; docs/engine.md"
+_BANDS = "each frequency band (band_low, band_high, band_ratio)"
+_TAU_WHY = "its finite-window bias correction has no {mode} counterpart"
 _BANDS_COST = "B the bins of the smaller band, 16 bytes each (edgedsm.estimators.dft_bins)"
 _SIGMA = frozenset({"total", "total_sq"})
+_BAND: dict[str, Any] = {"source": "bins", "sums": frozenset({"bins"}) | _SIGMA, "modes": _WINDOWED,
+                         "mode_reason": _BANDS_WHY, "mode_subject": _BANDS, "cost": "O(B)", "cost_note": _BANDS_COST}
 
 _RECORDS: tuple[Record, ...] = (
     Record("s1", "grey levels", "S1", "Eq. 1: mean |I_k - I_{k+m}|", "fused", frozenset({"abs"}), ("s1",), _EVERY,
@@ -214,9 +223,9 @@ _RECORDS: tuple[Record, ...] = (
            floor=f"{_NF}:s1_floor_and_static_variance", floor_args=("lag",), shared_floor=True,
            above=f"{_NF}:s3_signal", above_inputs=("s3", "s1"), batch=f"{_BATCH}:s3", batch_args=("lag",)),
     Record("tau_c", "s", "τc", "correlation time: multi-tau fit of the window's autocorrelation (docs/tau_c.md)",
-           "tau", frozenset({"total", "total_sq", "products"}), (), _WINDOWED, mode_reason=_TAU_WHY,
+           "tau", frozenset({"total", "total_sq", "products"}), (), _WINDOWED, mode_reason=_TAU_WHY, mode_subject="τc",
            activity=True, cost="O(K)", cost_note="K the multi-tau lags up to max_lag"),
-    Record("contrast", "1", "contrast σ/⟨I⟩", "σ/⟨I⟩", "fused", _SIGMA, ("contrast",), _EVERY, activity=True,
+    Record("contrast", "1", "contrast", "σ/⟨I⟩ (temporal)", "fused", _SIGMA, ("contrast",), _EVERY, activity=True,
            cost_note="S3's sums", value=f"{_ACT}:contrast_value", value_numpy=f"{_ACT}:contrast_values",
            floor=f"{_NF}:contrast_floor_and_static_variance", shared_floor=True, above=f"{_NF}:contrast_signal",
            above_inputs=("contrast",), batch=f"{_DESC}:contrast", bsltl="stdcont"),
@@ -228,18 +237,15 @@ _RECORDS: tuple[Record, ...] = (
            uses_lag=True, activity=True, cost_note="one more sum", value=f"{_ACT}:im_value",
            value_numpy=f"{_ACT}:im_values", floor=f"{_NF}:im_floor", floor_args=("lag",), batch=f"{_DESC}:im",
            batch_args=("lag",), bsltl="graphim (m = 1)"),
-    Record("gd", "grey levels", "GD", "Σ_{i<j} |I_i - I_j| / C(N, 2)", "pair_sum", frozenset({"pair_sum"}), (),
+    Record("gd", "grey levels", "GD", "Σ_{i<j} |I_i - I_j| / C(N, 2)", "pair_sum", frozenset({PAIR_SUM}), (),
            _WINDOWED, mode_reason=_GD_WHY, activity=True, cost="O(N)", cost_note="reads the window's N frames",
            value_numpy=f"{_VS}:gd_of_sum", floor=f"{_NF}:gd_floor", batch=f"{_DESC}:gd", bsltl="gendiff"),
-    Record("band_low", "grey levels²", "low band", "periodogram power in (0, split]", "bins",
-           frozenset({"bins"}) | _SIGMA, (), _WINDOWED, mode_reason=_BANDS_WHY, cost="O(B)", cost_note=_BANDS_COST,
+    Record("band_low", "grey levels²", "low band", "periodogram power in (0, split]", **_BAND,
            batch=f"{_DESC}:band_low", batch_args=("dt", "split")),
-    Record("band_high", "grey levels²", "high band", "periodogram power in (split, Nyquist]", "bins",
-           frozenset({"bins"}) | _SIGMA, (), _WINDOWED, mode_reason=_BANDS_WHY, cost="O(B)", cost_note=_BANDS_COST,
+    Record("band_high", "grey levels²", "high band", "periodogram power in (split, Nyquist]", **_BAND,
            batch=f"{_DESC}:band_high", batch_args=("dt", "split")),
-    Record("band_ratio", "1", "high / low band", "high-band power / (low-band power + q)", "bins",
-           frozenset({"bins"}) | _SIGMA, (), _WINDOWED, mode_reason=_BANDS_WHY, activity=True, cost="O(B)",
-           cost_note=_BANDS_COST, batch=f"{_DESC}:band_ratio", batch_args=("dt", "split", "q")),
+    Record("band_ratio", "1", "high / low band", "high-band power / (low-band power + q)", **_BAND, activity=True,
+           batch=f"{_DESC}:band_ratio", batch_args=("dt", "split", "q")),
     Record("skewness", "1", "skewness", "mean ((I - ⟨I⟩)/σ)³", "batch", frozenset(), cost="batch",
            batch=f"{_DESC}:skewness", bsltl="graphskew"),
     Record("kurtosis", "1", "kurtosis", "mean ((I - ⟨I⟩)/σ)⁴", "batch", frozenset(), cost="batch",

@@ -12,14 +12,15 @@ same kernel arithmetic runs on the same integers.
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import tau_lags
-from edgedsm.estimators.value_set import VALUES, flags_of, gd_of_sum, value_sizes
+from edgedsm.estimators.registry import PAIR_SUM, REGISTRY, VALUES, KernelSpec, load
+from edgedsm.estimators.value_set import gd_of_sum
 
 
 @dataclass(frozen=True)
@@ -89,12 +90,20 @@ def _unshared(arrays: dict[str, np.ndarray]) -> bool:
     return all(sys.getrefcount(arrays[name]) <= 2 for name in arrays)
 
 
+def derived_maps(names: Iterable[str], values: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The registry's "derived" maps among ``names``, each its ``derive`` function of the fused
+    pass's ``values`` it names (flat or (H, W) arrays alike; new arrays)."""
+    records = (REGISTRY[name] for name in names if name in REGISTRY)
+    return {r.name: load(r.derive)(*(values[i] for i in r.inputs)) for r in records
+            if r.source == "derived" and r.derive is not None}
+
+
 def map_sizes(snapshot: EngineSnapshot) -> dict[str, int]:
     """Pixels of each array the maps kernel writes for this snapshot (0: not computed), in the
-    order of :data:`edgedsm.estimators.value_set.VALUES`, and GD's map when the snapshot carries it."""
+    order of :data:`edgedsm.estimators.registry.VALUES`, and GD's map when the snapshot carries it."""
     pixels = snapshot.shape[0] * snapshot.shape[1]
-    return {**value_sizes(flags_of(snapshot.estimators), pixels), **({"gd": pixels} if "gd" in snapshot.estimators
-                                                                     else {})}
+    return {**KernelSpec.of(snapshot.estimators).sizes(pixels),
+            **({PAIR_SUM: pixels} if PAIR_SUM in snapshot.estimators else {})}
 
 
 def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> dict[str, np.ndarray]:
@@ -105,8 +114,10 @@ def maps_from(snapshot: EngineSnapshot, buffers: MapBuffers | None = None) -> di
     if any(sizes[name] for name in VALUES):
         snapshot.maps_step(*snapshot.value_inputs, snapshot.pairs, snapshot.ratio_unit, snapshot.window,
                            *(flat[name] for name in VALUES), snapshot.weight_frames)
-    if "gd" in snapshot.estimators:  # from its exact sum, as SlidingWindow.maps forms it
-        gd_of_sum(snapshot.sums["gd"], snapshot.window, out=flat["gd"])
+    if derived := derived_maps(snapshot.estimators, flat):  # new arrays, as SlidingWindow.maps forms them
+        flat = {**flat, **derived}
+    if PAIR_SUM in snapshot.estimators:  # from its exact sum, as SlidingWindow.maps forms it
+        gd_of_sum(snapshot.sums[PAIR_SUM], snapshot.window, out=flat[PAIR_SUM])
     if snapshot.bands is not None:  # new arrays: the band maps' own formulas (dft_bins)
         flat = {**flat, **snapshot.bands(snapshot.sums, tuple(n for n in snapshot.estimators if n not in flat))}
     return {name: flat[name].reshape(snapshot.shape) for name in snapshot.estimators}

@@ -2,38 +2,39 @@
 engine's map arithmetic (numpy only, no numba: the engine's modules import it at start, the
 compiled formulas of :mod:`edgedsm.estimators.activity` load with the kernels).
 
-- :func:`flags_of`: the flags of :func:`edgedsm.estimators.activity.pixel_values` for a set of
-  map names (S3 needs S1's sum, Fujii is formed from S2); :data:`VALUES` and
-  :func:`value_sizes`: the arrays the maps kernel writes.
+- :func:`flags_of` and :func:`value_sizes`: thin wrappers of the registry's
+  :class:`~edgedsm.estimators.registry.KernelSpec` (which values the fused maps pass forms for a
+  set of maps; S3 needs S1's sum, Fujii is formed from S2), kept for callers of the tuple form;
+  :data:`VALUES`: the arrays the maps kernel writes (the registry's).
 - :func:`gd_of_sum`: the generalized differences (BSLTL's ``gendiff.m``) from their exact integer
   sum, written once for the batch reference (``descriptors.gd``), the engine's maps, snapshots
-  and region statistics; :func:`gd_mode_problem`: the window modes that can keep that sum.
+  and region statistics; :func:`gd_mode_problem`: the window modes that can keep that sum (the
+  registry's statement).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from edgedsm.estimators.registry import PAIR_SUM, VALUES, KernelSpec, mode_problem
+
 #: int64's largest value: N·Σ(I-k)² stays exact in int64 up to INT64_MAX // N.
 INT64_MAX = 2**63 - 1
 
-#: The per-pixel values ``activity.pixel_values`` forms, in its order (and the maps arrays' names).
-VALUES = ("s1", "s2", "s3", "sigma", "contrast", "fujii", "im")
+__all__ = ["INT64_MAX", "VALUES", "KernelSpec", "flags_of", "gd_mode_problem", "gd_of_sum", "value_sizes",
+           "window_spreads"]
 
 
 def flags_of(names: tuple[str, ...] | list[str] | set[str]) -> tuple[bool, bool, bool, bool, bool, bool]:
-    """(do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im) of ``activity.pixel_values`` for the maps
-    ``names``: S3 needs S1's sum, Fujii is formed from S2."""
-    wanted = set(names)
-    return ("s1" in wanted or "s3" in wanted, "s2" in wanted or "fujii" in wanted, "s3" in wanted,
-            "contrast" in wanted, "fujii" in wanted, "im" in wanted)
+    """(do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im): ``KernelSpec.of(names).flags``, the
+    positional form of the named spec."""
+    return KernelSpec.of(names).flags
 
 
-def value_sizes(flags: tuple[bool, ...], pixels: int) -> dict[str, int]:
+def value_sizes(flags: tuple[bool, ...] | KernelSpec, pixels: int) -> dict[str, int]:
     """Pixels of each array of :data:`VALUES` the maps kernel writes for ``flags`` (0: not formed)."""
-    do_abs, do_s2, do_s3, do_contrast, do_fujii, do_im = flags
-    formed = (do_abs, do_s2, do_s3, do_s3 or do_contrast, do_contrast, do_fujii, do_im)
-    return {name: pixels if on else 0 for name, on in zip(VALUES, formed, strict=True)}
+    spec = flags if isinstance(flags, KernelSpec) else KernelSpec(*flags)
+    return spec.sizes(pixels)
 
 
 def window_spreads(total: np.ndarray, total_sq: np.ndarray, n: int) -> np.ndarray:
@@ -61,8 +62,23 @@ def gd_of_sum(gd_sum: np.ndarray, n: int, out: np.ndarray | None = None) -> np.n
 
 
 def gd_mode_problem(mode: str) -> str | None:
-    """Why GD cannot stream in window ``mode`` (None: it can); the one statement of it (engine, config)."""
-    if mode in ("sliding", "tumbling"):
-        return None
-    return (f"gd needs mode 'sliding' or 'tumbling', not {mode!r} (its exact sum reads the window's frames, and "
-            f"the {mode} mode keeps none)")
+    """Why GD cannot stream in window ``mode`` (None: it can): the registry's one statement."""
+    return mode_problem(PAIR_SUM, mode)
+
+
+#: The maps kernel's positional arguments before the named spec (kernels' ``maps_kernel``).
+_LEGACY_MAPS_ARGS = ("do_abs", "do_ratio", "do_s3", "parallel", "exponential", "do_contrast", "do_fujii", "do_im")
+
+
+def maps_kernel_args(spec: KernelSpec | bool, *args: bool, **options: bool) -> tuple[KernelSpec, bool, bool]:
+    """(spec, parallel, exponential) of a ``maps_kernel(spec, parallel=True, exponential=False)``
+    call, or of the positional booleans of earlier callers, ``maps_kernel(do_abs, do_ratio, do_s3,
+    parallel, exponential, do_contrast, do_fujii, do_im)``."""
+    if isinstance(spec, KernelSpec):
+        given = {"parallel": True, "exponential": False,
+                 **dict(zip(("parallel", "exponential"), args, strict=False)), **options}
+        return spec, bool(given["parallel"]), bool(given["exponential"])
+    given = {"parallel": True, "exponential": False, "do_contrast": False, "do_fujii": False, "do_im": False,
+             **dict(zip(_LEGACY_MAPS_ARGS, (spec, *args), strict=False)), **options}
+    flags = (given[name] for name in ("do_abs", "do_ratio", "do_s3", "do_contrast", "do_fujii", "do_im"))
+    return KernelSpec(*map(bool, flags)), bool(given["parallel"]), bool(given["exponential"])
