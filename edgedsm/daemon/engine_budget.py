@@ -13,14 +13,15 @@ from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES
 from edgedsm.daemon.capture import queue_capacity
-from edgedsm.daemon.signal_judge import warm_up as warm_up_noise
-from edgedsm.daemon.tau import TauRegions, engine_estimators
+from edgedsm.daemon.tau import TauRegions
 from edgedsm.errors import ConfigError
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
 from edgedsm.estimators.tau_pooled import pooled_covariances
+from edgedsm.measurement import EngineSpec
+from edgedsm.measurement.judge import warm_up as warm_up_noise
 
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
 SMALL_FRAME_PIXELS = 1 << 18
@@ -69,11 +70,10 @@ def engine_bytes_per_pixel(probe: SlidingWindow) -> float:
 
 
 def make_engine(config: DaemonConfig, shape: tuple[int, int], bits: int, threads: int | None = None) -> SlidingWindow:
-    """The daemon's engine for ``config`` over ``shape`` (rows, columns) of ``bits``-bit frames."""
-    est = config.estimator
-    return SlidingWindow(shape, window=est.window, lag=est.lag, q=est.engine_q, bits=bits,
-                         estimators=engine_estimators(config), mode=est.mode, threads=threads,
-                         max_lag=est.lags if config.tau_c_on else None, **config.band_args)
+    """The daemon's engine for ``config`` over ``shape`` (rows, columns) of ``bits``-bit frames: the
+    measurement core's :class:`~edgedsm.measurement.EngineSpec` of the config, the one every user
+    of the engine builds (the memory estimate's probe included)."""
+    return EngineSpec.of(config).engine(shape, bits, threads)
 
 
 def queue_bytes(config: DaemonConfig, frame_shape: tuple[int, int], bits: int) -> dict[str, int]:
@@ -156,9 +156,7 @@ def _warm_up(config: DaemonConfig, parallel: bool) -> None:
     window = est.lag + 2
     if tau.on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
         window = max(window, est.lags + TAU_BATCH + 2)
-    engine = SlidingWindow((side, side), window=window, lag=est.lag, q=est.engine_q, bits=16 if deep else 8,
-                           estimators=engine_estimators(config), mode=est.mode, threads=est.threads,
-                           max_lag=est.lags if tau.on else None)
+    engine = EngineSpec.of(config).replaced(window=window).engine((side, side), 16 if deep else 8, est.threads)
     frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
     for _ in range(window + TAU_BATCH + 1):  # past a full batch of lag products
         engine.push(frame)

@@ -4,9 +4,12 @@ maps kernel, GIL released, into arrays reused once the sinks let go of them), st
 states and hands typed messages to the sink, beside the next pushes, so that an evaluation never
 stalls capture or the engine.
 
-It owns the drying monitor. A restart (a command, a reload that keeps nothing) comes from the
-pipeline thread and a step from the evaluator thread: a lock guards the monitor, and a
-generation counter drops an evaluation of the window from before a restart.
+It owns the measurement core's :class:`~edgedsm.measurement.Judgement` (the signal judge and the
+drying-state machines: the same object ``analyze`` and ``tune`` judge with), and runs its steps in
+the core's order (assess the patches, judge, step the states). A restart (a command, a reload
+that keeps nothing) comes from the pipeline thread and a step from the evaluator thread: a lock
+guards the state machines, and a generation counter drops an evaluation of the window from before
+a restart.
 """
 
 from __future__ import annotations
@@ -21,11 +24,11 @@ from concurrent.futures import TimeoutError as FuturesTimeout
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.handover import Snapshot, Status
 from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.signal_judge import SignalJudge
 from edgedsm.daemon.tau import TauRegions, map_block
 from edgedsm.daemon.worker import SerialWorker
-from edgedsm.drying import DryingMonitor, Transition
+from edgedsm.drying import Transition
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
+from edgedsm.measurement import Judgement, view_of
 from edgedsm.messages import (
     Alert,
     AlertKind,
@@ -69,9 +72,10 @@ class Evaluator:
         self.counters = counters
         self.probes = probes or PipelineProbes()
         self.map_buffers = MapBuffers()  # float maps, reused once the sinks let go of them
-        self._monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=clock.monotonic())
-        self.signal = SignalJudge(config)  # evaluator thread only
-        self._lock = threading.Lock()  # guards the monitor and the generation
+        # the judge (evaluator thread only) and the state machines (under the lock)
+        self.judgement = Judgement(config, t0=clock.monotonic(), view=view_of(config.estimator.noise_patch))
+        self.signal = self.judgement.judge
+        self._lock = threading.Lock()  # guards the state machines and the generation
         self._generation = 0  # counts measurement restarts
         self._last_report: StateReport | None = None  # the last one published
         self._executor = SerialWorker("edgedsm-evaluate", initializer=yield_cores)
@@ -113,7 +117,7 @@ class Evaluator:
         as a transition per region; an evaluation still in flight measured the old window."""
         now = self.clock.monotonic()
         with self._lock:
-            self._monitor.reset(now, why)
+            self.judgement.reset(now, why)
             self._generation += 1
         self._last = self._executor.submit(self.signal.restart)  # on the thread that uses it, in order
         self.publish_alert(Alert(kind=AlertKind.RESET, t=self.clock.to_wall(now),
@@ -123,10 +127,8 @@ class Evaluator:
     def apply(self, config: DaemonConfig) -> None:
         """New thresholds for the running state machines (states, dwell and trend history kept);
         the regions' names are those running (a reload that renames one restarts instead)."""
-        thresholds = {region.name: region.thresholds() for region in config.regions}
         with self._lock:
-            for name, machine in self._monitor.regions.items():
-                machine.thresholds = thresholds[name]
+            self.judgement.apply(config)
             self.config = config
         self._last = self._executor.submit(self.signal.apply, config)
 
@@ -137,7 +139,7 @@ class Evaluator:
 
     def states_line(self) -> str:
         with self._lock:
-            return ", ".join(f"{name} {machine.state}" for name, machine in self._monitor.regions.items())
+            return ", ".join(f"{name} {machine.state}" for name, machine in self.judgement.monitor.regions.items())
 
     def finish(self) -> None:
         """Let the work handed over end (bounded), so alerts and maps are not lost."""
@@ -182,16 +184,15 @@ class Evaluator:
                 activities[name] = per_map[estimator].mean
         taus, interval_s = self._region_taus(snapshot)
         activities.update({name: tau.tau_c_s for name, tau in taus.items() if name in self.tau.judged})
-        if self.signal.on:
-            self._judge_signal(snapshot, estimates)
-            activities = {name: self.signal.judged(name, value, estimates.get(name, {}))
-                          for name, value in activities.items()}
+        # the core's steps in its order (Judgement.evaluate), the state machines' under the lock
+        self._judge_signal(snapshot, estimates)
+        activities = self.judgement.judged(activities, estimates)
         with self._lock:
             if snapshot.generation != self._generation:
                 log.debug("an evaluation of the window before the restart is dropped")
                 return
-            transitions = self._monitor.step(status.now, activities, ready=snapshot.ready and status.fault is None,
-                                             fault=status.fault)
+            transitions = self.judgement.step(status.now, activities, ready=snapshot.ready and status.fault is None,
+                                              fault=status.fault)
             report = self._report(status, estimator)
         for transition in transitions:
             self.sink.publish_alert(self._alert(transition))
@@ -241,10 +242,10 @@ class Evaluator:
     def _judge_signal(self, snapshot: Snapshot, estimates: dict[str, dict[str, float]]) -> None:
         """The regions' signal quality and noise floors from the patches (stats cadence), and the
         warnings that began or cleared."""
-        if not snapshot.patches:
+        if not snapshot.patches or not self.judgement.on:
             return
         t = self.clock.to_wall(snapshot.status.now)
-        for warning in self.signal.assess(snapshot.patches, estimates):
+        for warning in self.judgement.assess(snapshot.patches, estimates):
             log.warning("region %s: %s", warning.region, warning.reason, extra={"region": warning.region})
             self.sink.publish_alert(Alert(kind=AlertKind.WARNING, t=t, region=warning.region,
                                           reason=warning.reason + ("; the state is held" if warning.holds else "")))
@@ -270,7 +271,7 @@ class Evaluator:
                                      signal=signal.signal if (signal := self.signal.signals.get(name)) else None,
                                      **({"estimator": "tau_c", "tau_c_status": self.tau.status.get(name)}
                                         if name in judged_on_tau else {}))
-                   for name, machine in self._monitor.regions.items()}
+                   for name, machine in self.judgement.monitor.regions.items()}
         return StateReport(t=self.clock.to_wall(status.now), estimator=estimator, laser=status.laser, regions=regions)
 
     def _alert(self, transition: Transition) -> Alert:

@@ -44,6 +44,7 @@ from edgedsm.estimators.snapshot import TauSnapshot, tau_covariances
 from edgedsm.estimators.tau_pooled import block_covariances, pooled_covariances
 from edgedsm.estimators.tau_stream import tau_map, tau_region
 from edgedsm.frames import Frame
+from edgedsm.measurement.spec import engine_estimators as spec_estimators
 from edgedsm.messages import RegionTau, TauStatus
 
 #: Published names of the estimator's statuses (``edgedsm.messages.TauStatus``).
@@ -66,8 +67,7 @@ def map_block(shape: tuple[int, int], configured: int | None) -> int:
 def engine_estimators(config: DaemonConfig) -> tuple[str, ...]:
     """What the daemon's engine keeps sums for: S1, S2, S3, the activity when it is one of the
     field's descriptors (``estimator.maps``), and τc when configured or needed."""
-    maps = config.estimator.maps
-    return (*maps, "tau_c") if config.tau_c_on else maps
+    return spec_estimators(config.estimator, config.tau_c_on)
 
 
 class FrameInterval:
