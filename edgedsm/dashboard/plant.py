@@ -24,6 +24,7 @@ from pydantic import ValidationError
 from edgedsm.dashboard import maps
 from edgedsm.dashboard.history import AlertRow, History, Sample
 from edgedsm.messages import Alert, StateReport, Stats
+from edgedsm.publish import units
 from edgedsm.publish.errors import MapCodecError
 from edgedsm.publish.mapcodec import decode_map
 
@@ -182,18 +183,17 @@ class Plant:
     def _stats(self, device: Device, stats: Stats) -> None:
         if max(len(stats.regions), len(stats.states), len(stats.signal)) > MAX_REGIONS:
             raise Rejected(f"more than {MAX_REGIONS} regions")
-        activity = {name: per_map[stats.estimator].mean if stats.estimator in per_map else None
-                    for name, per_map in stats.regions.items()}
-        # a region judged on τc (all of them with estimator "tau_c", or those the latest state report
-        # marks so): its activity is its τc in seconds, as in the state report
-        on_tau = set(stats.tau_c) if stats.estimator == "tau_c" else {
-            name for name, region in ((device.state or {}).get("regions") or {}).items()
-            if isinstance(region, dict) and region.get("estimator") == "tau_c"}
-        activity.update({name: tau.tau_c_s for name, tau in stats.tau_c.items() if name in on_tau})
+        # the plain region mean of the judged map, shown beside the judged value under its own name
+        plain = {name: per_map[stats.estimator].mean if stats.estimator in per_map else None
+                 for name, per_map in stats.regions.items()}
+        activity, judged = _judged(device, stats)
         device.stats = {"t": stats.t, "fps": stats.fps, "frames": stats.frames, "ready": stats.ready,
                         "laser": stats.laser, "estimator": stats.estimator, "drops": stats.drops,
                         "ambient_level": stats.ambient_level, "warning": stats.warning,
-                        "activity": activity, "states": dict(stats.states),
+                        # what the thresholds judge (the chart draws it against them), with its unit
+                        "activity": activity, "judged": judged, "plain": plain,
+                        "plain_label": f"{units.label_of(stats.estimator)} mean",
+                        "states": dict(stats.states),
                         # each region's signal quality and activity above the noise (estimator.noise_floor)
                         "signal": {name: signal.to_json() for name, signal in stats.signal.items()}}
         if self.history is not None:
@@ -215,6 +215,8 @@ class Plant:
 
     def _map(self, device: Device, rest: str, payload: bytes) -> tuple[str, dict[str, Any]] | None:
         name, _, suffix = rest.partition("/")
+        if suffix == "color" and name and len(name) <= 32:
+            return None  # the 8-bit picture for viewers ([homeassistant]): the page draws its own from the map
         if not name or len(name) > 32 or suffix not in ("", "meta"):
             raise Rejected("not a map topic")
         if name not in device.maps and len(device.maps) >= MAX_MAPS:
@@ -242,6 +244,28 @@ class Plant:
         # float32 for the editor's statistics: half the memory, far finer than the PNG's 16-bit steps
         device.maps[name] = MapImage(values.astype(np.float32), meta, maps.colour_png(values))
         return "map", {"device": device.name, "map": name, **_map_info(device.maps[name])}
+
+
+def _judged(device: Device, stats: Stats) -> tuple[dict[str, float | None], dict[str, dict[str, Any]]]:
+    """Each region's judged activity and what it is (estimator, unit, label, basis). From the
+    stats' ``activity``; a daemon older than it: the latest state report's ``activity`` (judged
+    too), else nothing (the plain mean is never drawn against the thresholds)."""
+    if stats.activity:
+        return ({name: judged.value for name, judged in stats.activity.items()},
+                {name: {"estimator": judged.estimator, "unit": units.display_unit(judged.unit),
+                        "label": units.label_of(judged.estimator), "basis": judged.basis}
+                 for name, judged in stats.activity.items()})
+    regions = (device.state or {}).get("regions") or {}
+    activity: dict[str, float | None] = {}
+    judged: dict[str, dict[str, Any]] = {}
+    for name, region in regions.items():
+        if isinstance(region, dict) and name in stats.states:
+            estimator = region.get("estimator") or stats.estimator
+            value = region.get("activity")
+            activity[name] = value if isinstance(value, int | float) else None
+            judged[name] = {"estimator": estimator, "unit": units.display_unit(units.unit_of(estimator)),
+                            "label": units.label_of(estimator), "basis": "state report"}
+    return activity, judged
 
 
 def _parse(model: type[M], payload: bytes) -> M:

@@ -5,8 +5,10 @@ is available while ``<base>/availability`` says ``online``. State topics are the
 (``docs/mqtt.md``) read with ``value_template``s; nothing is published twice:
 
 - per region: ``<region> state`` (enum sensor, the five states) and ``<region> time to dry``
-  (duration, s) from the retained ``<base>/state``; ``<region> <estimator>`` activity from
-  ``<base>/stats``, one sensor per estimator the stats carry (new estimators appear by themselves);
+  (duration, s) from the retained ``<base>/state``; ``<region> activity``, the value the
+  thresholds judge (the stats' ``activity``, the state report's number), in its estimator's unit;
+  ``<region> <label> mean``, the plain region mean of each map the stats carry (new maps appear
+  by themselves), in the map's unit (labels and units: ``edgedsm.publish.units``, the registry's);
 - per region, once the stats carry its signal (``estimator.noise_floor``): ``<region> signal``
   (enum sensor, the five verdicts, with the whole signal as attributes: reason, fractions,
   floor ...) and ``<region> above noise`` (the activity above the camera's noise floor);
@@ -27,6 +29,7 @@ from typing import Any, get_args
 from edgedsm import __version__
 from edgedsm.messages import SignalName
 from edgedsm.publish.topics import Topics
+from edgedsm.publish.units import display_unit, label_of, unit_of
 
 STATES = ["warming_up", "wet", "drying", "dry", "fault"]
 #: The five signal verdicts (docs/noise.md).
@@ -36,6 +39,13 @@ SIGNALS = list(get_args(SignalName))
 def slug(text: str) -> str:
     """``text`` with every character Home Assistant refuses in ids replaced by ``_``."""
     return re.sub(r"[^A-Za-z0-9_-]", "_", text)
+
+
+def _unit(unit: str) -> dict[str, str]:
+    """``unit_of_measurement`` for a unit; none for a dimensionless value (Home Assistant shows
+    the bare number)."""
+    shown = display_unit(unit)
+    return {} if shown is None else {"unit_of_measurement": shown}
 
 
 def colour_map_topic(topics: Topics, name: str) -> str:
@@ -92,13 +102,22 @@ class Discovery:
                 region),
         ]
 
-    def activity_entity(self, region: str, estimator: str) -> Entity:
-        """The region mean of one estimator's map, from the stats."""
-        template = (f"{{{{ value_json.get('regions', {{}}).get('{region}', {{}}).get('{estimator}', {{}})"
+    def activity_entity(self, region: str, unit: str) -> Entity:
+        """The value the region's thresholds judge (the stats' ``activity``), in ``unit``; None
+        (unknown) while it is held."""
+        template = f"{{{{ value_json.get('activity', {{}}).get('{region}', {{}}).get('value') }}}}"
+        return self._entity("sensor", f"{region}_activity", {
+            "name": f"{region} activity", "state_topic": self.topics.stats, "state_class": "measurement",
+            "value_template": template, "icon": "mdi:chart-bell-curve", **_unit(unit)}, region)
+
+    def map_mean_entity(self, region: str, name: str) -> Entity:
+        """The plain region mean of map ``name`` (no noise floor removed), from the stats."""
+        template = (f"{{{{ value_json.get('regions', {{}}).get('{region}', {{}}).get('{name}', {{}})"
                     f".get('mean') }}}}")
-        return self._entity("sensor", f"{region}_{estimator}", {
-            "name": f"{region} {estimator.upper()}", "state_topic": self.topics.stats, "state_class": "measurement",
-            "value_template": template, "icon": "mdi:chart-bell-curve"}, region)
+        return self._entity("sensor", f"{region}_{name}", {
+            "name": f"{region} {label_of(name)} mean", "state_topic": self.topics.stats,
+            "state_class": "measurement", "value_template": template, "icon": "mdi:chart-bell-curve",
+            **_unit(unit_of(name))}, region)
 
     def tau_entity(self, region: str) -> Entity:
         """The region's correlation time τc in seconds (its pooled fit), from the stats."""

@@ -140,9 +140,11 @@ class HomeAssistantSink:
             self.session.client.publish(entity.topic, _json.dumps(entity.config), qos=1, retain=True)
 
     def _add(self, entities: Iterable[Entity]) -> None:
-        """Announce entities not announced yet."""
+        """Announce entities not announced yet, or announced with another config (a unit that
+        changed with the estimator on reload)."""
         with self._lock:
-            new = [entity for entity in entities if entity.topic not in self._entities]
+            new = [entity for entity in entities
+                   if entity.topic not in self._entities or self._entities[entity.topic].config != entity.config]
             for entity in new:
                 self._entities[entity.topic] = entity
         if new and self.connected:
@@ -160,10 +162,12 @@ class HomeAssistantSink:
         return None
 
     def publish_stats(self, stats: Stats) -> None:
+        self._add(self.discovery.activity_entity(region, judged.unit)
+                  for region, judged in stats.activity.items() if region in self.regions)
         # a τc map's region mean would take the object id of the pooled τc's own sensor (tau_entity)
-        self._add(self.discovery.activity_entity(region, estimator)
-                  for region, maps in stats.regions.items() if region in self.regions for estimator in maps
-                  if estimator != "tau_c")
+        self._add(self.discovery.map_mean_entity(region, name)
+                  for region, maps in stats.regions.items() if region in self.regions for name in maps
+                  if name != "tau_c")
         self._add(self.discovery.tau_entity(region) for region in stats.tau_c if region in self.regions)
         self._add(entity for region in stats.signal if region in self.regions
                   for entity in self.discovery.signal_entities(region))

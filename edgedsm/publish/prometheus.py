@@ -22,6 +22,7 @@ from prometheus_client.registry import Collector
 from edgedsm.frames import Frame
 from edgedsm.messages import Alert, MapFrame, RegionSignal, SignalName, StateReport, Stats, TauStatus
 from edgedsm.publish.http_server import MetricsServer
+from edgedsm.publish.units import unit_of
 
 #: The five drying states, each a label value of ``edgedsm_region_state``.
 STATES = ("warming_up", "wet", "drying", "dry", "fault")
@@ -209,13 +210,20 @@ def _stats_families(stats: Stats | None) -> Iterator[GaugeMetricFamily | Counter
     for state in LASER_STATES:
         laser.add_metric([state], float(stats.laser == state))
     yield laser
-    activity = GaugeMetricFamily("edgedsm_region_activity", "region mean of each estimator's map",
-                                 labels=["region", "estimator"])
-    for region, maps in sorted(stats.regions.items()):
-        for estimator, map_stats in sorted(maps.items()):
-            if map_stats.mean is not None:
-                activity.add_metric([region, estimator], map_stats.mean)
+    activity = GaugeMetricFamily("edgedsm_region_activity", "the value the region's drying thresholds judge (above "
+                                 "the camera's noise floor with estimator.noise_floor; τc in s for a region judged "
+                                 "on it), in its estimator's unit", labels=["region", "estimator", "unit"])
+    for region, judged in sorted(stats.activity.items()):
+        if judged.value is not None:  # None: held, the light cannot be judged
+            activity.add_metric([region, judged.estimator, judged.unit], judged.value)
     yield activity
+    means = GaugeMetricFamily("edgedsm_region_map_mean", "the plain region mean of each map (no noise floor "
+                              "removed), in the map's unit", labels=["region", "map", "unit"])
+    for region, maps in sorted(stats.regions.items()):
+        for name, map_stats in sorted(maps.items()):
+            if map_stats.mean is not None:
+                means.add_metric([region, name, unit_of(name)], map_stats.mean)
+    yield means
     yield from _tau_families(stats)
     yield from _signal_families(stats)
     states = GaugeMetricFamily("edgedsm_region_state", "1 for the region's current drying state",

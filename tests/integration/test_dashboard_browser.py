@@ -394,3 +394,41 @@ def test_the_last_commissioning_report_shows_the_thresholds_tune_proposed(plant:
     assert plant.js("return window.tunePwned === undefined && document.querySelectorAll('img[src=\"x\"]').length "
                     "=== 0")
     _no_errors(plant)
+
+
+@pytest.mark.timeout(60)
+def test_an_offline_device_is_greyed_and_the_chart_draws_the_judged_activity(plant: Plant) -> None:
+    # plate-a was stopped with SIGTERM (test_the_history_plot_has_the_points_the_database_has): its
+    # retained state is its last word, and the page must not read it as now
+    device = next(d for d in json.loads(plant.get("/api/devices")) if d["device"] == "plate-a")
+    assert device["availability"] == "offline"
+    assert device["state"]["availability"] == "offline" and device["state"]["laser"] == "off"
+    plant.js("window.edgedsmDashboard.select('plate-a')")
+    wait_for(lambda: plant.js("return document.querySelector('.device-card[data-device=\"plate-a\"]')"
+                              ".classList.contains('stale')"), SHOW_S, "plate-a's card greyed")
+    card = plant.card_text("plate-a")
+    assert "laser off" in card and "fps" not in card, card
+    line = plant.js("return document.getElementById('device-stats').textContent")
+    assert line.startswith("offline offline · laser off · last heard ") and "fps" not in line, line
+    rows = plant.js("return [...document.querySelectorAll('#regions tr.region-row')].map(r => [r.className, "
+                    "r.querySelector('.time-to-dry').textContent, r.querySelector('.activity').textContent, "
+                    "r.querySelector('.activity').title, r.querySelector('.plain').textContent])")
+    assert len(rows) == 1
+    classes, time_to_dry, activity, what, plain = rows[0]
+    assert "stale" in classes.split() and time_to_dry == "–"
+    # estimator.noise_floor is on by default: the activity column and the chart are S2 above the
+    # noise floor, the plain S2 mean (higher by the floor) is its own column
+    judged, mean = device["stats"]["activity"]["plate"], device["stats"]["plain"]["plate"]
+    assert device["stats"]["judged"]["plate"] == {"estimator": "s2", "unit": None, "label": "S2",
+                                                  "basis": "above_noise"}
+    assert what == "S2 above the noise floor" and mean > judged
+    assert activity == plant.js("return fmt(arguments[0])", judged) and plain == plant.js("return fmt(arguments[0])",
+                                                                                         mean)
+    plant.browser.execute_async_script(
+        "const done = arguments[arguments.length - 1]; window.edgedsmDashboard.loadHistory().then(done);")
+    assert plant.js("return window.edgedsmDashboard.plotCaption()") == \
+        "S2 above the noise floor against wet_above (blue) and dry_below (green)"
+    last = [y for _, y in plant.js("return window.edgedsmDashboard.plotPoints()") if y is not None][-1]
+    assert last == pytest.approx(judged, rel=1e-9)  # the curve is the judged value, as the state report's
+    plant.browser.save_screenshot(str(plant.shots / "dashboard-offline.png"))
+    _no_errors(plant)

@@ -88,7 +88,7 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     # a subscriber arriving later gets every config, retained
     late = subscribers(broker.port, [f"{PREFIX}/#", f"{topics.maps_filter}/color"])
     colour_topics = [topics.map(name) + "/color" for name in ("s1", "s2", "s3")]
-    wait_until(lambda: len(_configs(late)) >= 12 and all(late.on(topic) for topic in colour_topics), WAIT_S,
+    wait_until(lambda: len(_configs(late)) >= 13 and all(late.on(topic) for topic in colour_topics), WAIT_S,
                "retained discovery configs (the signal's too: estimator.noise_floor) and colour maps")
     first: dict[str, Received] = {}
     for message in late.messages:
@@ -97,7 +97,7 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     assert [t for t, m in first.items() if not m.retain] == []
     configs = _configs(late)
     kinds = sorted(topic.split("/")[1] for topic in configs)
-    assert kinds == ["binary_sensor", "binary_sensor", "image", "image", "image", *["sensor"] * 7], sorted(configs)
+    assert kinds == ["binary_sensor", "binary_sensor", "image", "image", "image", *["sensor"] * 8], sorted(configs)
     assert {f"{PREFIX}/sensor/edgedsm_e2e/plate_signal/config",
             f"{PREFIX}/sensor/edgedsm_e2e/plate_above_noise/config"} <= set(configs)
     devices = {json.dumps(c["device"], sort_keys=True) for c in configs.values()}
@@ -119,8 +119,8 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
             assert value in entity["options"]
         elif topic.split("/")[1] == "binary_sensor":
             assert value in (entity["payload_on"], entity["payload_off"]), (topic, value)
-        elif value != "None":  # the activity above the noise may read below 0, within its spread
-            assert float(value) >= 0 or topic.endswith("_above_noise/config"), (topic, value)
+        elif value != "None":  # the activity above the noise (judged) may read below 0, within its spread
+            assert float(value) >= 0 or topic.endswith(("_above_noise/config", "_activity/config")), (topic, value)
         if "availability_topic" in entity:
             assert _last(live, entity["availability_topic"]).payload == b"online"
     state_entity = configs[f"{PREFIX}/sensor/edgedsm_e2e/plate_state/config"]
@@ -139,7 +139,8 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     assert 0 < samples[("edgedsm_engine_ms_per_frame", ())] < 1000
     states = [v for (name, labels), v in samples.items() if name == "edgedsm_region_state"]
     assert len(states) == 5 and sum(states) == 1
-    assert ("edgedsm_region_activity", (("estimator", "s2"), ("region", "plate"))) in samples
+    assert ("edgedsm_region_activity", (("estimator", "s2"), ("region", "plate"), ("unit", "1"))) in samples
+    assert ("edgedsm_region_map_mean", (("map", "s1"), ("region", "plate"), ("unit", "grey levels"))) in samples
     verdicts = {labels: v for (name, labels), v in samples.items() if name == "edgedsm_region_signal"}
     assert len(verdicts) == 5 and sum(verdicts.values()) == 1, verdicts
     assert samples[("edgedsm_region_mean_intensity", (("region", "plate"),))] > 0

@@ -97,6 +97,18 @@ function signalBadge(signal) {
   return el("span", { class: `badge signal sig-${verdict}`, title }, verdict.replace("_", " "));
 }
 
+function unitText(judged) {
+  // " s", " grey levels"; nothing for a dimensionless value
+  return judged && typeof judged.unit === "string" && judged.unit ? ` ${judged.unit}` : "";
+}
+
+function judgedWhat(judged) {
+  // what the activity is: "S2 above the noise floor", "τc", "S2 (no noise model yet)"
+  if (!judged || typeof judged.label !== "string") return "activity";
+  if (judged.basis === "above_noise") return `${judged.label} above the noise floor`;
+  return judged.estimator === "tau_c" ? judged.label : `${judged.label} (plain: no noise floor)`;
+}
+
 function aboveNoise(signal) {
   if (!signal || typeof signal.above_noise !== "number") return "–";
   return `${fmt(signal.above_noise, 3)} ± ${fmt(signal.above_noise_spread, 2)} (floor ${fmt(signal.noise_floor, 3)})`;
@@ -162,8 +174,10 @@ function renderDetail() {
     el("tr", { class: "region-row" + (stale ? " stale" : ""), "data-region": name },
       el("td", {}, name),
       el("td", {}, el("span", { class: `badge ${stateClass(value.state)}` }, value.state)),
-      // judged on τc: the activity is the region's correlation time, in seconds
-      el("td", {}, fmt(value.activity) + (stats.estimator === "tau_c" ? " s (τc)" : "")),
+      // what the thresholds judge (above the noise floor; τc in s), with its unit; the plain mean beside it
+      el("td", { class: "activity", title: judgedWhat((stats.judged || {})[name]) },
+        fmt(value.activity) + unitText((stats.judged || {})[name])),
+      el("td", { class: "plain", title: stats.plain_label || "" }, fmt((stats.plain || {})[name])),
       el("td", {}, signalBadge(value.signal)),
       el("td", { class: "above-noise" }, aboveNoise(value.signal)),
       // a stopped daemon extrapolates nothing: no time to dry
@@ -281,8 +295,17 @@ async function loadHistory() {
   const answer = await fetch(`/api/history?${query}`).then((r) => r.json());
   if (answer.device !== selected || answer.region !== $("region-select").value) return 0;
   history = { device: selected, region, points: answer.points, alerts: answer.alerts, thresholds: answer.thresholds };
+  plotCaption();
   drawPlot();
   return history.points.length;
+}
+
+function plotCaption() {
+  // the curve is what the thresholds judge: say which value, in which unit
+  const device = devices.get(history.device);
+  const judged = device && device.stats && (device.stats.judged || {})[history.region];
+  const unit = judged && judged.unit ? ` (${judged.unit})` : "";
+  $("plot-caption").textContent = `${judgedWhat(judged)}${unit} against wet_above (blue) and dry_below (green)`;
 }
 
 function plotData() {
@@ -349,6 +372,7 @@ function appendLive(device) {
   const region = $("region-select").value;
   const stats = device.stats;
   if (!plot || !stats || history.device !== device.device || history.region !== region) return;
+  plotCaption();
   const last = history.points.length ? history.points[history.points.length - 1][0] : -Infinity;
   if (!(stats.t > last) || !(region in (stats.activity || {}) || region in (stats.states || {}))) return;
   const activity = (stats.activity || {})[region];
@@ -574,6 +598,7 @@ window.edgedsmDashboard = {
   select, loadHistory, measure, loadCommissioning,
   commissioning: () => commissioning,
   plotPoints: () => (plot ? plot.data[0].map((t, i) => [t, plot.data[1][i]]) : []),
+  plotCaption: () => $("plot-caption").textContent,
   thresholds: () => history.thresholds,
 };
 

@@ -71,9 +71,13 @@ def test_drying_judged_on_a_descriptor_above_its_noise_floor(repo, activity, mod
     assert readings[f"regions/plate/{activity}/mean"].value == last.mean
     assert f"regions/plate/{activity}/mean" in declared_readings(["plate"], engine_estimators(config))
     families = {family.name: family for family in _stats_families(ready[-1])}
-    samples = {s.labels["estimator"]: s.value for s in families["edgedsm_region_activity"].samples}
+    samples = {s.labels["map"]: s.value for s in families["edgedsm_region_map_mean"].samples}
     assert samples == {name: ready[-1].regions["plate"][name].mean for name in ("s1", "s2", "s3", activity)}
-    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").activity_entity("plate", activity)
+    # `activity`: the judged value, above the floor (the stats' and the state report's number)
+    judged = ready[-1].activity["plate"]
+    assert judged.estimator == activity and judged.basis == "above_noise" and judged.value < last.mean
+    assert [s.value for s in families["edgedsm_region_activity"].samples] == [judged.value]
+    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").map_mean_entity("plate", activity)
     assert f"'{activity}'" in entity.config["value_template"] and entity.config["state_topic"] == "edgedsm/test/stats"
     dashboard = Plant("edgedsm", None, lambda kind, data: None)
     dashboard.handle("edgedsm/cam/stats", ready[-1].to_bytes())
@@ -81,7 +85,8 @@ def test_drying_judged_on_a_descriptor_above_its_noise_floor(repo, activity, mod
     dashboard.handle(f"edgedsm/cam/map/{activity}/meta", json.dumps(meta).encode())
     dashboard.handle(f"edgedsm/cam/map/{activity}", png)
     (device,) = dashboard.snapshot()
-    assert device["stats"]["activity"] == {"plate": last.mean} and device["stats"]["estimator"] == activity
+    assert device["stats"]["activity"] == {"plate": judged.value} and device["stats"]["estimator"] == activity
+    assert device["stats"]["plain"] == {"plate": last.mean}
     assert device["maps"][activity]["max"] == pytest.approx(float(maps[-1].values.max()), rel=1e-3)
 
 
@@ -159,9 +164,12 @@ def test_drying_judged_on_the_band_ratio(repo):
     assert readings["regions/plate/band_ratio/mean"].value == last.mean
     assert "regions/plate/band_ratio/mean" in declared_readings(["plate"], engine_estimators(config))
     families = {family.name: family for family in _stats_families(ready[-1])}
-    samples = {s.labels["estimator"]: s.value for s in families["edgedsm_region_activity"].samples}
+    samples = {s.labels["map"]: s.value for s in families["edgedsm_region_map_mean"].samples}
     assert samples == {name: ready[-1].regions["plate"][name].mean for name in ("s1", "s2", "s3", "band_ratio")}
-    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").activity_entity("plate", "band_ratio")
+    # no floor for the band ratio: the judged value is the plain mean itself
+    assert ready[-1].activity["plate"].basis == "plain"
+    assert [s.value for s in families["edgedsm_region_activity"].samples] == [ready[-1].activity["plate"].value]
+    entity = Discovery("homeassistant", Topics("edgedsm/test"), "test").map_mean_entity("plate", "band_ratio")
     assert "'band_ratio'" in entity.config["value_template"]
     dashboard = Plant("edgedsm", None, lambda kind, data: None)
     dashboard.handle("edgedsm/cam/stats", ready[-1].to_bytes())
@@ -169,7 +177,8 @@ def test_drying_judged_on_the_band_ratio(repo):
     dashboard.handle("edgedsm/cam/map/band_ratio/meta", json.dumps(meta).encode())
     dashboard.handle("edgedsm/cam/map/band_ratio", png)
     (device,) = dashboard.snapshot()
-    assert device["stats"]["activity"] == {"plate": last.mean} and device["stats"]["estimator"] == "band_ratio"
+    assert device["stats"]["activity"] == {"plate": ready[-1].activity["plate"].value}
+    assert device["stats"]["plain"] == {"plate": last.mean} and device["stats"]["estimator"] == "band_ratio"
     assert device["maps"]["band_ratio"]["max"] == pytest.approx(float(values.max()), rel=1e-3)
 
 

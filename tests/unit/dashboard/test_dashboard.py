@@ -25,17 +25,35 @@ from edgedsm.dashboard import history as history_module
 from edgedsm.dashboard.history import History, Sample
 from edgedsm.dashboard.plant import MAX_DEVICES, Plant, RegionInfo
 from edgedsm.dashboard.server import DashboardServer, EventHub
-from edgedsm.messages import Alert, AlertKind, MapStats, RegionSignal, RegionState, RegionTau, StateReport, Stats
+from edgedsm.messages import (
+    Alert,
+    AlertKind,
+    MapStats,
+    RegionActivity,
+    RegionSignal,
+    RegionState,
+    RegionTau,
+    StateReport,
+    Stats,
+)
 from edgedsm.publish.mapcodec import encode_map
 
 #: A whole second of today: the history keeps a day, so a fixed date would age out of it.
 NOW = float(int(time.time()))
 
 
+#: The plain S2 mean above the judged activity (the noise floor a daemon takes off)
+FLOOR = 0.0625
+
+
 def stats(t: float, activity: float, state: str = "drying") -> bytes:
-    per_map = {"s2": MapStats(pixels=100, mean=activity, std=0.01, p05=0.1, median=activity, p95=0.4)}
+    """Stats whose judged ``activity`` is above a noise floor of FLOOR: the plain mean is higher."""
+    plain = activity + FLOOR
+    per_map = {"s2": MapStats(pixels=100, mean=plain, std=0.01, p05=0.1, median=plain, p95=0.4)}
+    judged = {"plate": RegionActivity(value=activity, estimator="s2", unit="1", basis="above_noise")}
     return Stats(t=t, frames=10, ready=True, fps=20.0, laser="on", estimator="s2", regions={"plate": per_map},
-                 states={"plate": state}, drops={"dropped_queue": 2}, ambient_level=3.5).to_bytes()
+                 states={"plate": state}, drops={"dropped_queue": 2}, ambient_level=3.5,
+                 activity=judged).to_bytes()
 
 
 @pytest.fixture
@@ -69,7 +87,11 @@ def test_stats_state_and_alerts_reach_the_view_and_the_history(plant: Plant, his
     plant.handle("edgedsm/cam1/cmd/rebaseline/reply", b"{}")  # not the dashboard's business
     (device,) = plant.snapshot()
     assert device["availability"] == "online" and device["rejected"] == 0
+    # the judged value under `activity` (what the history and the chart carry), the plain mean beside it
     assert device["stats"]["activity"] == {"plate": 0.20} and device["stats"]["drops"] == {"dropped_queue": 2}
+    assert device["stats"]["plain"] == {"plate": 0.20 + FLOOR} and device["stats"]["plain_label"] == "S2 mean"
+    assert device["stats"]["judged"] == {"plate": {"estimator": "s2", "unit": None, "label": "S2",
+                                                   "basis": "above_noise"}}
     assert device["state"]["regions"]["plate"]["state"] == "drying"
     assert len(device["alerts"]) == 1 and device["regions"]["plate"]["wet_above"] == 0.3
     assert [kind for kind, _ in plant.events].count("alert") == 1  # type: ignore[attr-defined]
@@ -91,7 +113,10 @@ def test_a_region_judged_on_tau_c_shows_its_tau_c_beside_others_on_s2(plant: Pla
                            "edge": RegionTau(tau_c_s=0.31, status="measured")})
     plant.handle("edgedsm/cam1/stats", message.to_bytes())
     (device,) = plant.snapshot()
+    # a daemon whose stats carry no `activity` yet: the state report's judged values, never the plain mean
     assert device["stats"]["activity"] == {"plate": 0.25, "edge": 0.31}  # S2 for one, τc (s) for the other
+    assert device["stats"]["judged"]["edge"] == {"estimator": "tau_c", "unit": "s", "label": "τc",
+                                                 "basis": "state report"}
     assert history.flush(5)
     assert history.samples("cam1", "edge", NOW - 1, NOW + 1) == [(NOW, 0.31, "drying")]
 
@@ -112,6 +137,16 @@ def test_each_regions_signal_quality_reaches_the_view(plant: Plant) -> None:
     crowded = message.model_copy(update={"signal": {f"r{i}": light for i in range(65)}})
     plant.handle("edgedsm/cam1/stats", crowded.to_bytes())
     assert plant.snapshot()[0]["rejected"] == 1 and "more than 64 regions" in plant.snapshot()[0]["last_rejection"]
+
+
+def test_the_colour_pictures_for_home_assistant_are_not_unreadable(plant: Plant) -> None:
+    plant.handle("edgedsm/cam1/stats", stats(NOW, 0.25))
+    for name in ("s1", "s2", "s3"):  # the daemon's documented topics with [homeassistant] on
+        plant.handle(f"edgedsm/cam1/map/{name}/color", b"\x89PNG\r\n\x1a\n" + bytes(40))
+    (device,) = plant.snapshot()
+    assert device["rejected"] == 0 and device["last_rejection"] is None and device["maps"] == {}
+    plant.handle("edgedsm/cam1/map/s2/colour", b"x")  # not a documented topic: still refused, and said
+    assert plant.snapshot()[0]["rejected"] == 1
 
 
 # Named ids: NOW in an id would differ between pytest-xdist's workers (they collect at different

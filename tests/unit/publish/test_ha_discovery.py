@@ -8,7 +8,7 @@ import jinja2
 import pytest
 
 from edgedsm import __version__
-from edgedsm.messages import MapStats, RegionSignal, RegionState, StateReport, Stats
+from edgedsm.messages import MapStats, RegionActivity, RegionSignal, RegionState, StateReport, Stats
 from edgedsm.publish.ha_discovery import SIGNALS, STATES, Discovery
 from edgedsm.publish.topics import Topics
 
@@ -27,8 +27,9 @@ def _render(template: str, payload: bytes) -> str:
 
 def test_every_entity_is_of_one_device_with_unique_ids(discovery: Discovery) -> None:
     entities = [*discovery.device_entities(), *discovery.region_entities("panel"),
-                discovery.activity_entity("panel", "s2"), discovery.image_entity("s2")]
-    assert len({e.topic for e in entities}) == len({e.config["unique_id"] for e in entities}) == 6
+                discovery.activity_entity("panel", "1"), discovery.map_mean_entity("panel", "s2"),
+                discovery.image_entity("s2")]
+    assert len({e.topic for e in entities}) == len({e.config["unique_id"] for e in entities}) == 7
     for entity in entities:
         assert entity.topic.startswith("homeassistant/") and entity.topic.endswith("/config")
         assert entity.topic.split("/")[2] == "edgedsm_line3"
@@ -53,12 +54,25 @@ def test_region_state_is_an_enum_of_the_five_states_read_from_the_state_topic(di
 
 
 def test_activity_and_laser_are_read_from_the_stats(discovery: Discovery) -> None:
-    stats = Stats(t=1.0, frames=10, ready=True, fps=20.0, laser="on", estimator="s2", regions={
-        "panel": {"s2": MapStats(pixels=4, mean=0.25, std=0.1, p05=0.1, median=0.2, p95=0.4)}})
-    activity = discovery.activity_entity("panel", "s2")
-    assert activity.config["state_topic"] == "plant/edgedsm/line3/stats"
-    assert _render(activity.config["value_template"], stats.to_bytes()) == "0.25"
-    assert _render(discovery.activity_entity("panel", "tau_c").config["value_template"], stats.to_bytes()) == "None"
+    judged = RegionActivity(value=0.0625, estimator="s2", unit="1", basis="above_noise")
+    stats = Stats(t=1.0, frames=10, ready=True, fps=20.0, laser="on", estimator="s2", activity={"panel": judged},
+                  regions={"panel": {"s1": MapStats(pixels=4, mean=3.5, std=1, p05=1, median=3, p95=6),
+                                     "s2": MapStats(pixels=4, mean=0.25, std=0.1, p05=0.1, median=0.2, p95=0.4)}})
+    # `activity`: the value the thresholds judge, not the plain mean beside it
+    activity = discovery.activity_entity("panel", "1")
+    assert activity.topic == "homeassistant/sensor/edgedsm_line3/panel_activity/config"
+    assert activity.config["state_topic"] == "plant/edgedsm/line3/stats" and activity.config["name"] == "panel activity"
+    assert _render(activity.config["value_template"], stats.to_bytes()) == "0.0625"
+    assert "unit_of_measurement" not in activity.config  # dimensionless: a bare number
+    held = stats.model_copy(update={"activity": {"panel": judged.model_copy(update={"value": None})}})
+    assert _render(activity.config["value_template"], held.to_bytes()) == "None"
+    assert discovery.activity_entity("panel", "s").config["unit_of_measurement"] == "s"  # judged on τc
+    s2, s1 = discovery.map_mean_entity("panel", "s2"), discovery.map_mean_entity("panel", "s1")
+    assert s2.config["name"] == "panel S2 mean" and "unit_of_measurement" not in s2.config
+    assert s1.config["name"] == "panel S1 mean" and s1.config["unit_of_measurement"] == "grey levels"
+    assert _render(s2.config["value_template"], stats.to_bytes()) == "0.25"
+    assert _render(s1.config["value_template"], stats.to_bytes()) == "3.5"
+    assert _render(discovery.map_mean_entity("panel", "tau_c").config["value_template"], stats.to_bytes()) == "None"
     laser = discovery.device_entities()[0]
     assert "command_topic" not in laser.config  # read-only
     assert _render(laser.config["value_template"], stats.to_bytes()) == laser.config["payload_on"]

@@ -12,7 +12,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from edgedsm.frames import Frame
-from edgedsm.messages import MapStats, RegionSignal, Stats
+from edgedsm.messages import MapStats, RegionActivity, RegionSignal, Stats
 from edgedsm.publish.prometheus import MetricsSink
 from tests.ports import free_port
 
@@ -65,8 +65,11 @@ def _samples(text: bytes) -> dict[tuple[str, tuple[tuple[str, str], ...]], float
 def _stats(frames: int, state: str = "drying", laser: str = "on") -> Stats:
     per_map = {"s1": MapStats(pixels=9, mean=3.5, std=1, p05=1, median=3, p95=6),
                "s2": MapStats(pixels=9, mean=0.25, std=0.1, p05=0.1, median=0.2, p95=0.4)}
+    # judged above the noise: less than the plain S2 mean
+    activity = {"panel": RegionActivity(value=0.0625, estimator="s2", unit="1", basis="above_noise")}
     return Stats(t=1.0, frames=frames, ready=True, fps=19.5, laser=laser, estimator="s2",
-                 drops={"queue": 4, "invalid": 1}, regions={"panel": per_map}, state={"panel": state})
+                 drops={"queue": 4, "invalid": 1}, regions={"panel": per_map}, state={"panel": state},
+                 activity=activity)
 
 
 def _frame(seq: int) -> Frame:
@@ -86,8 +89,11 @@ def test_metrics_carry_the_latest_stats_probes_and_link(sink: MetricsSink) -> No
     assert samples[("edgedsm_alerts_pending", ())] == 3
     assert samples[("edgedsm_mqtt_connected", ())] == 1
     assert samples[("edgedsm_laser_on", ())] == 1
-    assert samples[("edgedsm_region_activity", (("estimator", "s1"), ("region", "panel")))] == 3.5
-    assert samples[("edgedsm_region_activity", (("estimator", "s2"), ("region", "panel")))] == 0.25
+    # the judged value under `activity`, the plain means under their own name, each with its unit
+    activity = {labels: value for (name, labels), value in samples.items() if name == "edgedsm_region_activity"}
+    assert activity == {(("estimator", "s2"), ("region", "panel"), ("unit", "1")): 0.0625}
+    assert samples[("edgedsm_region_map_mean", (("map", "s1"), ("region", "panel"), ("unit", "grey levels")))] == 3.5
+    assert samples[("edgedsm_region_map_mean", (("map", "s2"), ("region", "panel"), ("unit", "1")))] == 0.25
     states = {labels: value for (name, labels), value in samples.items() if name == "edgedsm_region_state"}
     assert sum(states.values()) == 1 and states[(("region", "panel"), ("state", "drying"))] == 1
     assert len(states) == 5
