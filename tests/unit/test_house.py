@@ -124,8 +124,9 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 )
 LAYER = {name: level for level, names in enumerate(LAYERS) for name in names}
 
-#: Violations of the layer order and of the private-name rule that live in files other engineers
-#: are moving right now; each is an entry of `_layer_violations()` or `_private_violations()`,
+#: Violations of the layer order, of the private-name rule and of "the daemon hands each component
+#: its sections" that live in files other engineers are moving right now; each is an entry of
+#: `_layer_violations()`, `_private_violations()` or `_daemon_hands_whole_config()`,
 #: with the issue that removes it. The test fails when an entry no longer occurs (take it out: the
 #: set only shrinks) and when a violation is not listed.
 KNOWN_VIOLATIONS: set[tuple[str, int]] = {
@@ -142,6 +143,11 @@ KNOWN_VIOLATIONS: set[tuple[str, int]] = {
     # a region's section builds (and so validates) drying.Thresholds, a measurement type: the
     # thresholds' values belong to the config, the state machine that uses them to the core
     ("edgedsm.config.regions -> edgedsm.drying", 35),
+    # the daemon hands the measurement core the whole config where its sections would do
+    # (EngineSpec.of_sections(config.estimator, tau_c=config.tau_c_on, **config.band_args))
+    ("edgedsm.daemon.engine_budget.make_engine: EngineSpec.of(DaemonConfig)", 35),
+    ("edgedsm.daemon.engine_budget._warm_up: EngineSpec.of(DaemonConfig)", 35),
+    ("edgedsm.daemon.evaluator.__init__: Judgement(DaemonConfig)", 35),
 }
 
 
@@ -217,11 +223,47 @@ def test_every_package_has_a_layer() -> None:
     assert len(LAYER) == sum(len(names) for names in LAYERS), "a name in two layers"
 
 
+def _whole_config_handed(source: str, module: str) -> set[str]:
+    """``module.function: callee(DaemonConfig)`` for each call in the daemon's ``source`` that hands
+    a component of a lower layer (not the config's own functions) the whole config: a parameter
+    annotated ``DaemonConfig``, or ``self.config``."""
+    tree = ast.parse(source)
+    imported = {alias.asname or alias.name: node.module for node in ast.walk(tree)
+                if isinstance(node, ast.ImportFrom) and node.module for alias in node.names}
+    below = {name for name, origin in imported.items() if origin.split(".")[0] == "edgedsm"
+             and _unit(origin) != "config" and LAYER[_unit(origin)] < LAYER["daemon"]}
+    found = set()
+    for function in ast.walk(tree):
+        if not isinstance(function, ast.FunctionDef | ast.AsyncFunctionDef):
+            continue
+        whole = {arg.arg for arg in function.args.args + function.args.kwonlyargs
+                 if arg.annotation is not None and "DaemonConfig" in ast.unparse(arg.annotation)}
+        for call in ast.walk(function):
+            if not isinstance(call, ast.Call):
+                continue
+            root = call.func
+            while isinstance(root, ast.Attribute):
+                root = root.value
+            handed = [value for value in [*call.args, *(keyword.value for keyword in call.keywords)]
+                      if (isinstance(value, ast.Name) and value.id in whole) or ast.unparse(value) == "self.config"]
+            if isinstance(root, ast.Name) and root.id in below and handed:
+                found.add(f"{module}.{function.name}: {ast.unparse(call.func)}(DaemonConfig)")
+    return found
+
+
+def _daemon_hands_whole_config() -> set[str]:
+    return {entry for path in sorted((REPO / "edgedsm" / "daemon").glob("*.py"))
+            for entry in _whole_config_handed(path.read_text(encoding="utf-8"), _module_name(path))}
+
+
 def test_no_upward_import_and_no_private_import_across_packages() -> None:
+    """With the third rule of issue 35: the daemon, which alone sees the whole DaemonConfig, hands
+    each component below it the sections it needs (docs/architecture.md, "Layers")."""
     graph = _graph()
-    found = _layer_violations(graph) | _private_violations(graph)
+    found = _layer_violations(graph) | _private_violations(graph) | _daemon_hands_whole_config()
     known = {violation for violation, _ in KNOWN_VIOLATIONS}
-    assert found - known == set(), "import from a higher layer, or a private name from another package"
+    assert found - known == set(), ("import from a higher layer, a private name from another package, or the whole "
+                                    "config handed below the daemon")
     assert known - found == set(), "fixed: take these out of KNOWN_VIOLATIONS"
 
 
@@ -233,6 +275,25 @@ def test_the_checks_find_what_they_look_for() -> None:
     assert _layer_violations(graph) == {"edgedsm.estimators.x -> edgedsm.daemon.pipeline"}
     assert _private_violations(graph) == {"edgedsm.daemon.y -> edgedsm.devices.laser._serial",
                                           "edgedsm.daemon.y -> edgedsm.sim.poisson._numba"}
+    source = """
+from edgedsm.config import DaemonConfig, check_regions
+from edgedsm.daemon.tau import TauRegions
+from edgedsm.measurement import EngineSpec
+from edgedsm.publish.mqtt import MqttSink
+
+def build(config: DaemonConfig, other: int) -> None:
+    EngineSpec.of(config)
+    EngineSpec.of_sections(config.estimator, other)
+    MqttSink(config.mqtt)
+    TauRegions(config)
+    check_regions(config)
+
+class Pipeline:
+    def run(self) -> None:
+        MqttSink(settings=self.config)
+"""
+    assert _whole_config_handed(source, "edgedsm.daemon.x") == {"edgedsm.daemon.x.build: EngineSpec.of(DaemonConfig)",
+                                                                "edgedsm.daemon.x.run: MqttSink(DaemonConfig)"}
 
 
 # -- the product's wheel -----------------------------------------------------------------------
