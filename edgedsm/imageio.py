@@ -3,6 +3,11 @@
 Frame stacks: ``.npy`` (N, H, W), multi-page ``.tif``/``.tiff`` or a ``printf`` pattern such as
 ``frames/%05d.png``. Reading any frame source is ``edgedsm.frameio`` (streaming, one layer for
 every command); recordings with timestamps are ``edgedsm record`` (``edgedsm.frameio.recording``).
+
+Colour: :func:`colour_picture` and :func:`colour_ramp` are the one renderer of a map in colours,
+used by every picture edgedsm makes (``save_map_png`` here; Home Assistant's colour maps,
+``edgedsm.publish.colormap``; the dashboard's maps and colour bar, ``edgedsm.dashboard.maps``):
+the same map, range and colour map give the same pixels everywhere (tests/unit/test_imageio.py).
 """
 
 from __future__ import annotations
@@ -23,6 +28,45 @@ from edgedsm.errors import DataError
 
 class ImageIOError(DataError):
     """A frame file could not be read or written (exit code 65: the data, not the program)."""
+
+
+#: OpenCV colour maps by the names the config accepts (viridis: perceptually uniform, readable
+#: by colour-blind operators; the pictures' and the dashboard's).
+COLORMAPS = {"turbo": cv2.COLORMAP_TURBO, "viridis": cv2.COLORMAP_VIRIDIS, "inferno": cv2.COLORMAP_INFERNO,
+             "jet": cv2.COLORMAP_JET}
+
+
+def colour_indices(values: np.ndarray, value_range: tuple[float, float] | None = None
+                   ) -> tuple[np.ndarray, float, float]:
+    """``(uint8 indices, low, high)``: the map scaled linearly from ``low`` (index 0) to ``high``
+    (255), rounded, clipped outside; the range defaults to the finite values' minimum and
+    maximum. A constant map (or range) is index 0; a NaN is ``low``'s colour."""
+    data = np.asarray(values, dtype=np.float64)
+    if value_range is None:
+        finite = data[np.isfinite(data)]
+        low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    else:
+        low, high = float(value_range[0]), float(value_range[1])
+    if not high > low:
+        return np.zeros(data.shape, np.uint8), low, high
+    clean = np.nan_to_num(data, nan=low, posinf=high, neginf=low)
+    indices = np.rint((clean - low) * (255.0 / (high - low)))
+    return np.clip(indices, 0, 255).astype(np.uint8), low, high
+
+
+def colour_picture(values: np.ndarray, colormap: str = "viridis", value_range: tuple[float, float] | None = None
+                   ) -> tuple[np.ndarray, float, float]:
+    """``(BGR uint8 picture, low, high)`` of a map in ``colormap`` (see :func:`colour_indices`)."""
+    if colormap not in COLORMAPS:
+        raise ValueError(f"unknown colour map {colormap!r} (one of {', '.join(COLORMAPS)})")
+    indices, low, high = colour_indices(values, value_range)
+    return cv2.applyColorMap(indices, COLORMAPS[colormap]), low, high
+
+
+def colour_ramp(height: int, width: int, colormap: str = "viridis") -> np.ndarray:
+    """The colour bar of :func:`colour_picture`: ``height`` rows, the maximum at the top."""
+    ramp = np.rint(np.linspace(255, 0, height)).astype(np.uint8)[:, None].repeat(width, axis=1)
+    return cv2.applyColorMap(ramp, COLORMAPS[colormap])
 
 
 def write_atomic(path: str | Path, write: Callable[[BinaryIO], object]) -> Path:
@@ -130,17 +174,15 @@ def save_map_png(path: str | Path, values: np.ndarray, title: str = "",
         low, high = value_range
     if not high > low:
         high = low + 1.0
-    scaled = np.clip((np.nan_to_num(data, nan=low) - low) / (high - low), 0, 1)
-    picture = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+    picture, low, high = colour_picture(data, "viridis", (float(low), float(high)))
     zoom = max(1, math.ceil(384 / max(data.shape)))  # small maps are enlarged to stay legible
     picture = cv2.resize(picture, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
     h, w = picture.shape[:2]
     margin_top, bar_w, label_w = 28, 18, 90
     canvas = np.full((h + margin_top + 30, w + bar_w + label_w + 20, 3), 255, np.uint8)
     canvas[margin_top:margin_top + h, 0:w] = picture
-    ramp = np.linspace(255, 0, h).astype(np.uint8)[:, None].repeat(bar_w, axis=1)
     x0 = w + 10
-    canvas[margin_top:margin_top + h, x0:x0 + bar_w] = cv2.applyColorMap(ramp, cv2.COLORMAP_VIRIDIS)
+    canvas[margin_top:margin_top + h, x0:x0 + bar_w] = colour_ramp(h, bar_w, "viridis")
     font, black = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)
     for fraction in (0.0, 0.5, 1.0):
         y = margin_top + round((1 - fraction) * (h - 1))

@@ -13,19 +13,19 @@ from pydantic import Field, TypeAdapter
 from edgedsm import geometry
 from edgedsm.analysis import region_stats
 from edgedsm.errors import EstimatorError
+from edgedsm.imageio import colour_picture, colour_ramp
 
-COLORMAP = cv2.COLORMAP_VIRIDIS  # perceptually uniform, readable by colour-blind operators
+COLORMAP = "viridis"  # perceptually uniform, readable by colour-blind operators
 #: The editor's shapes, in camera pixels (the daemon's coordinates), without region settings.
 EditorShape = Annotated[geometry.Rect | geometry.Circle | geometry.Polygon, Field(discriminator="shape")]
 _SHAPE = TypeAdapter(EditorShape)
 
 
 def colour_png(values: np.ndarray) -> bytes:
-    """The map scaled from its minimum (dark blue) to its maximum (yellow), as an RGB PNG."""
-    low, high = float(values.min()), float(values.max())
-    span = high - low
-    grey = np.zeros(values.shape, np.uint8) if span <= 0 else np.rint((values - low) * (255.0 / span)).astype(np.uint8)
-    ok, png = cv2.imencode(".png", cv2.applyColorMap(grey, COLORMAP))
+    """The map scaled from its minimum (dark blue) to its maximum (yellow), as an RGB PNG, drawn
+    by edgedsm's one colour renderer (``edgedsm.imageio.colour_picture``)."""
+    picture, _, _ = colour_picture(values, COLORMAP)
+    ok, png = cv2.imencode(".png", picture)
     if not ok:  # pragma: no cover - OpenCV encodes any uint8 image
         raise ValueError("PNG encoding failed")
     return png.tobytes()
@@ -33,8 +33,7 @@ def colour_png(values: np.ndarray) -> bytes:
 
 def colour_bar_png(height: int = 256, width: int = 16) -> bytes:
     """The colour scale, maximum at the top."""
-    ramp = np.repeat(np.linspace(255, 0, height).astype(np.uint8)[:, None], width, axis=1)
-    return cv2.imencode(".png", cv2.applyColorMap(ramp, COLORMAP))[1].tobytes()
+    return cv2.imencode(".png", colour_ramp(height, width, COLORMAP))[1].tobytes()
 
 
 def parse_shape(data: Any) -> geometry.Rect | geometry.Circle | geometry.Polygon:

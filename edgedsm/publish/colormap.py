@@ -1,10 +1,11 @@
-"""Activity maps as colour pictures for viewers (Home Assistant's image entity, a browser): an
-8-bit colour-mapped PNG with a colour bar labelled with the map's range. Pure, no I/O.
+"""Activity maps as colour pictures for viewers (Home Assistant's image entity): an 8-bit
+colour-mapped PNG with a colour bar labelled with the map's range. Pure, no I/O.
 
 For people, not programs: the exact values travel in the 16-bit map (``edgedsm.publish.mapcodec``).
-The map is downsampled like the 16-bit one, scaled linearly from its minimum (colour-map index 0)
-to its maximum (255), and a bar on the right shows the scale, the maximum at its top and the
-minimum at its bottom.
+The map is downsampled like the 16-bit one and drawn by edgedsm's one colour renderer
+(``edgedsm.imageio.colour_picture``: linear from its minimum, index 0, to its maximum, 255; the
+dashboard and the saved pictures use it too); a bar on the right shows the scale, the maximum at
+its top and the minimum at its bottom.
 """
 
 from __future__ import annotations
@@ -12,12 +13,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from edgedsm import imageio
+from edgedsm.imageio import COLORMAPS
 from edgedsm.publish.errors import MapCodecError
 from edgedsm.publish.mapcodec import downsample_map
 
-#: OpenCV colour maps by the names the config accepts.
-COLORMAPS = {"turbo": cv2.COLORMAP_TURBO, "viridis": cv2.COLORMAP_VIRIDIS, "inferno": cv2.COLORMAP_INFERNO,
-             "jet": cv2.COLORMAP_JET}
 BAR_WIDTH = 16
 GAP = 6
 LABEL_WIDTH = 72
@@ -26,13 +26,12 @@ MIN_HEIGHT = 64
 
 
 def colour_indices(values: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """``(uint8 indices, low, high)``: the map scaled linearly from its min (0) to its max (255)."""
+    """``(uint8 indices, low, high)``: the map scaled linearly from its min (0) to its max (255);
+    MapCodecError for a NaN or inf (a published map is finite)."""
     data = np.asarray(values, dtype=np.float64)
     if not np.isfinite(data).all():
         raise MapCodecError("a colour map needs finite values (NaN or inf found)")
-    low, high = float(data.min()), float(data.max())
-    indices = np.rint((data - low) * (255.0 / (high - low))) if high > low else np.zeros(data.shape)
-    return np.clip(indices, 0, 255).astype(np.uint8), low, high
+    return imageio.colour_indices(data)
 
 
 def _label(value: float) -> str:
@@ -45,14 +44,13 @@ def render_colour_map(values: np.ndarray, *, colormap: str = "turbo", max_size: 
     if colormap not in COLORMAPS:
         raise MapCodecError(f"unknown colour map {colormap!r} (one of {', '.join(COLORMAPS)})")
     data = downsample_map(values, max_size)
-    indices, low, high = colour_indices(data)
-    picture = cv2.applyColorMap(indices, COLORMAPS[colormap])
+    colour_indices(data)  # finite, or MapCodecError
+    picture, low, high = imageio.colour_picture(data, colormap)
     rows, cols = picture.shape[:2]
     height = max(rows, MIN_HEIGHT)
     canvas = np.full((height, cols + GAP + BAR_WIDTH + LABEL_WIDTH, 3), 255, np.uint8)
     canvas[:rows, :cols] = picture
-    ramp = np.linspace(255, 0, height).round().astype(np.uint8)[:, None].repeat(BAR_WIDTH, axis=1)
-    canvas[:, cols + GAP:cols + GAP + BAR_WIDTH] = cv2.applyColorMap(ramp, COLORMAPS[colormap])
+    canvas[:, cols + GAP:cols + GAP + BAR_WIDTH] = imageio.colour_ramp(height, BAR_WIDTH, colormap)
     text_x = cols + GAP + BAR_WIDTH + 4
     font, scale, black = cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0)
     cv2.putText(canvas, _label(high), (text_x, 12), font, scale, black, 1, cv2.LINE_AA)

@@ -47,3 +47,35 @@ def test_map_pictures_are_written_atomically_and_decode(tmp_path):
     with pytest.raises(ImageIOError, match="no image format"):
         save_map_png(tmp_path / "m.unknown", np.zeros((4, 4)))
     assert [p.name for p in tmp_path.iterdir()] == ["m.png"]
+
+
+def test_one_colour_renderer_draws_the_same_pixels_for_home_assistant_the_dashboard_and_the_pictures(tmp_path):
+    from edgedsm.dashboard.maps import colour_bar_png, colour_png
+    from edgedsm.imageio import COLORMAPS, colour_picture, colour_ramp
+    from edgedsm.publish.colormap import render_colour_map
+
+    # a map with every index of the scale, its extremes included (low → index 0, high → 255)
+    values = np.random.default_rng(3).random((48, 64)) * 0.5 + 0.1
+    reference, low, high = colour_picture(values, "viridis")
+    assert (low, high) == (values.min(), values.max())
+    lut = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], COLORMAPS["viridis"])[:, 0]
+    expected = lut[np.clip(np.rint((values - low) * 255 / (high - low)), 0, 255).astype(int)]
+    assert np.array_equal(reference, expected)
+    # the dashboard's map and colour bar
+    dashboard = cv2.imdecode(np.frombuffer(colour_png(values), np.uint8), cv2.IMREAD_COLOR)
+    assert np.array_equal(dashboard, reference)
+    bar = cv2.imdecode(np.frombuffer(colour_bar_png(256, 16), np.uint8), cv2.IMREAD_COLOR)
+    assert np.array_equal(bar, colour_ramp(256, 16, "viridis"))
+    assert np.array_equal(bar[0, 0], lut[255]) and np.array_equal(bar[-1, 0], lut[0])
+    # Home Assistant's picture: the same pixels left of its colour bar, and the same bar
+    ha = render_colour_map(values, colormap="viridis", max_size=None)
+    assert np.array_equal(ha[:48, :64], reference)
+    # the saved picture (analyze --png, demo, watch): the same pixels, zoomed 6x, at the same range
+    path = save_map_png(tmp_path / "m.png", values, value_range=(low, high))
+    saved = cv2.imread(str(path))
+    zoom = 384 // 64
+    assert np.array_equal(saved[28:28 + 48 * zoom:zoom, 0:64 * zoom:zoom], reference)
+    # the other colour maps the config accepts go through the same code
+    for name in COLORMAPS:
+        ha = render_colour_map(values, colormap=name, max_size=None)
+        assert np.array_equal(ha[:48, :64], colour_picture(values, name)[0])
