@@ -31,10 +31,10 @@ from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.tau import TauRegions
 from edgedsm.errors import FrameError
 from edgedsm.estimators import SlidingWindow
-from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
+from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan
 from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot
-from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.frames import Frame
+from edgedsm.measurement.core import reduce
 from edgedsm.noise_patches import NoisePatches
 
 log = logging.getLogger(__name__)
@@ -144,9 +144,7 @@ class Measurement:
             wanted = self._snapshot_estimators(stats_due)
             if wanted:
                 # the live sums, read between two pushes on the thread that pushes: no copy
-                moments = region_moments(self.engine.snapshot(wanted, live=True), self._layout, wanted,
-                                         spread=stats_due, parallel=self.engine.shape[0] * self.engine.shape[1]
-                                         >= PARALLEL_MIN_PIXELS)
+                moments = reduce(self.engine, self._layout, wanted, spread=stats_due)  # the core's reduction
             if publish_maps:
                 engine = self._buffers = self.engine.snapshot(self.config.estimator.maps, into=self._buffers)
             tau = self.tau.take(self.engine, stats_due, self._tau_buffers)

@@ -39,7 +39,7 @@ from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNA
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_floor import AboveNoise
 from edgedsm.estimators.noise_summary import full_scale
-from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
+from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.measurement.judge import SignalJudge, SignalWarning
 from edgedsm.measurement.spec import EngineSpec
@@ -49,6 +49,15 @@ from edgedsm.noise_patches import MAX_PATCH_FRAMES, NoisePatches, PatchWindow, p
 TAU_STATUS = {MEASURED: "measured", ABOVE: "above", BELOW: "below", NO_SIGNAL: "no_signal"}
 #: ``view`` of a reading whose noise is judged on every pixel of the region
 REGION_VIEW = "region"
+
+
+def reduce(engine: SlidingWindow, layout: RegionLayout, maps: Sequence[str], spread: bool = False
+           ) -> dict[str, dict[str, Moments]]:
+    """Every region's moments of ``maps`` from the engine's live sums, between two pushes on the
+    thread that pushes (no copy, no float maps): the daemon's pipeline thread and :class:`Core`
+    reduce through this one function; ``spread``: the deviations and percentile samples too."""
+    return region_moments(engine.snapshot(maps, live=True), layout, maps, spread=spread,
+                          parallel=engine.shape[0] * engine.shape[1] >= PARALLEL_MIN_PIXELS)
 
 
 def view_of(patch: int | None) -> str:
@@ -164,21 +173,25 @@ class Core:
     thread). ``regions``: boolean masks in the frames' shape; ``patch``: the side of the noise
     patch at each region's centre (None: every pixel of the region: ``view`` "region");
     ``floored``: maps whose floors the judge keeps beside the judged one; ``extra``: maps the engine
-    keeps sums for beside the config's; ``dt``: the frame interval (s) of τc in seconds."""
+    keeps sums for beside the config's; ``dt``: the frame interval (s) of τc in seconds;
+    ``companions``: more engines fed the same frames, whose maps' region means join the main
+    engine's (``tune``'s Fujii at q = 0 beside S2 at the config's q, as two daemons would run)."""
 
     def __init__(self, config: DaemonConfig, regions: Mapping[str, np.ndarray], *, patch: int | None = None,
                  floored: Sequence[str] = (), extra: Sequence[str] = (), dt: float = 1.0,
-                 spec: EngineSpec | None = None, t0: float = 0.0) -> None:
+                 spec: EngineSpec | None = None, t0: float = 0.0, companions: Sequence[EngineSpec] = ()) -> None:
         if not regions:
             raise EstimatorError("no region to measure")
         self.config = config
         self.spec = spec or EngineSpec.of_sections(config.estimator, tau_c=config.tau_c_on, extra=extra,
                                                    **config.band_args)
+        self.companions = tuple(companions)
         self.masks = dict(regions)
         self.patch = patch
         self.dt = dt
         self.judgement = Judgement(config, t0=t0, floored=floored, view=view_of(patch))
         self.engine: SlidingWindow | None = None
+        self._others: list[tuple[SlidingWindow, tuple[str, ...]]] = []  # the companions' engines and maps
         self.patches: NoisePatches | None = None
         self._layout: RegionLayout | None = None
         self._crop: tuple[slice, slice] | None = None
@@ -191,6 +204,7 @@ class Core:
                                      f"the frames {shape[1]}x{shape[0]}")
         boxes = {name: RegionBox.of(mask) for name, mask in self.masks.items()}
         self.engine = self.spec.engine(shape, bits, threads=None)
+        self._others = [(spec.engine(shape, bits, threads=None), spec.maps) for spec in self.companions]
         self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in boxes.items()})
         if self.judgement.on:
             side = self.patch if self.patch is not None else max(shape)  # a patch the region's box: all of it
@@ -202,6 +216,8 @@ class Core:
             self._prepare(frame, bits)
         assert self.engine is not None
         self.engine.push(frame)
+        for other, _ in self._others:
+            other.push(frame)
         if self.patches is not None:
             self.patches.push(frame)
 
@@ -212,10 +228,11 @@ class Core:
     def estimates(self) -> dict[str, dict[str, float]]:
         """Every region's mean of every map, from the engine's live sums (the daemon's reduction)."""
         assert self.engine is not None and self._layout is not None
-        maps = self.spec.maps
-        moments = region_moments(self.engine.snapshot(maps, live=True), self._layout, maps, spread=False,
-                                 parallel=self.engine.shape[0] * self.engine.shape[1] >= PARALLEL_MIN_PIXELS)
-        return {region: {key: float(m.mean) for key, m in per_map.items()} for region, per_map in moments.items()}
+        out: dict[str, dict[str, float]] = {}
+        for engine, maps in ((self.engine, self.spec.maps), *self._others):
+            for region, per_map in reduce(engine, self._layout, maps).items():
+                out.setdefault(region, {}).update({key: m.mean for key, m in per_map.items()})
+        return out
 
     def taus(self) -> dict[str, tuple[float, str]]:
         """Each region's τc in seconds from its pooled correlations, with its status (none without τc)."""

@@ -1,20 +1,23 @@
 """One streaming pass of a reference run at one window N, lag m and mode: every region's activity
 over time, plain and as the daemon judges it above the camera's noise (docs/commissioning.md).
 
-Frames are pushed one by one into the streaming engine (memory: the engine's window, as
-``analyze --timeline``); every ``step`` frames once the window is full each region gives the
-activities the daemon can judge on (``estimator.activity``): S1, S2, S3 and the field's
-descriptors contrast, Fujii, IM and (asked for by name) GD (docs/descriptors.md), as the daemon's region means
-(:func:`~edgedsm.estimators.region_stats.region_moments` on the engine's live sums, the
-daemon's own reduction), τc in seconds (its pooled fit, sliding and tumbling windows) and,
-through the daemon's own :class:`~edgedsm.daemon.signal_judge.SignalJudge` on the same noise
-patches, S1, S2, S3, Fujii, IM, the contrast and GD above their noise floors, NaN while the
-daemon would hold the state (dark, saturated, not speckle). The judge is the daemon's so that the
-delays a candidate is credited with are the ones the daemon, configured from the snippet, shows.
+The pass is the daemon's measurement: the measurement core (:class:`edgedsm.measurement.Core`)
+with the config at this setting, its engine from the config's
+:class:`~edgedsm.measurement.EngineSpec`, its region means from the engine's live sums, its signal
+judge on the daemon's noise patches (``estimator.noise_patch``; judged at every sample, where the
+daemon judges them every ``cadence.stats_interval_s`` and turns the means between by the last
+floors: the floors here follow a short run as the daemon's follow a long one). Every ``step``
+frames once the window is full each region gives the activities the daemon can judge on
+(``estimator.activity``): S1, S2, S3 and the field's descriptors contrast, Fujii, IM and (asked
+for by name) GD (docs/descriptors.md), τc in seconds (its pooled fit, sliding and tumbling
+windows) and those with a floor above it, NaN while the daemon would hold the state (dark,
+saturated, not speckle). The judge keeps every candidate's floor from the same patches and model
+(one judge: what each would be judged on were it the activity), so that the delays a candidate is
+credited with are the ones the daemon, configured from the snippet, shows.
 
 Fujii is 200·S2 at q = 0, and the daemon judged on it runs its engine at q = 0
 (``estimator.engine_q``); when the config's q is not 0 (S2 is judged at that q), Fujii comes
-from a second engine at q = 0 in the same pass, fed the same frames.
+from a companion engine at q = 0 in the same pass, fed the same frames.
 """
 
 from __future__ import annotations
@@ -25,16 +28,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edgedsm.analysis import RegionBox, bounding_box
+from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
-from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES, PAPER_MAPS
-from edgedsm.daemon.signal_judge import ModelKeeper, SignalJudge
+from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES, PAPER_MAPS, EstimatorSection
 from edgedsm.estimators import SlidingWindow
-from edgedsm.estimators.noise_summary import ESTIMATORS as FLOORED
-from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
-from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.estimators.value_set import gd_mode_problem
-from edgedsm.noise_patches import NoisePatches
+from edgedsm.measurement import Core, EngineSpec, RegionReading
+from edgedsm.measurement.judge import FLOORED
+from edgedsm.validation import validate
 
 PLAIN = PAPER_MAPS  # S1, S2, S3: always formed (the daemon does; S3's and τc's floors need S1)
 #: every activity the daemon can judge on (``estimator.activity``), in the order candidates are listed;
@@ -95,96 +96,62 @@ def run_pass(frames: Iterable[np.ndarray], setting: Setting, config: DaemonConfi
              masks: dict[str, np.ndarray], dt: float, step: int, bits: int | None = None,
              times_s: Sequence[float] | None = None, max_lag: int | None = None,
              on_frame: Callable[[], None] | None = None, estimators: Sequence[str] = DEFAULT_CANDIDATES) -> Series:
-    """Push ``frames`` through an engine at ``setting`` (cropped to the regions' bounding box, as
-    the daemon's ``area = "regions"``: the activity does not depend on what lies outside), and
-    sample every region every ``step`` frames (module docstring). ``max_lag``: τc's K (default
+    """Push ``frames`` through the measurement core at ``setting`` (cropped to the regions' bounding
+    box, as the daemon's ``area = "regions"``: the activity does not depend on what lies outside),
+    and sample every region every ``step`` frames (module docstring). ``max_lag``: τc's K (default
     the config's rule for this N and m). ``estimators``: the activities wanted (among JUDGEABLE;
     GD only where the mode keeps a window)."""
     started = time.perf_counter()
     estimators = in_mode(estimators, setting.mode)
     rows, cols = bounding_box(list(masks.values()))
-    shape = (rows.stop - rows.start, cols.stop - cols.start)
-    boxes = {name: RegionBox.of(mask).shifted(rows, cols) for name, mask in masks.items()}
     cropped = {name: np.ascontiguousarray(mask[rows, cols]) for name, mask in masks.items()}
-    estimator = config.estimator.model_copy(update={"window": setting.window, "lag": setting.lag,
-                                                    "mode": setting.mode, "max_lag": max_lag})
     with_tau = setting.has_tau and "tau_c" in estimators
-    lags = estimator.lags if with_tau else None
+    # the judge's activity: S3 (its floor is τc's signal share) unless a floored candidate is wanted
+    floored = tuple(name for name in WITH_FLOOR if name in estimators or (name == "s3" and with_tau))
+    estimator = validate(EstimatorSection, {
+        **config.estimator.model_dump(exclude_unset=True), "window": setting.window, "lag": setting.lag,
+        "mode": setting.mode, "max_lag": max_lag, "activity": "s3", "noise_floor": True, "tau_c": with_tau},
+        "estimator")
+    settings = config.model_copy(update={"estimator": estimator})
     q = config.estimator.q
-    # Fujii needs an engine at q = 0 (its daemon runs so): the main one when q is 0, else its own
+    # Fujii needs an engine at q = 0 (its daemon runs so): the main one when q is 0, else a companion
     separate_fujii = "fujii" in estimators and q != 0.0
-    maps = (*PLAIN, *(name for name in DESCRIPTOR_ACTIVITIES if name in estimators
-                      and not (name == "fujii" and separate_fujii)))
-    keeper = ModelKeeper(config.camera.noise.model() if config.camera.noise is not None else None)
-    # the judges' activities; S3's also holds τc (a region judged on τc has its light judged with S3)
-    judged = [name for name in WITH_FLOOR if name in estimators or (name == "s3" and with_tau)]
-    judges = {name: SignalJudge(config.model_copy(update={"estimator": estimator.model_copy(
-        update={"activity": name, "noise_floor": True, **({"q": 0.0} if name == "fujii" else {})})}), keeper)
-        for name in judged}
+    extra = tuple(name for name in DESCRIPTOR_ACTIVITIES if name in estimators
+                  and not (name == "fujii" and separate_fujii))
+    spec = EngineSpec.of_sections(estimator, tau_c=with_tau, extra=extra)
+    companions = [spec.replaced(q=0.0, estimators=("fujii",))] if separate_fujii else []
+    core = Core(settings, cropped, patch=config.estimator.noise_patch, floored=floored, dt=dt, spec=spec,
+                companions=companions)
     series = Series(setting, values={name: {variant: [] for variant in variants(estimators, setting.has_tau)}
-                                     for name in masks}, max_lag=lags)
-    layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in boxes.items()})
-    engines: list[tuple[SlidingWindow, tuple[str, ...]]] = []
-    patches: NoisePatches | None = None
+                                     for name in masks}, max_lag=spec.max_lag)
     for index, frame in enumerate(frames):
-        pixels = np.ascontiguousarray(frame[rows, cols])
-        if not engines:
-            engines.append((SlidingWindow(shape, setting.window, setting.lag, q=q, bits=bits, mode=setting.mode,
-                                          estimators=(*maps, "tau_c") if with_tau else maps, max_lag=lags), maps))
-            if separate_fujii:
-                engines.append((SlidingWindow(shape, setting.window, setting.lag, q=0.0, bits=bits,
-                                              mode=setting.mode, estimators=("fujii",)), ("fujii",)))
-            patches = NoisePatches(boxes, setting.window, config.estimator.noise_patch, pixels.dtype, bits)
-        for engine, _ in engines:
-            engine.push(pixels)
-        assert patches is not None
-        patches.push(pixels)
+        core.push(np.ascontiguousarray(frame[rows, cols]), bits)
         if on_frame is not None:
             on_frame()
-        if not engines[0][0].ready or (index - (setting.window - 1)) % step:
+        if not core.ready or (index - (setting.window - 1)) % step:
             continue
-        series.times.append(index * dt if times_s is None else float(times_s[index]))
-        estimates = _estimates(engines, layout)
-        _sample(series, engines[0][0], estimates, patches, judges, cropped, dt, with_tau)
+        now = index * dt if times_s is None else float(times_s[index])
+        series.times.append(now)
+        _sample(series, core, core.read(now).readings)
     series.seconds = time.perf_counter() - started
     return series
 
 
-def _estimates(engines: list[tuple[SlidingWindow, tuple[str, ...]]], layout: RegionLayout
-               ) -> dict[str, dict[str, float]]:
-    """Every region's mean of every map, as the daemon's pipeline reduces them
-    (:meth:`edgedsm.daemon.measurement.Measurement.snapshot`: the live sums, means only)."""
-    out: dict[str, dict[str, float]] = {}
-    for engine, names in engines:
-        moments = region_moments(engine.snapshot(names, live=True), layout, names, spread=False,
-                                 parallel=engine.shape[0] * engine.shape[1] >= PARALLEL_MIN_PIXELS)
-        for region, per_map in moments.items():
-            out.setdefault(region, {}).update({key: m.mean for key, m in per_map.items()})
-    return out
-
-
-def _sample(series: Series, engine: SlidingWindow, estimates: dict[str, dict[str, float]], patches: NoisePatches,
-            judges: dict[str, SignalJudge], masks: dict[str, np.ndarray], dt: float, with_tau: bool) -> None:
-    windows = patches.take() if patches.full else {}
-    if windows:
-        for judge in judges.values():
-            judge.assess(windows, estimates)
-    for name, mask in masks.items():
-        out = series.values[name]
+def _sample(series: Series, core: Core, readings: dict[str, RegionReading]) -> None:
+    judge = core.judgement.judge
+    for name, out in series.values.items():
+        reading = readings[name]
         for variant, values in out.items():
             key, _, floored = variant.partition("@")
             if key == "tau_c":
+                held = judge.held(name) or reading.tau_c_s is None
+                values.append(np.nan if held else reading.tau_c_s)
                 continue
             if not floored:
-                values.append(estimates[name][key])
+                values.append(reading.values[key])
                 continue
-            judged = judges[key].judged(name, estimates[name][key], estimates[name]) if windows else None
+            judged = judge.judged_as(name, key, reading.values[key], reading.values)
             values.append(np.nan if judged is None else judged)
-        if with_tau:
-            tau = engine.region_tau_c(mask)
-            held = judges["s3"].signals.get(name)
-            out["tau_c"].append(np.nan if held is not None and held.signal in ("dark", "saturated", "not_speckle")
-                                else float(tau.tau) * dt)
 
 
 def push_cost(frames: Sequence[np.ndarray], estimators: tuple[str, ...], setting: Setting, bits: int | None,
