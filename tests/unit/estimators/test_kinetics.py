@@ -239,3 +239,32 @@ def test_refusals() -> None:
         decorrelation_time(np.array([1.0, 1.0]), np.array([0.5, 0.2]))
     with pytest.raises(EstimatorError, match="ages"):
         decorrelation_time(np.array([1.0, 2.0]), np.array([0.5]))
+
+
+def test_the_fused_pass_is_the_numpy_path() -> None:
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(10)
+    model = NoiseModel(gain=0.25, dark_mean=3.0, dark_variance=2.0)
+    mask = np.zeros((40, 50), bool)
+    mask[2:30, 5:49] = True
+    mask[35:40, 0:3] = True  # at the frame's corner: boxes cut by its edges
+    for region in (mask, np.ones_like(mask)):
+        numpy_path = Kinetics(region, model, 64, kernel="numpy")
+        fused = Kinetics(region, model, 64, kernel="numba")
+        for n in range(80):
+            frame = rng.integers(0, 256, mask.shape, dtype=np.uint8)
+            frame[:4, :6] = 255 if n % 2 else 0  # saturated and dark corners
+            frame[10:20, 10:30] = 2  # a dim patch: pixels below the lit level
+            numpy_path.push(frame)
+            fused.push(frame)
+        np.testing.assert_allclose(fused._pool, numpy_path._pool, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(fused._beta, numpy_path._beta, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(fused._mean, numpy_path._mean, rtol=1e-12)
+        assert fused.measure().status == numpy_path.measure().status
+
+
+def test_a_kernel_is_one_of_the_known() -> None:
+    with pytest.raises(EstimatorError, match="kernel"):
+        Kinetics(np.ones((8, 8), bool), EXACT, 8, kernel="fortran")
+    with pytest.raises(EstimatorError, match="kernel 'numba'"):
+        Kinetics(np.ones((8, 8), bool), EXACT, 8, flatten=0, kernel="numba")
