@@ -6,30 +6,40 @@ import os
 from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
+from edgedsm.estimators import registry
 from edgedsm.estimators.correlation_time import default_max_lag, max_lag_problem, tau_mode_problem
-from edgedsm.estimators.dft_bins import band_mode_problem
-from edgedsm.estimators.value_set import gd_mode_problem
 from edgedsm.validation import StrictModel
 
-#: The paper's maps, which the daemon always forms, publishes and reduces per region.
-PAPER_MAPS: tuple[str, ...] = ("s1", "s2", "s3")
-#: The field's descriptors the daemon can judge on (docs/descriptors.md): formed beside S1-S3 when
-#: the activity is one of them (each costs a little per push: docs/descriptors.md).
-DESCRIPTOR_ACTIVITIES: tuple[str, ...] = ("contrast", "fujii", "im", "gd", "band_ratio")
+#: The paper's maps, which the daemon always forms, publishes and reduces per region (the registry's).
+PAPER_MAPS: tuple[str, ...] = registry.paper_maps()
+
+
+def descriptor_activities() -> tuple[str, ...]:
+    """The field's descriptors the daemon can judge on (docs/descriptors.md): the registry's
+    activities formed as a map of their own beside S1-S3 when the activity is one of them (not τc,
+    which is fitted; each costs a little per push: docs/descriptors.md)."""
+    return tuple(r.name for r in registry.records(activity=True, paper=False) if r.source != "tau")
+
+
+#: :func:`descriptor_activities` of the records registered at import (for importers of a constant).
+DESCRIPTOR_ACTIVITIES: tuple[str, ...] = descriptor_activities()
 
 
 class EstimatorSection(StrictModel):
-    activity: Literal["s1", "s2", "s3", "tau_c", "contrast", "fujii", "im", "gd", "band_ratio"] = Field(
-        "s2", description="estimator the drying states are judged on (S3 saturates once τc >> N; tau_c: the "
-                          "region's correlation time in seconds, thresholds wet_below_s / dry_above_s; the "
-                          "field's descriptors: contrast = temporal σ/⟨I⟩, fujii = 200·S2 at q = 0 (the engine "
-                          "then runs at q = 0: an explicit non-zero q is refused), im = mean (I_k - I_{k+m})² in "
-                          "grey levels²; gd = generalized differences Σ_{i<j} |I_i - I_j| / C(N,2) in grey levels, "
-                          "mode 'sliding' or 'tumbling', O(N) a pixel: a push of S1+S2+S3+gd 10-12x one of S1+S2+S3 at "
-                          "N = 64 sliding, ~6x tumbling; band_ratio = high-band / (low-band power + q) of each pixel's "
-                          "periodogram, split at band_split_hz, mode 'sliding' or 'tumbling', 16 bytes per pixel per "
-                          "DFT bin of the smaller band; docs/descriptors.md)")
+    activity: str = Field(
+        "s2", json_schema_extra={"enum": list(registry.activities())},
+        description="estimator the drying states are judged on, one of the registry's activities "
+                    "(edgedsm.estimators.registry; S3 saturates once τc >> N; tau_c: the "
+                    "region's correlation time in seconds, thresholds wet_below_s / dry_above_s; the "
+                    "field's descriptors: contrast = temporal σ/⟨I⟩, fujii = 200·S2 at q = 0 (the engine "
+                    "then runs at q = 0: an explicit non-zero q is refused), im = mean (I_k - I_{k+m})² in "
+                    "grey levels²; gd = generalized differences Σ_{i<j} |I_i - I_j| / C(N,2) in grey levels, "
+                    "mode 'sliding' or 'tumbling', O(N) a pixel: a push of S1+S2+S3+gd 10-12x one of S1+S2+S3 at "
+                    "N = 64 sliding, ~6x tumbling; band_ratio = high-band / (low-band power + q) of each pixel's "
+                    "periodogram, split at band_split_hz, mode 'sliding' or 'tumbling', 16 bytes per pixel per "
+                    "DFT bin of the smaller band; docs/descriptors.md)")
     window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
     lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
     q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")
@@ -72,6 +82,15 @@ class EstimatorSection(StrictModel):
         "frame", description="frame: maps of the whole sensor; regions: only the bounding box of all regions "
                              "(the cost follows the regions; the published maps cover that box)")
 
+    @field_validator("activity")
+    @classmethod
+    def _known_activity(cls, activity: str) -> str:
+        if activity not in (known := registry.activities()):
+            # worded as pydantic words a Literal's refusal (the choices are the registry's, read now)
+            expected = ", ".join(repr(name) for name in known[:-1]) + f" or {known[-1]!r}"
+            raise PydanticCustomError("literal_error", "Input should be {expected}", {"expected": expected})
+        return activity
+
     @model_validator(mode="after")
     def _lag_fits(self) -> EstimatorSection:
         if self.lag >= self.window:
@@ -81,33 +100,35 @@ class EstimatorSection(StrictModel):
             raise ValueError(f"threads ({self.threads}) is more than this machine's {cores} cores")
         if self.max_lag is not None and (problem := max_lag_problem(self.max_lag, self.window)):
             raise ValueError(problem)
-        if (self.activity == "tau_c" or self.tau_c) and (problem := tau_mode_problem(self.mode)):
-            raise ValueError(f"{'activity' if self.activity == 'tau_c' else 'tau_c'}: {problem}")
-        if self.activity == "gd" and (problem := gd_mode_problem(self.mode)):
+        if problem := registry.mode_problem(self.activity, self.mode):
             raise ValueError(f"activity: {problem}")
-        if self.activity == "band_ratio" and (problem := band_mode_problem(self.mode)):
-            raise ValueError(f"activity: {problem}")
+        if self.tau_c and (problem := tau_mode_problem(self.mode)):
+            raise ValueError(f"tau_c: {problem}")
         return self
 
     @field_validator("q")
     @classmethod
-    def _fujii_has_no_q(cls, q: float, info: ValidationInfo) -> float:
-        # a q given explicitly (the default is not validated) beside activity = 'fujii'
-        if info.data.get("activity") == "fujii" and q != 0:
-            raise ValueError(f"q = {q} with estimator.activity = 'fujii': Fujii is 200·S2 at q = 0 (BSLTL's "
-                             "fujii.m), so the engine runs at q = 0; remove estimator.q or set it to 0")
+    def _q_zero_maps_have_no_q(cls, q: float, info: ValidationInfo) -> float:
+        # a q given explicitly (the default is not validated) beside an activity formed at q = 0 (Fujii)
+        activity = info.data.get("activity")
+        if activity is not None and registry.get(activity).needs_q_zero and q != 0:
+            record = registry.get(activity)
+            raise ValueError(f"q = {q} with estimator.activity = {activity!r}: {record.label} is {record.summary} "
+                             f"(BSLTL's {record.bsltl}.m), so the engine runs at q = 0; remove estimator.q or set "
+                             "it to 0")
         return q
 
     @property
     def engine_q(self) -> float:
-        """The q the engine runs at: 0 when judged on Fujii (200·S2 at q = 0), else ``q``."""
-        return 0.0 if self.activity == "fujii" else self.q
+        """The q the engine runs at: 0 when judged on a map formed at q = 0 (Fujii: 200·S2 at q = 0), else ``q``."""
+        return 0.0 if registry.get(self.activity).needs_q_zero else self.q
 
     @property
     def maps(self) -> tuple[str, ...]:
         """The maps the daemon forms, publishes and reduces per region: S1, S2, S3 and the activity
         when it is one of the field's descriptors."""
-        return (*PAPER_MAPS, self.activity) if self.activity in DESCRIPTOR_ACTIVITIES else PAPER_MAPS
+        paper = registry.paper_maps()
+        return (*paper, self.activity) if self.activity in descriptor_activities() else paper
 
     @property
     def lags(self) -> int:

@@ -1,6 +1,7 @@
 """The biospeckle field's descriptors beside S1-S3 (issue 24): batch references, in float64, as
-the field's reference toolbox BSLTL 1.3.1 (Octave package ``bsltl``) defines them, and the one
-registry of names (``DESCRIPTORS``) that ``edgedsm analyze --estimator`` accepts.
+the field's reference toolbox BSLTL 1.3.1 (Octave package ``bsltl``) defines them, and the names
+``edgedsm analyze --estimator`` accepts (``DESCRIPTORS``: a view of
+:mod:`edgedsm.estimators.registry`, whose records name these functions).
 
 Every function takes a stack of N frames, shape (N, H, W), of finite intensities >= 0 (grey
 levels for camera data; checked by :func:`edgedsm.estimators.batch.check_frames`) and returns an
@@ -17,14 +18,16 @@ Degenerate pixels (defined, never NaN or inf; BSLTL returns NaN for some of them
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import functools
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import bands
-from edgedsm.estimators.batch import check_frames, check_stack, s1, s2, s3, temporal_sigma
+from edgedsm.estimators.batch import check_frames, check_stack, s2, temporal_sigma
+from edgedsm.estimators.registry import REGISTRY, Record, load
 from edgedsm.estimators.value_set import gd_of_sum
 
 #: Octave's eps (2^-52), which BSLTL's fujii.m adds to I_k + I_{k+m}: with it each term is
@@ -171,66 +174,76 @@ def mhi(frames: np.ndarray, threshold: float) -> np.ndarray:
     return result
 
 
+def band_low(frames: np.ndarray, dt: float | None = None, split: float | None = None) -> np.ndarray:
+    """Periodogram power of each pixel in the low band (0, split] (:func:`bands.split_powers`),
+    grey levels²."""
+    return bands.split_powers(frames, dt, split)[0]
+
+
+def band_high(frames: np.ndarray, dt: float | None = None, split: float | None = None) -> np.ndarray:
+    """Periodogram power of each pixel in the high band (split, Nyquist], grey levels²."""
+    return bands.split_powers(frames, dt, split)[1]
+
+
+def band_ratio(frames: np.ndarray, dt: float | None = None, split: float | None = None,
+               q: float = 0.0) -> np.ndarray:
+    """High-band power / (low-band power + q) of each pixel (:func:`bands.ratio`), dimensionless."""
+    return bands.ratio(*bands.split_powers(frames, dt, split), q=q)
+
+
 @dataclass(frozen=True)
 class Descriptor:
-    """One name ``analyze --estimator`` accepts: its batch map and what a reader must know of it."""
+    """One name ``analyze --estimator`` accepts: its batch map and what a reader must know of it
+    (a view of its :class:`~edgedsm.estimators.registry.Record`)."""
 
     compute: Callable[..., np.ndarray]  # (frames, *, lag, q, dt, split, threshold) -> (H, W) map
     unit: str
     uses_lag: bool
     bsltl: str | None  # the BSLTL function it reproduces (None: not in BSLTL)
-    streaming: str  # the cost of a streaming version, or that there is none yet
+    streaming: str  # the cost of a streaming version, or that there is none
     noise_floor: bool  # a noise floor exists (docs/noise.md)
     summary: str
 
-
-_BATCH_ONLY = "batch only (streaming: issue 24 engine work)"
-_BANDS_STREAM = ("O(B) per pixel per frame, B the bins of the smaller band, 16 B each (SlidingWindow, sliding "
-                 "and tumbling; edgedsm.estimators.dft_bins)")
-
-DESCRIPTORS: dict[str, Descriptor] = {
-    "s1": Descriptor(lambda f, *, lag, **_: s1(f, lag), "grey levels", True, "graphavd (m = 1)",
-                     "O(1) per pixel per frame (SlidingWindow)", True, "Eq. 1: mean |I_k - I_{k+m}|"),
-    "s2": Descriptor(lambda f, *, lag, q, **_: s2(f, lag, q=q), "1", True, None,
-                     "O(1) per pixel per frame (SlidingWindow)", True,
-                     "Eq. 2: mean |I_k - I_{k+m}|/(I_k + I_{k+m} + q)"),
-    "s3": Descriptor(lambda f, *, lag, **_: s3(f, lag), "1", True, None,
-                     "O(1) per pixel per frame (SlidingWindow)", True, "Eq. 3-4: S1/σ"),
-    "fujii": Descriptor(lambda f, *, lag, **_: fujii(f, lag), "1 (0..200)", True, "fujii",
-                        "O(1) per pixel per frame (SlidingWindow, q = 0: 200 S2)", True, "200 S2(q = eps)"),
-    "gd": Descriptor(lambda f, **_: gd(f), "grey levels", False, "gendiff",
-                     "O(N) per pixel per frame (SlidingWindow, sliding and tumbling modes)", True,
-                     "Σ_{i<j} |I_i - I_j| / C(N, 2)"),
-    "im": Descriptor(lambda f, *, lag, **_: im(f, lag), "grey levels²", True, "graphim (m = 1)",
-                     "O(1) per pixel per frame (SlidingWindow, one more sum)", True, "mean (I_k - I_{k+m})²"),
-    "contrast": Descriptor(lambda f, **_: contrast(f), "1", False, "stdcont",
-                           "O(1) per pixel per frame (SlidingWindow, S3's sums)", False, "σ/⟨I⟩"),
-    "skewness": Descriptor(lambda f, **_: skewness(f), "1", False, "graphskew", _BATCH_ONLY, False,
-                           "mean ((I - ⟨I⟩)/σ)³"),
-    "kurtosis": Descriptor(lambda f, **_: kurtosis(f), "1", False, "graphkurt", _BATCH_ONLY, False,
-                           "mean ((I - ⟨I⟩)/σ)⁴"),
-    "mhi": Descriptor(lambda f, *, threshold, **_: mhi(f, _needed(threshold, "mhi", "--threshold")),
-                      "1 (0..255)", False, "graphmhi", _BATCH_ONLY, False,
-                      "Σ_j [|I_j - I_{j+1}| > U] 255 j / Σ j"),
-    "band_low": Descriptor(lambda f, *, dt, split, **_: bands.split_powers(f, dt, split)[0], "grey levels²",
-                           False, None, _BANDS_STREAM, False, "periodogram power in (0, split]"),
-    "band_high": Descriptor(lambda f, *, dt, split, **_: bands.split_powers(f, dt, split)[1], "grey levels²",
-                            False, None, _BANDS_STREAM, False, "periodogram power in (split, Nyquist]"),
-    "band_ratio": Descriptor(lambda f, *, dt, split, q, **_: bands.ratio(*bands.split_powers(f, dt, split), q=q),
-                             "1", False, None, _BANDS_STREAM, False, "high-band power / (low-band power + q)"),
-}
+    @classmethod
+    def of(cls, record: Record) -> Descriptor:
+        return cls(functools.partial(compute, record.name), record.unit, record.uses_lag, record.bsltl,
+                   record.streaming(), record.has_floor, record.summary)
 
 
-def _needed(value: float | None, name: str, option: str) -> float:
-    if value is None:
-        raise EstimatorError(f"{name} needs {option}")
-    return value
+class _Descriptors(Mapping[str, Descriptor]):
+    """The registry's maps with a batch reference, by name, in registry order (a live view: a
+    record registered later is in it)."""
+
+    def __getitem__(self, name: str) -> Descriptor:
+        record = REGISTRY.get(name)
+        if record is None or record.batch is None:
+            raise KeyError(name)
+        return Descriptor.of(record)
+
+    def __iter__(self) -> Iterator[str]:
+        return (name for name, record in REGISTRY.items() if record.batch is not None)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+#: The names ``edgedsm analyze --estimator`` accepts: a view of the registry.
+DESCRIPTORS: Mapping[str, Descriptor] = _Descriptors()
+
+#: The command-line option that gives each batch argument a descriptor may need.
+_OPTIONS = {"threshold": "--threshold"}
 
 
 def compute(name: str, frames: np.ndarray, *, lag: int = 1, q: float = 0.0, dt: float | None = None,
             split: float | None = None, threshold: float | None = None) -> np.ndarray:
-    """The (H, W) map of the descriptor ``name`` (a key of ``DESCRIPTORS``); arguments it does not
-    use are ignored."""
+    """The (H, W) map of the descriptor ``name`` (a key of ``DESCRIPTORS``) by its record's batch
+    reference; arguments it does not use are ignored."""
     if name not in DESCRIPTORS:
         raise EstimatorError(f"unknown descriptor {name!r}; known: {', '.join(DESCRIPTORS)}")
-    return DESCRIPTORS[name].compute(frames, lag=lag, q=q, dt=dt, split=split, threshold=threshold)
+    record = REGISTRY[name]
+    given = {"lag": lag, "q": q, "dt": dt, "split": split, "threshold": threshold}
+    for arg in record.batch_args:
+        if given[arg] is None and arg in _OPTIONS:
+            raise EstimatorError(f"{name} needs {_OPTIONS[arg]}")
+    assert record.batch is not None
+    return load(record.batch)(frames, **{arg: given[arg] for arg in record.batch_args})

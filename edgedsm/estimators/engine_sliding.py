@@ -5,7 +5,7 @@ The window is the last N frames i-N+1..i; its N-m pairs are (j, j+m). Each push 
 sums (:class:`edgedsm.estimators.moment_sums.WindowMoments`) and τc's lag products
 (:class:`edgedsm.estimators.lag_products.SlidingLagProducts`). The ring holds N frames, not
 N+1: slot j % N holds frame j, and the slot of frame i-N is read and overwritten by frame i in
-the same pass. With "gd" (generalized differences) Σ_{i<j} |I_i - I_j| over the window is kept
+the same pass. With GD (generalized differences) Σ_{i<j} |I_i - I_j| over the window is kept
 exactly: frame i adds its distance to the window's other frames and frame i-N takes its own
 away, O(N) per pixel per push (``kernels.gd_kernel``). With a band map the kept DFT bins follow
 the sliding DFT, and 1/N of the pixels are re-anchored from the ring at each push
@@ -21,6 +21,7 @@ import numpy as np
 from edgedsm.estimators.engine_base import SlidingWindow
 from edgedsm.estimators.lag_products import SlidingLagProducts
 from edgedsm.estimators.moment_sums import Layout, WindowMoments
+from edgedsm.estimators.registry import PAIR_SUM
 from edgedsm.estimators.snapshot import TauSnapshot
 
 
@@ -39,7 +40,7 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
         pixels = self.shape[0] * self.shape[1]
         return {"ring": ((self.window, pixels), np.uint8 if bits <= 8 else np.uint16),
                 **self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits),
-                **({"gd": ((pixels,), np.int64)} if self._do_gd else {}), **self._bins.layout(pixels, bits)}
+                **({PAIR_SUM: ((pixels,), np.int64)} if self._do_gd else {}), **self._bins.layout(pixels, bits)}
 
     def _bind(self, bits: int, parallel: bool) -> None:
         self._moments.bind(self._kernels, self.ratio_kind, self.scale_bits, parallel, slide=True)
@@ -65,7 +66,7 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
         self._tau.push(arrays, new, i)  # reads the ring only: before frame i is written
         if self._do_gd:  # frames 0..i-1 in slots 0..i-1 while the window fills, then all but slot i % N
             grow, slide = self._gd_steps
-            (slide if i >= n else grow)(new, ring, i % n, min(i, n), arrays["gd"])
+            (slide if i >= n else grow)(new, ring, i % n, min(i, n), arrays[PAIR_SUM])
         # frame i-N leaves the bins; while the window fills, frame 0 stands for the frames before it
         self._bins.slide(arrays, new, slot if i >= n else ring[0] if i else new)
         if i >= n:  # slot holds frame i-N: the kernel reads it, then writes frame i there
@@ -105,7 +106,7 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
         if self._do_gd:  # Σ_{i<j} |x_i - x_j| = Σ_k (2k - n + 1) x_(k) for the sorted values
             ordered = np.sort(np.stack(frames), axis=0)
             for k, values in enumerate(ordered):
-                fresh["gd"] += (2 * k - len(frames) + 1) * values.astype(np.int64)
+                fresh[PAIR_SUM] += (2 * k - len(frames) + 1) * values.astype(np.int64)
         self._bins.reanchor(fresh, ring, self.frames_seen, slice(None))
         if self._do_tau:
             fresh["products"][:] = self._tau.rebuild(frames)

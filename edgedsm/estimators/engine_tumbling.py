@@ -6,7 +6,7 @@ The S1/S2/S3 sums (:class:`edgedsm.estimators.moment_sums.WindowMoments`) and τ
 and edge sums (:class:`edgedsm.estimators.lag_products.TumblingLagProducts`) of the block in
 progress grow by adding only; at a block's end they become the ``done_`` set that ``maps()``
 reads, and the others start again from zero. The ring keeps the last m frames (m+1 slots;
-K + TAU_BATCH + 1 with τc). With "gd" (generalized differences) the ring holds whole blocks (its
+K + TAU_BATCH + 1 with τc). With GD (generalized differences) the ring holds whole blocks (its
 slots rounded up to a multiple of N, so a block's frames sit in N consecutive rows) and each
 frame adds its distance to the block's earlier frames to the exact int64 Σ_{i<j} |I_i - I_j|,
 O(N) per pixel per push as in the sliding engine (``kernels.gd_kernel``). With a band map the
@@ -24,6 +24,7 @@ import numpy as np
 from edgedsm.estimators.engine_base import SlidingWindow
 from edgedsm.estimators.lag_products import TumblingLagProducts
 from edgedsm.estimators.moment_sums import Layout, WindowMoments
+from edgedsm.estimators.registry import PAIR_SUM
 from edgedsm.estimators.snapshot import TauSnapshot
 
 #: The arrays of the last completed block carry this prefix.
@@ -46,7 +47,7 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
     def _block_layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
         return {**self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits),
-                **({"gd": ((pixels,), np.int64)} if self._do_gd else {}), **self._bins.layout(pixels, bits)}
+                **({PAIR_SUM: ((pixels,), np.int64)} if self._do_gd else {}), **self._bins.layout(pixels, bits)}
 
     def _layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
@@ -91,7 +92,7 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
         self._tau.push(arrays, new, i)
         if self._do_gd:  # the block's frames before this one: rows start .. start+position-1
             start = (i - position) % slots
-            self._gd_step(new, ring[start:start + n], 0, position, arrays["gd"])
+            self._gd_step(new, ring[start:start + n], 0, position, arrays[PAIR_SUM])
         self._bins.add(arrays, new, position)
         self._moments.add(arrays, new, ring[i % slots], lagged)
         self._tau.after_push(arrays, i)

@@ -16,12 +16,24 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import noise, noise_floor, signal_quality
-from edgedsm.estimators.batch import s1
+from edgedsm.estimators.descriptors import compute
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_floor import AboveNoise, Floor
+from edgedsm.estimators.registry import REGISTRY, Record, load, with_floor
 
-ESTIMATORS = ("s1", "s2", "s3", "fujii", "im", "gd", "contrast")  # those with a noise floor
-SHARED = ("s3", "contrast")  # above the noise through the signal's share of the variance, per window
+#: The registry's maps with a noise floor (those registered at import; the checks below read the
+#: registry itself).
+ESTIMATORS = with_floor()
+#: Those judged above the noise through the signal's share of the variance, per window (S3, the contrast).
+SHARED = tuple(name for name in ESTIMATORS if REGISTRY[name].shared_floor)
+
+
+def _floored(estimator: str) -> Record:
+    """The record of ``estimator``, which must have a noise floor."""
+    record = REGISTRY.get(estimator)
+    if record is None or record.floor is None:
+        raise EstimatorError(f"estimator must be one of {', '.join(with_floor())}, got {estimator!r}")
+    return record
 
 
 @dataclass(frozen=True)
@@ -84,8 +96,7 @@ def region_noise(frames: np.ndarray, estimate_map: np.ndarray | None, estimator:
     stack = np.asarray(frames)
     if stack.ndim != 3:
         raise EstimatorError(f"frames must be a (N, H, W) stack, got shape {stack.shape}")
-    if estimator not in ESTIMATORS:
-        raise EstimatorError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+    record = _floored(estimator)
     region = np.ones(stack.shape[1:], bool) if mask is None else np.asarray(mask, bool)
     top = full_scale(stack, bits)
     values = dict(estimates) if estimates is not None else {}
@@ -93,8 +104,9 @@ def region_noise(frames: np.ndarray, estimate_map: np.ndarray | None, estimator:
         if estimate_map is None:
             raise EstimatorError(f"no {estimator} estimate: give its map or its region value")
         values[estimator] = float(np.asarray(estimate_map, np.float64)[region].mean())
-    if estimator == "s3" and "s1" not in values:
-        values["s1"] = float(s1(stack, lag)[region].mean())
+    for other in record.above_inputs:  # S3 above the noise needs S1's value too
+        if other not in values:
+            values[other] = float(compute(other, stack, lag=lag, q=q)[region].mean())
     estimate = values[estimator]
     error = None
     if model is None:
@@ -131,29 +143,21 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
     stack = np.asarray(frames)
     region = np.ones(stack.shape[1:], bool) if mask is None else np.asarray(mask, bool)
     n = stack.shape[0]
-    if estimator not in ESTIMATORS:
-        raise EstimatorError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {estimator!r}")
+    record = _floored(estimator)
     if previous is not None and previous.estimator != estimator:
         raise EstimatorError(f"previous floor is {previous.estimator}'s, not {estimator}'s")
-    if previous is not None and estimator not in SHARED:
+    if previous is not None and not record.shared_floor:
         return previous
     means = stack.mean(axis=0, dtype=np.float64)[region]  # per pixel along time: no copy of the region
-    if estimator == "s2":
-        return RegionFloor(estimator, noise_floor.s2_floor(model, means, n, lag, q=q, top=top))
-    if estimator == "s1":
-        return RegionFloor(estimator, noise_floor.s1_floor(model, means, n, lag, top=top))
-    if estimator == "fujii":
-        return RegionFloor(estimator, noise_floor.fujii_floor(model, means, n, lag, top=top))
-    if estimator == "im":
-        return RegionFloor(estimator, noise_floor.im_floor(model, means, n, lag, top=top))
-    if estimator == "gd":
-        return RegionFloor(estimator, noise_floor.gd_floor(model, means, n, top=top))
+    assert record.floor is not None
+    floor_of = load(record.floor)  # the record's noise_floor function, with the arguments it names
+    args = {name: value for name, value in (("lag", lag), ("q", q)) if name in record.floor_args}
+    if not record.shared_floor:
+        return RegionFloor(estimator, floor_of(model, means, n, top=top, **args))
     if previous is not None and previous.noise_variance is not None:
         floor, static = previous.floor, previous.noise_variance
-    elif estimator == "contrast":
-        floor, static = noise_floor.contrast_floor_and_static_variance(model, means, n, top=top)
     else:
-        floor, static = noise_floor.s1_floor_and_static_variance(model, means, n, lag, top=top)
+        floor, static = floor_of(model, means, n, top=top, **args)
     # S3 and the contrast of the signal alone need the region's mean window variance (Eq. 3-4)
     variance = float(stack.var(axis=0, dtype=np.float64)[region].mean())
     share = noise_floor.signal_share(model, means, variance, n, top=top, noise_variance=static)
@@ -163,12 +167,11 @@ def region_floor(frames: np.ndarray, estimator: str, lag: int, model: NoiseModel
 def above_of(floor: RegionFloor, estimates: Mapping[str, float]) -> AboveNoise:
     """The region's activity above the noise from its current ``estimates`` (the judged
     estimator's region mean; for S3 also "s1") and a :class:`RegionFloor`."""
-    if floor.estimator not in SHARED:
+    record = _floored(floor.estimator)
+    if not record.shared_floor:
         return noise_floor.above_noise(estimates[floor.estimator], floor.floor)
-    assert floor.share is not None
-    if floor.estimator == "contrast":
-        return noise_floor.contrast_signal(estimates["contrast"], floor.floor, floor.share)
-    value = noise_floor.s3_signal(estimates["s3"], estimates["s1"], floor.floor, floor.share)
+    assert floor.share is not None and record.above is not None
+    value = load(record.above)(*(estimates[name] for name in record.above_inputs), floor.floor, floor.share)
     if not math.isfinite(value.value):
-        raise EstimatorError("S3 above noise is not finite")
+        raise EstimatorError(f"{record.label} above noise is not finite")
     return value

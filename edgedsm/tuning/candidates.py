@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edgedsm.drying import Thresholds
+from edgedsm.estimators import registry
 from edgedsm.tuning.scoring import Replay, Separation, propose, replay, separation
 from edgedsm.tuning.series import DEFAULT_CANDIDATES, JUDGEABLE, WITH_FLOOR, Series, Setting, in_mode
 
@@ -43,16 +44,16 @@ DELAY_SLACK = 0.1  # a cheaper or more robust candidate within this share of the
 #: (the samples touch); at 5, 2.2 σ, a single sample beyond it with probability 1.4 %, which the
 #: dwell, several samples in a row, absorbs
 ROBUST_D_PRIME = 5.0
-#: activities that do not depend on the lag m (the contrast: σ/⟨I⟩ of the window): scored at one
-#: lag per window and mode, the first tried
-LAG_FREE = ("contrast",)
-NAMES = {"s1": "S1", "s2": "S2", "s3": "S3", "tau_c": "τc", "contrast": "contrast", "fujii": "Fujii", "im": "IM",
-         "gd": "GD"}
+#: activities of the fused pass that do not depend on the lag m (the contrast: σ/⟨I⟩ of the window;
+#: the registry's): scored at one lag per window and mode, the first tried
+LAG_FREE = tuple(r.name for r in registry.records(activity=True, source="fused") if not r.uses_lag)
+#: each activity's short label (the registry's)
+NAMES = {r.name: r.label for r in registry.records(activity=True)}
 
 
 @dataclass(frozen=True)
 class Candidate:
-    estimator: str  # an estimator.activity: s1, s2, s3, tau_c, contrast, fujii, im, gd
+    estimator: str  # an estimator.activity (edgedsm.estimators.registry.activities())
     noise_floor: bool  # judged above the noise floor (those of series.WITH_FLOOR)
     setting: Setting
 
@@ -64,7 +65,8 @@ class Candidate:
         return f"{self.estimator}@noise" if self.noise_floor else self.estimator
 
     def label(self) -> str:
-        what = NAMES[self.estimator] + (" above noise" if self.noise_floor and self.estimator != "tau_c" else "")
+        what = registry.get(self.estimator).label + (" above noise" if self.noise_floor and self.estimator != "tau_c"
+                                                      else "")
         return f"{what}, {self.setting.label()}"
 
 

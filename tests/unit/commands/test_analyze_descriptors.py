@@ -1,5 +1,6 @@
 """`edgedsm analyze --estimator NAME` for the field's descriptors (docs/descriptors.md): the map is
-the batch function's, the noise floor is null with a reason, and the options each one needs."""
+the batch function's, the noise floor is the registry's (null with a reason where it has none), and the options
+each one needs."""
 
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ def test_every_registry_name_is_an_estimator_choice(tmp_path: Path, capsys: pyte
         assert result["estimator"] == name and result["unit"] == DESCRIPTORS[name].unit
         assert np.isfinite(np.load(out)).all()
         assert result["lag"] == (2 if DESCRIPTORS[name].uses_lag else None) and result["dt"] is None
-        if name in ("s1", "s2", "s3", "fujii", "im", "gd"):
+        if name in ("s1", "s2", "s3", "fujii", "im", "gd", "contrast"):  # the contrast: the daemon's floor too
             assert "noise_floor_reason" not in result and result["signal"] is not None
         else:
             assert result["noise_floor"] is None and name in result["noise_floor_reason"]
