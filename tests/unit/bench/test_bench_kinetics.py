@@ -1,0 +1,57 @@
+"""The kinetics benchmark (edgedsm_lab/bench/kinetics.py) on a tiny film: its runs, scores, tables,
+figure and cost."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from edgedsm_lab.bench import kinetics as bench
+from edgedsm_lab.bench.report import Report
+
+TINY = bench.Case(size=24, frames=2500, final_factor=1e3, longest_age=256, stride=10, window=64, max_lag=16,
+                  window_every=400, variants=("plain", "darkening to 0.1"))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_a_tiny_film_is_scored_drawn_and_costed(tmp_path) -> None:
+    result = bench.measure(TINY)
+    assert list(result.runs) == list(TINY.variants)
+    plain = result.runs["plain"]
+    assert plain.frames.size == (TINY.frames - 1) // TINY.stride
+    assert plain.truth.shape == plain.tau.shape == plain.tau_plain.shape
+    score = bench.score(plain.truth, plain.tau, TINY.longest_age)
+    assert score.samples > 100 and score.median_error < 0.25 and score.share_ok > 0.9
+    assert score.truth_low < 3.0
+    # the window τc of the same frames: measured while the film is fast, "above K" once it is slow
+    assert plain.window_status[0] == bench.WINDOW_MEASURED and plain.window_status[-1] == bench.WINDOW_ABOVE
+    assert "above K = 16 from frame" in bench.window_summary(plain, TINY.max_lag)
+    # the darkening film is a different film: a different scene, another τ
+    assert not np.array_equal(result.runs["darkening to 0.1"].tau, plain.tau, equal_nan=True)
+    report = Report("kinetics", echo=lambda _line: None)
+    bench.report_lines(result, report)
+    text = "\n".join(report.lines)
+    assert "| plain | kinetics |" in text and "| darkening to 0.1 | Eq. 1 unflattened |" in text
+    figure = tmp_path / "kinetics.png"
+    bench.draw(result, figure)
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    spent = bench.cost(size=48, longest_age=64, repeats=3, window=16)
+    assert all(spent[key] > 0 and math.isfinite(spent[key]) for key in ("s1", "default", "push", "measure"))
+    assert spent["bytes_per_pixel"] == 4 * (spent["slots"] + 1)
+    rows = bench.cost_rows(spent)
+    assert [row[0][:13] for row in rows] == ["S1 push", "default push ", "kinetics push", "kinetics push",
+                                             "kinetics meas"]
+    assert rows[0][2] == "1.00"
+
+
+def test_a_score_counts_a_missing_number_as_a_miss() -> None:
+    truth = np.array([0.5, 2.0, 4.0, 8.0, 5000.0])
+    tau = np.array([0.4, 2.2, np.nan, 8.0, 10.0])
+    score = bench.score(truth, tau, 4096)
+    assert score.samples == 3  # truth below a frame and beyond the longest age are left out
+    assert score.median_error == pytest.approx(0.1)  # errors 0.1, inf, 0
+    assert score.share_ok == pytest.approx(2 / 3)
+    assert score.median_ratio == pytest.approx(1.05)
