@@ -138,8 +138,6 @@ KNOWN_VIOLATIONS: set[tuple[str, int]] = {
     ("edgedsm.analysis_kernels -> edgedsm.estimators.masked_moments._moments", 35),
     ("edgedsm.analysis_kernels -> edgedsm.estimators.masked_moments._moments_numpy", 35),
     ("edgedsm.analysis_kernels -> edgedsm.estimators.masked_moments._moments_source", 35),
-    # tune's replay judges with the daemon's SignalJudge: the measurement core takes it (measurement/judge.py)
-    ("edgedsm.tuning.series -> edgedsm.daemon.signal_judge", 35),
     # a region's section builds (and so validates) drying.Thresholds, a measurement type: the
     # thresholds' values belong to the config, the state machine that uses them to the core
     ("edgedsm.config.regions -> edgedsm.drying", 35),
