@@ -18,10 +18,10 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, field_validator, model_serializer
 
 from edgedsm import _json
 
@@ -57,6 +57,19 @@ class Message(BaseModel):
     """Base of the JSON messages: immutable, unknown keys ignored when parsing."""
 
     model_config = ConfigDict(frozen=True, extra="ignore", populate_by_name=True)
+    #: Fields left out of the payload while None: docs/mqtt.md says when they are present.
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset()
+
+    @model_serializer(mode="wrap")
+    def _leave_out_absent(self, handler: SerializerFunctionWrapHandler) -> Any:
+        data = handler(self)
+        if isinstance(data, dict):
+            fields = type(self).model_fields
+            for name in self.omitted_when_none:
+                for key in (name, fields[name].alias):
+                    if key is not None and key in data and data[key] is None:
+                        del data[key]
+        return data
 
     def to_json(self) -> dict[str, Any]:
         """The payload as published: field aliases, enums as strings, non-finite floats as null."""
@@ -69,6 +82,8 @@ class Message(BaseModel):
 
 class RegionState(Message):
     """The drying state of one region (``<base>/state`` and ``<base>/state/<region>``)."""
+
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"estimator", "tau_c_status", "signal"})
 
     region: str = Field(description="region name from the config")
     state: RegionStateName = Field(description="drying state")
@@ -206,6 +221,8 @@ class AlertKind(StrEnum):
 class Alert(Message):
     """One event on ``<base>/alerts`` (QoS 1, durable; ``stream`` + ``seq`` identify it)."""
 
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"from_state", "to_state", "activity"})
+
     kind: AlertKind = Field(alias="type", description="transition, reset, fault or warning")
     t: float = Field(description="UTC epoch s")
     reason: str = Field("", description="why, in words")
@@ -249,8 +266,15 @@ class RecordingStats(Message):
     error: str | None = Field(None, description="the disk's refusal while recording fails (None: writing)")
 
 
+#: The causes of dropped frames, each counted in the stats' ``drops`` from start (at 0), so a
+#: rate over them (Prometheus ``increase()``) has a series before the first drop.
+DROP_CAUSES = ("dropped_queue", "dropped_invalid")
+
+
 class Stats(Message):
     """Periodic statistics (``<base>/stats``, every ``stats_interval_s``)."""
+
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"frame_interval_s", "mqtt", "recording"})
 
     t: float = Field(description="UTC epoch s")
     frames: int = Field(ge=0, description="frames taken off the queue since start")
@@ -258,7 +282,9 @@ class Stats(Message):
     fps: float = Field(ge=0, description="frames per second over the last 64 frames")
     laser: LaserState = Field(description="the laser relay as last confirmed")
     estimator: str = Field(description="estimator the states are judged on")
-    drops: dict[str, int] = Field(default_factory=dict, description="frames dropped, by cause")
+    drops: dict[str, int] = Field(default_factory=dict, validate_default=True,
+                                  description="frames dropped, by cause (every cause of "
+                                                                   "DROP_CAUSES from start, at 0)")
     camera: dict[str, float | int | str | None] = Field(default_factory=dict, description="camera driver counters")
     ambient_level: float | None = Field(None, description="mean of the latest dark frames, grey levels")
     activity: dict[str, RegionActivity] = Field(default_factory=dict,
@@ -277,6 +303,11 @@ class Stats(Message):
                                                         "(estimator.noise_floor)")
     mqtt: dict[str, Any] | None = Field(None, description="the MQTT sink's own counters (added on the wire)")
     recording: RecordingStats | None = Field(None, description="the recorder's counters (with [recording])")
+
+    @field_validator("drops")
+    @classmethod
+    def _every_cause(cls, drops: dict[str, int]) -> dict[str, int]:
+        return {**dict.fromkeys(DROP_CAUSES, 0), **drops}
 
 
 @dataclass(frozen=True)

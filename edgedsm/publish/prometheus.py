@@ -20,7 +20,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 from edgedsm.frames import Frame
-from edgedsm.messages import Alert, MapFrame, RegionSignal, SignalName, StateReport, Stats, TauStatus
+from edgedsm.messages import DROP_CAUSES, Alert, MapFrame, RegionSignal, SignalName, StateReport, Stats, TauStatus
 from edgedsm.publish.http_server import MetricsServer
 from edgedsm.publish.units import unit_of
 
@@ -186,17 +186,20 @@ class MetricsSink:
 
 
 def _stats_families(stats: Stats | None) -> Iterator[GaugeMetricFamily | CounterMetricFamily]:
-    """Metric families of the latest stats (none before the first)."""
-    if stats is None:
-        return
+    """Metric families of the latest stats: the counters from start (0 before the first stats,
+    every drop cause: an ``increase()`` has a series before the first drop), the gauges once
+    the first stats came."""
     frames = CounterMetricFamily("edgedsm_frames", "frames taken off the camera queue since the pipeline started")
-    frames.add_metric([], stats.frames)
+    frames.add_metric([], 0 if stats is None else stats.frames)
     yield frames
     dropped = CounterMetricFamily("edgedsm_frames_dropped", "frames dropped since the pipeline started, by cause",
                                   labels=["cause"])
-    for cause, count in sorted(stats.drops.items()):
+    drops = dict.fromkeys(DROP_CAUSES, 0) if stats is None else stats.drops
+    for cause, count in sorted(drops.items()):
         dropped.add_metric([cause], count)
     yield dropped
+    if stats is None:
+        return
     for name, help_text, value in (("edgedsm_fps", "frames per second over the last 64 frames", stats.fps),
                                    ("edgedsm_ready", "1 once the estimator window is full", float(stats.ready)),
                                    ("edgedsm_laser_on", "1 while the laser is confirmed on",

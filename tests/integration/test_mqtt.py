@@ -40,6 +40,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
+from edgedsm.errors import ConfigError
 from edgedsm.messages import Alert, AlertKind, MapFrame, RegionState, StateReport, Stats
 from edgedsm.publish import (
     LaserCommand,
@@ -378,7 +379,8 @@ def test_stats_carry_the_publisher_counters_and_no_nan(broker, subscribers, publ
     message = subscriber.wait_for(TOPICS.stats, lambda m: True, "stats")
     assert message.json()["ambient_level"] is None  # NaN is not JSON: null
     stats = Stats.model_validate_json(message.payload)
-    assert stats.fps == pytest.approx(29.5) and stats.drops == {"queue": 3} and stats.frames == 120
+    assert stats.fps == pytest.approx(29.5) and stats.drops == {"queue": 3, "dropped_queue": 0, "dropped_invalid": 0} \
+        and stats.frames == 120
     assert stats.mqtt is not None and stats.mqtt["connected"] is True and stats.mqtt["alerts_pending"] == 0
     assert stats.mqtt["storage_faults"] == 0 and stats.mqtt["storage_error"] is None
 
@@ -504,11 +506,12 @@ def test_tls_with_client_certificate_and_password(secure_broker, subscribers, pu
 
 def test_wrong_password_is_a_clear_error(secure_broker, publishers):
     broker, tls = secure_broker
-    publisher = publishers(_tls_settings(broker, tls), password="wrong")
-    with pytest.raises(PublishError, match=r"refused the connection: (Bad user name or password|Not authorized)") \
-            as error:
-        publisher.wait_connected(WAIT_S)
+    # refused at the first connection: these credentials can never work, a configuration error (exit 78)
+    with pytest.raises(ConfigError, match=r"^mqtt.username: broker localhost:\d+ refused the connection: "
+                                          r"(Bad user name or password|Not authorized)") as error:
+        publishers(_tls_settings(broker, tls), password="wrong")
     assert "user 'line3'" in str(error.value) and "wrong" not in str(error.value)
+    assert error.value.exit_code == 78
 
 
 # paho 2.2 does not close the socket of a failed TLS handshake (the GC does); not our leak.

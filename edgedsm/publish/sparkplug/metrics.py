@@ -11,11 +11,16 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from edgedsm.messages import Alert, RegionSignal, StateReport, Stats
+from edgedsm.messages import DROP_CAUSES, Alert, RegionSignal, StateReport, Stats
+from edgedsm.publish import units
 from edgedsm.publish.sparkplug.payload import DataType, Value
 
-#: Units of the maps' values (docs/mqtt.md); a map not listed here is published without a unit.
-MAP_UNITS = {"s1": "grey levels", "im": "grey levels²", "gd": "grey levels", "tau_c": "s"}
+
+def map_unit(name: str) -> str | None:
+    """A map's ``engUnit``: the estimators' registry's (``edgedsm.publish.units``); none for a
+    dimensionless map or one the registry does not know."""
+    unit = units.unit_of(name)
+    return None if unit == units.UNKNOWN else units.display_unit(unit)
 
 
 @dataclass(frozen=True)
@@ -53,7 +58,7 @@ def region_readings(region: str, *, state: str | None = None, since: float | Non
 
 def map_reading(region: str, map_name: str, mean: float | None) -> tuple[str, Reading]:
     """The region mean of one map (one estimator: s1, s2, s3, tau_c ...)."""
-    return f"regions/{region}/{map_name}/mean", _double(mean, MAP_UNITS.get(map_name))
+    return f"regions/{region}/{map_name}/mean", _double(mean, map_unit(map_name))
 
 
 def declared_readings(regions: Iterable[str], maps: Iterable[str], *, signal: bool = True) -> dict[str, Reading]:
@@ -66,6 +71,7 @@ def declared_readings(regions: Iterable[str], maps: Iterable[str], *, signal: bo
         "ambient_level": _double(None, "grey levels"), "warning": _text(None),
         "alerts/count": _count(0, None), "alerts/last": _text(None), "alerts/last_type": _text(None),
         "alerts/last_t": _datetime_ms(None),
+        **{f"drops/{cause}": _count(None) for cause in DROP_CAUSES},  # every cause from the first birth
     }
     map_names = [name for name in maps if name != "tau_c"]  # τc: one pooled value per region, not a map mean
     for region in regions:

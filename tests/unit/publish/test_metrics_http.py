@@ -149,10 +149,18 @@ def test_a_state_change_moves_the_one(sink: MetricsSink) -> None:
     assert samples[("edgedsm_laser_state", (("state", "unknown"),))] == 1
 
 
-def test_before_any_frame_metrics_have_no_stats_and_no_engine_figure(sink: MetricsSink) -> None:
+def test_before_any_frame_the_counters_are_0_and_no_gauge_is_made_up(sink: MetricsSink) -> None:
     samples = _samples(_get(sink, "/metrics")[1])
-    assert ("edgedsm_frames_total", ()) not in samples
+    # counters exist from start: increase() over them has a series before the first frame or drop
+    assert samples[("edgedsm_frames_total", ())] == 0
+    assert samples[("edgedsm_frames_dropped_total", (("cause", "dropped_queue"),))] == 0
+    assert samples[("edgedsm_frames_dropped_total", (("cause", "dropped_invalid"),))] == 0
+    assert ("edgedsm_fps", ()) not in samples and ("edgedsm_laser_on", ()) not in samples
     assert math.isnan(samples[("edgedsm_engine_ms_per_frame", ())])
+    sink.publish_stats(Stats(t=1.0, frames=3, ready=False, fps=1.0, laser="off", estimator="s2"))
+    samples = _samples(_get(sink, "/metrics")[1])  # no drop yet: both causes at 0
+    assert samples[("edgedsm_frames_dropped_total", (("cause", "dropped_queue"),))] == 0
+    assert samples[("edgedsm_frames_total", ())] == 3
 
 
 def test_healthz_is_200_while_frames_flow_and_503_otherwise(sink: MetricsSink, clock: FakeClock) -> None:
