@@ -24,8 +24,9 @@ How to add a descriptor: one record plus its formula and tests.
 3. Its noise floor, if the physics gives one, is a function of :mod:`edgedsm.estimators.noise_floor`
    named by ``floor``; without one the daemon judges it plainly.
 4. Tests: its batch reference against an independent computation, the engine's map against the
-   batch reference in every mode it allows, and ``python scripts/descriptor_table.py`` to refresh
-   the table in docs/descriptors.md (tests/unit/estimators/test_registry.py compares them).
+   batch reference in every mode it allows; :func:`markdown_table` is the registry's table in
+   docs/descriptors.md (``python -c "from edgedsm.estimators.registry import markdown_table as t;
+   print(t(), end='')"``; tests/unit/estimators/test_registry_docs.py checks the docs carry it).
 """
 
 from __future__ import annotations
@@ -327,3 +328,20 @@ def registered(record: Record) -> Iterator[Record]:
 def field_names() -> tuple[str, ...]:
     """The fields of :class:`Record` (for the docs' table and tests)."""
     return tuple(f.name for f in fields(Record))
+
+
+def markdown_table() -> str:
+    """The registry as the markdown table of docs/descriptors.md ("The registry")."""
+    def cell(text: str | None) -> str:
+        return "—" if not text else text.replace("|", "\\|")
+
+    rows = ["| name | label | unit | definition | lag m | engine modes | cost per pixel per frame | noise floor | "
+            "judged on (activity) | BSLTL |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in REGISTRY.values():
+        modes = ", ".join(m for m in MODES if m in r.modes) or "batch only"
+        floor = ("yes, through the signal's share" if r.shared_floor else "yes") if r.has_floor else "no"
+        rows.append(f"| `{r.name}` | {cell(r.label)} | {cell(r.unit)} | {cell(r.summary)} | "
+                    f"{'yes' if r.uses_lag else 'no'} | {modes} | {cell(r.cost)} | {floor} | "
+                    f"{'yes' if r.activity else 'no'} | {cell(r.bsltl)} |")
+    return "\n".join(rows) + "\n"
+
