@@ -92,6 +92,15 @@ class Evaluation:
     readings: dict[str, RegionReading] = field(default_factory=dict)
 
 
+def step_states(monitor: DryingMonitor, now: float, judged: Mapping[str, float | None], ready: bool = True,
+                fault: str | None = None) -> list[Transition]:
+    """Step the state machines of ``monitor`` at ``now`` (s) with each region's judged value: the one
+    way states are stepped, by the daemon (:meth:`Judgement.step`) and by ``tune``'s replay of a
+    reference run (a region without a judged value, None: held, keeps its state)."""
+    return monitor.step(now, {name: value for name, value in judged.items() if value is not None},
+                        ready=ready, fault=fault)
+
+
 class Judgement:
     """The signal judge and the drying-state machines of a config's regions (one thread)."""
 
@@ -121,9 +130,8 @@ class Judgement:
 
     def step(self, now: float, judged: Mapping[str, float | None], ready: bool = True,
              fault: str | None = None) -> list[Transition]:
-        """Step every region's state machine (a region without a judged value keeps its state)."""
-        return self.monitor.step(now, {name: value for name, value in judged.items() if value is not None},
-                                 ready=ready, fault=fault)
+        """Step every region's state machine (:func:`step_states`)."""
+        return step_states(self.monitor, now, judged, ready, fault)
 
     def reset(self, now: float, why: str) -> list[Transition]:
         """Every region back to warming up (the judge's restart: :meth:`SignalJudge.restart`)."""

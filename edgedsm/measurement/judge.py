@@ -86,10 +86,9 @@ def change_reason(ratio: float, factor: float) -> str | None:
 
 class ModelKeeper:
     """The camera's noise model: the datasheet's, else the best the patches' frames give (looked for
-    at every round of patches until one is found, as a wet film's fast activity defeats the
-    estimate until it slows; then every REFRESH_EVERY rounds: a new estimate replaces the last, as
-    the camera's gain may have been changed; a failed one keeps it). One keeper may serve several
-    judges: a round of patches seen by one is not looked at again by the next."""
+    at the first round of patches, then every REFRESH_EVERY rounds; a new estimate replaces the
+    last, as the camera's gain may have been changed; a failed one keeps it). One keeper may
+    serve several judges: a round of patches seen by one is not looked at again by the next."""
 
     def __init__(self, datasheet: NoiseModel | None) -> None:
         self.model = datasheet
@@ -104,7 +103,7 @@ class ModelKeeper:
         self._seen = patches
         self._rounds += 1
         estimating = self.model is None or self.model.source == "frames"
-        if estimating and (self.model is None or self._tried is None or self._rounds - self._tried >= REFRESH_EVERY):
+        if estimating and (self._tried is None or self._rounds - self._tried >= REFRESH_EVERY):
             self._tried = self._rounds
             self._estimate(patches)
 

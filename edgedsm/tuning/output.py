@@ -16,7 +16,7 @@ import numpy as np
 
 from edgedsm.config import DaemonConfig
 from edgedsm.tuning.candidates import ROBUST_D_PRIME, Outcome, pareto
-from edgedsm.tuning.session import Result
+from edgedsm.tuning.session import Result, skipped_states
 
 #: the activities that have a unit (docs/descriptors.md; the others are dimensionless)
 UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "gd": " (grey levels)", "tau_c": " (s)"}
@@ -80,8 +80,9 @@ def outcome_json(outcome: Outcome) -> dict[str, Any]:
             "delay_s": outcome.delay_s if math.isfinite(outcome.delay_s) else None,
             "timing_error_s": outcome.timing_error_s if math.isfinite(outcome.timing_error_s) else None,
             "false_per_hour": outcome.false_per_hour, "cost_ms_per_frame": outcome.cost_s * 1e3,
-            "sound": outcome.sound, "robust": outcome.robust,
+            "sound": outcome.sound, "robust": outcome.robust, "skips": list(skipped_states(outcome)),
             "regions": {name: {"auc": r.separation.auc, "delay_s": r.replay.delay_s,
+                               "skips": list(r.replay.skipped),
                                "false_transitions": r.replay.false_transitions,
                                "transitions": [list(t) for t in r.replay.states],
                                "thresholds": region_thresholds(outcome, name)}
@@ -176,14 +177,17 @@ def report(out: Path, result: Result, command: str) -> list[Path]:
     plot_tradeoff(out / "tradeoff.png", result)
     written.append(out / "tradeoff.png")
     lines += ["![timing error against cost](tradeoff.png)", "",
-              "| candidate | AUC | d′ | dry call vs mark (s) | false /h | ms/frame | sound | robust |",
-              "|---|---|---|---|---|---|---|---|"]
+              "*skips*: states of wet → drying → dry the daemon with the candidate's thresholds did not show on "
+              "this run before calling it dry (its drying band crossed within the dwell); such a candidate is not "
+              "proposed.", "",
+              "| candidate | AUC | d′ | dry call vs mark (s) | false /h | ms/frame | sound | robust | skips |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for outcome in sorted(result.outcomes, key=lambda o: (not o.sound, o.timing_error_s, o.cost_s)):
         delay = f"{outcome.delay_s:+.1f}" if math.isfinite(outcome.delay_s) else "never"
         d_prime = f"{outcome.d_prime:.1f}" if outcome.d_prime < 100 else "> 100"
         lines.append(f"| {outcome.candidate.label()} | {outcome.auc:.3f} | {d_prime} | {delay} | "
                      f"{outcome.false_per_hour:.1f} | {outcome.cost_s * 1e3:.3f} | {'yes' if outcome.sound else ''} | "
-                     f"{'yes' if outcome.robust else ''} |")
+                     f"{'yes' if outcome.robust else ''} | {', '.join(skipped_states(outcome))} |")
     if result.excluded:
         lines += ["", "Not scored:", ""] + [f"- {c.label()}: {why}" for c, why in result.excluded]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -12,12 +12,15 @@ seconds from the first frame of the run.
 - Thresholds: between the wet samples' 5th percentile and the dry samples' 95th, at one and two
   thirds of the gap in log (dry_below, wet_above), so that hysteresis bands fit; when the two
   overlap, around the geometric mean of the medians, and the state machine's replay judges them.
-- Replay: :class:`~edgedsm.drying.DryingMonitor` stepped through the series with the proposed
-  thresholds, hysteresis and dwell, as the daemon steps it: the delay is the time from the
+- Replay: the measurement core's state machine (:func:`edgedsm.measurement.core.step_states`, as
+  the daemon's evaluator steps it) through the series with the proposed thresholds, hysteresis and
+  dwell: the delay is the time from the
   first transition into ``dry`` after the wet mark to the dry mark (negative: called dry before
   the mark, which the marks allow: between them the state is not known); a false transition
   is one on a flat part (before the wet mark: any move to a state other than wet) or any move
-  back towards wet (which includes leaving dry).
+  back towards wet (which includes leaving dry); a state of wet → drying → dry the replay never
+  shows before its first dry call is *skipped* (a drying band crossed within the dwell: the daemon
+  on a like run would skip it too, and a line waiting for ``drying`` would never see it).
 """
 
 from __future__ import annotations
@@ -29,12 +32,14 @@ import numpy as np
 
 from edgedsm.drying import DryingMonitor, DryingState, Thresholds
 from edgedsm.errors import EstimatorError
+from edgedsm.measurement.core import step_states
 
 WET_QUANTILE, DRY_QUANTILE = 5.0, 95.0  # percentiles bounding the gap the thresholds are put in
 HYSTERESIS = 0.05  # the daemon's default
 #: the log gap between the percentiles the thresholds split in thirds: the middle third must hold
 #: the hysteresis bands, log((1 + h)/(1 - h)), with half as much again to spare
 MIN_LOG_GAP = 4.5 * math.log((1 + HYSTERESIS) / (1 - HYSTERESIS))
+ORDER = ("wet", "drying", "dry")  # the states a drying surface shows, in order
 _BACKWARD = {(DryingState.DRY, DryingState.DRYING), (DryingState.DRY, DryingState.WET),
              (DryingState.DRYING, DryingState.WET)}
 
@@ -55,6 +60,7 @@ class Replay:
     delay_s: float | None  # dry call after the dry mark, negative if before it (None: never called dry)
     false_transitions: int
     flat_s: float  # seconds of flat parts (wet before the wet mark, dry after the dry call)
+    skipped: tuple[str, ...] = ()  # states of wet -> drying -> dry not shown before the first dry call
 
     @property
     def false_per_hour(self) -> float:
@@ -122,18 +128,22 @@ def replay(times: np.ndarray, activity: np.ndarray, thresholds: Thresholds, wet_
     if t.shape != values.shape or t.ndim != 1 or t.size == 0:
         raise EstimatorError("times and activity must be two 1-D arrays of the same length")
     monitor = DryingMonitor({"r": thresholds}, t0=float(t[0]))
+    path: list[str] = []  # the states entered up to the first dry call after the wet mark
     states: list[tuple[float, str, str]] = []
     false = 0
     dry_at: float | None = None
     for when, value in zip(t, values, strict=True):
         observed = float(value) if math.isfinite(value) else None
-        for transition in monitor.step(float(when), {"r": observed} if observed is not None else {}):
+        for transition in step_states(monitor, float(when), {"r": observed}):
             states.append((float(when), str(transition.from_state), str(transition.to_state)))
             move = (transition.from_state, transition.to_state)
             wrong = move in _BACKWARD or (when <= wet_until_s and transition.to_state != DryingState.WET)
             false += bool(wrong)
+            if dry_at is None:
+                path.append(str(transition.to_state))
             if transition.to_state == DryingState.DRY and dry_at is None and when > wet_until_s:
                 dry_at = float(when)
     start = float(t[0])
     flat = max(0.0, min(wet_until_s, float(t[-1])) - start) + (max(0.0, float(t[-1]) - dry_at) if dry_at else 0.0)
-    return Replay(states, None if dry_at is None else dry_at - dry_from_s, false, flat)
+    skipped = tuple(state for state in ORDER if state not in path) if dry_at is not None else ()
+    return Replay(states, None if dry_at is None else dry_at - dry_from_s, false, flat, skipped)

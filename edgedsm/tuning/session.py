@@ -9,7 +9,8 @@ for (``estimators``, default series.DEFAULT_CANDIDATES: all but GD): more estima
 so the same budget covers fewer settings. Each candidate's cost per frame is measured by the
 engine on frames of the run at the camera's size (the whole frame, or the regions' bounding box
 with ``estimator.area = "regions"``), as the daemon would push them; Fujii's at q = 0, the q its
-daemon runs at.
+daemon runs at. A candidate whose replay of the run skips a state of wet -> drying -> dry (its
+drying band crossed within the dwell) is not recommended, only listed, marked (:func:`choose`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.errors import DataError
 from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, recommend
+from edgedsm.tuning.scoring import ORDER
 from edgedsm.tuning.series import DEFAULT_CANDIDATES, Series, Setting, push_cost, run_pass
 
 WINDOWS = (100, 200, 50, 400)
@@ -128,11 +130,32 @@ def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s:
             else:
                 result.outcomes.append(outcome)
         last_s = time.perf_counter() - setting_started
-    result.chosen, result.reason = recommend(result.outcomes)
+    result.chosen, result.reason = choose(result.outcomes)
     result.seconds = time.perf_counter() - started
     if result.chosen is None and max((o.auc for o in result.outcomes), default=0.0) < USABLE_AUC:
         raise DataError(f"{run.name}: {result.reason}")
     return result
+
+
+def skipped_states(outcome: Outcome) -> tuple[str, ...]:
+    """The states of wet -> drying -> dry some region's replay of the reference run never shows
+    before its dry call (scoring.Replay.skipped): the daemon with these thresholds skips them."""
+    skipped = {state for region in outcome.regions.values() for state in region.replay.skipped}
+    return tuple(state for state in ORDER if state in skipped)
+
+
+def choose(outcomes: Sequence[Outcome]) -> tuple[Outcome | None, str]:
+    """The recommendation among the outcomes whose replay shows every state (candidates.recommend):
+    thresholds with which the daemon would skip a state are not proposed (they stay in the report,
+    marked); the reason says how many were left out for it."""
+    showing = [outcome for outcome in outcomes if not skipped_states(outcome)]
+    chosen, reason = recommend(showing)
+    left = [outcome for outcome in outcomes if outcome.sound and skipped_states(outcome)]
+    if left:
+        states = sorted({state for outcome in left for state in skipped_states(outcome)}, key=ORDER.index)
+        reason += (f"; {len(left)} candidate{'s' if len(left) > 1 else ''} that would skip "
+                   f"{' and '.join(states)} on this run {'are' if len(left) > 1 else 'is'} not proposed")
+    return chosen, reason
 
 
 def _cost_frames(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray]) -> list[np.ndarray]:

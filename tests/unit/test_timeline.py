@@ -12,6 +12,7 @@ import pytest
 
 from edgedsm.cli import main
 from edgedsm.errors import EstimatorError
+from edgedsm.measurement.judge import REFRESH_EVERY
 from edgedsm.timeline import timeline
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -162,16 +163,23 @@ def test_the_light_and_the_activity_above_the_noise_follow_a_darkening_film(tmp_
     small.write_text(scene.read_text().replace("size = 128", "size = 48"))
     out = tmp_path / "out"
     assert main(["analyze", str(small), "--timeline", str(out), "--window", "100", "--lag", "5",
-                 "--every", "100", "--no-progress"]) == 0
+                 "--every", "25", "--estimator", "s2", "--no-progress"]) == 0
     rows = read_rows(out / "timeline.csv")
-    assert len(rows) == 12
+    assert len(rows) == 45
     light = [float(r["mean_intensity"]) for r in rows]
     assert light[-1] < light[0] / 5  # the film's light fell (to a tenth by the end)
     above = [float(r["s2_above_noise"]) for r in rows]
     plain = [float(r["s2"]) for r in rows]
-    assert all(math.isfinite(a) for a in above[3:])  # a model from the frames once the activity slows
-    assert above[-1] < 0.5 * plain[-1] and above[-1] < above[3] / 4  # most of the dry film's S2 is noise
-    assert {r["signal"] for r in rows} <= {"ok", "low"}
+    # the daemon's judge looks for a model from the frames at its first sample and every REFRESH_EVERY
+    # after: the wet film's first fails, the next (the activity slower) holds
+    first = next(index for index, value in enumerate(above) if math.isfinite(value))
+    assert first == REFRESH_EVERY and all(math.isfinite(a) for a in above[first:])
+    assert above[-1] < 0.5 * plain[-1] and above[-1] < above[first] / 4  # most of the dry film's S2 is noise
+    assert {r["signal"] for r in rows} <= {"ok", "low"} and {r["noise_view"] for r in rows} == {"region"}
+    # the judged value is S2 above its floor where there is one, the plain S2 before
+    judged = [float(r["activity"]) for r in rows]
+    assert judged[:first] == pytest.approx(plain[:first], rel=1e-5)
+    assert judged[first:] == pytest.approx(above[first:], rel=1e-5)
     off = tmp_path / "off"
     assert main(["analyze", str(small), "--timeline", str(off), "--window", "100", "--lag", "5", "--every", "100",
                  "--no-noise-floor", "--no-tau-c", "--no-progress"]) == 0
