@@ -83,7 +83,7 @@ class Record:
     inputs: tuple[str, ...] = ()  # the fused pass's values (VALUES) it is formed from
     modes: frozenset[str] = frozenset()  # the window modes the engine forms it in (empty: batch only)
     mode_reason: str = ""  # why not in the other modes ("{mode}": the mode refused; "" when in all)
-    mode_subject: str = ""  # who needs the mode in the statement (default: the name)
+    mode_subject: str = ""  # who needs the mode, with the verb (default: "<name> needs")
     uses_lag: bool = False  # depends on the lag m
     activity: bool = False  # the daemon can judge drying on it (estimator.activity)
     paper: bool = False  # S1, S2, S3: always formed, published and reduced by the daemon
@@ -140,7 +140,7 @@ class Record:
             return f"{self.name} is a batch map only (edgedsm analyze), the engine does not stream it"
         allowed = " or ".join(repr(m) for m in MODES if m in self.modes)
         why = self.mode_reason.format(mode=mode)
-        return f"{self.mode_subject or self.name} needs mode {allowed}, not {mode!r} ({why})"
+        return f"{self.mode_subject or self.name + ' needs'} mode {allowed}, not {mode!r} ({why})"
 
     def streaming(self) -> str:
         """Its streaming cost, in words (docs/descriptors.md's table)."""
@@ -203,7 +203,7 @@ _EVERY = frozenset(MODES)
 _WINDOWED = WINDOW_MODES
 _GD_WHY = "its exact sum reads the window's frames, and the {mode} mode keeps none"
 _BANDS_WHY = "a band's DFT bins need a finite window, and the {mode} mode keeps none; docs/engine.md"
-_BANDS = "each frequency band (band_low, band_high, band_ratio)"
+_BANDS = "the frequency bands (band_low, band_high, band_ratio) need"
 _TAU_WHY = "its finite-window bias correction has no {mode} counterpart"
 _BANDS_COST = "B the bins of the smaller band, 16 bytes each (edgedsm.estimators.dft_bins)"
 _SIGMA = frozenset({"total", "total_sq"})
@@ -224,8 +224,8 @@ _RECORDS: tuple[Record, ...] = (
            floor=f"{_NF}:s1_floor_and_static_variance", floor_args=("lag",), shared_floor=True,
            above=f"{_NF}:s3_signal", above_inputs=("s3", "s1"), batch=f"{_BATCH}:s3", batch_args=("lag",)),
     Record("tau_c", "s", "τc", "correlation time: multi-tau fit of the window's autocorrelation (docs/tau_c.md)",
-           "tau", frozenset({"total", "total_sq", "products"}), (), _WINDOWED, mode_reason=_TAU_WHY, mode_subject="τc",
-           activity=True, cost="O(K)", cost_note="K the multi-tau lags up to max_lag"),
+           "tau", frozenset({"total", "total_sq", "products"}), (), _WINDOWED, mode_reason=_TAU_WHY,
+           mode_subject="τc needs", activity=True, cost="O(K)", cost_note="K the multi-tau lags up to max_lag"),
     Record("contrast", "1", "contrast", "σ/⟨I⟩ (temporal)", "fused", _SIGMA, ("contrast",), _EVERY, activity=True,
            cost_note="S3's sums", value=f"{_ACT}:contrast_value", value_numpy=f"{_ACT}:contrast_values",
            floor=f"{_NF}:contrast_floor_and_static_variance", shared_floor=True, above=f"{_NF}:contrast_signal",
