@@ -25,7 +25,7 @@ import numpy as np
 from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.errors import DataError
-from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, recommend
+from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, pareto, recommend
 from edgedsm.tuning.scoring import ORDER
 from edgedsm.tuning.series import DEFAULT_CANDIDATES, Series, Setting, push_cost, run_pass
 
@@ -149,8 +149,13 @@ def choose(outcomes: Sequence[Outcome]) -> tuple[Outcome | None, str]:
     thresholds with which the daemon would skip a state are not proposed (they stay in the report,
     marked); the reason says how many were left out for it."""
     showing = [outcome for outcome in outcomes if not skipped_states(outcome)]
-    chosen, reason = recommend(showing)
     left = [outcome for outcome in outcomes if outcome.sound and skipped_states(outcome)]
+    if left and not pareto(showing):
+        states = sorted({state for outcome in left for state in skipped_states(outcome)}, key=ORDER.index)
+        return None, (f"no candidate shows wet, drying and dry in turn on this run: the {len(left)} that call it "
+                      f"dry soundly would skip {' and '.join(states)} (the surface crosses their drying band "
+                      "within regions.min_dwell_s: a shorter dwell, or a reference run of a slower drying)")
+    chosen, reason = recommend(showing)
     if left:
         states = sorted({state for outcome in left for state in skipped_states(outcome)}, key=ORDER.index)
         reason += (f"; {len(left)} candidate{'s' if len(left) > 1 else ''} that would skip "

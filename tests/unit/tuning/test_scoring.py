@@ -13,6 +13,7 @@ from edgedsm.errors import EstimatorError
 from edgedsm.tuning.candidates import Candidate, Outcome, RegionOutcome, candidates, pareto, recommend
 from edgedsm.tuning.scoring import HYSTERESIS, Replay, Separation, propose, replay, separation
 from edgedsm.tuning.series import Setting
+from edgedsm.tuning.session import choose, skipped_states
 
 
 def test_separation_is_mann_whitney_with_ties_and_d_prime_on_logs():
@@ -65,11 +66,38 @@ def test_replay_finds_the_dry_call_and_counts_moves_back_as_false():
     assert replay(times, held, th, 30.0, 60.0).delay_s is None
 
 
+def test_a_drying_band_crossed_within_the_dwell_is_a_skipped_state():
+    times = np.arange(0.0, 100.0, 0.5)
+    th = Thresholds(0.6, 0.3, 0.05, 5.0)
+    slow = np.interp(times, [0, 30, 60, 100], [1.0, 1.0, 0.1, 0.1])  # the band 0.57 -> 0.285 in ~13 s
+    assert replay(times, slow, th, 30.0, 60.0).skipped == ()
+    fast = np.interp(times, [0, 40, 44, 100], [1.0, 1.0, 0.1, 0.1])  # the band crossed in ~1.8 s < 5 s
+    result = replay(times, fast, th, 30.0, 60.0)
+    assert [s[1:] for s in result.states] == [("warming_up", "wet"), ("wet", "dry")]
+    assert result.skipped == ("drying",) and result.delay_s is not None and result.false_transitions == 0
+    # starting below the wet threshold: wet is skipped
+    late = replay(times, np.interp(times, [0, 30, 60, 100], [0.5, 0.5, 0.1, 0.1]), th, 30.0, 60.0)
+    assert late.states[0][1:] == ("warming_up", "drying") and late.skipped == ("wet",)
+    # never dry: nothing is called skipped (the outcome is not sound anyway: never called dry)
+    assert replay(times, np.full(times.shape, 0.9), th, 30.0, 60.0).skipped == ()
+
+
 def _outcome(label: str, delay: float | None, cost: float, auc: float = 1.0, false: int = 0,
-             d_prime: float = 20.0, lag: int = 5) -> Outcome:
+             d_prime: float = 20.0, lag: int = 5, skipped: tuple[str, ...] = ()) -> Outcome:
     th = Thresholds(0.6, 0.3)
-    region = RegionOutcome(Separation(auc, d_prime, 10, 10), th, Replay([], delay, false, 3600.0))
+    region = RegionOutcome(Separation(auc, d_prime, 10, 10), th, Replay([], delay, false, 3600.0, skipped))
     return Outcome(Candidate(label, True, Setting(100, lag)), {"r": region}, cost)
+
+
+def test_a_candidate_that_skips_a_state_is_not_proposed_and_the_reason_says_so():
+    skipping = _outcome("s1", 0.1, 1e-3, skipped=("drying",))  # the most timely and the cheapest
+    showing = _outcome("s2", 2.0, 2e-3)
+    assert recommend([skipping, showing])[0] is skipping  # what candidates alone would pick
+    chosen, reason = choose([skipping, showing])
+    assert chosen is showing and reason.endswith("1 candidate that would skip drying on this run is not proposed")
+    assert skipped_states(skipping) == ("drying",) and skipped_states(showing) == ()
+    none, why = choose([skipping])
+    assert none is None and why.startswith("no candidate shows wet, drying and dry in turn") and "skip drying" in why
 
 
 def test_the_choice_is_the_most_timely_sound_candidate_unless_a_cheaper_one_is_as_timely():
