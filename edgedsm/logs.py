@@ -9,6 +9,8 @@
   ``journalctl -p warning`` finds warnings, errors and transitions either way.
 - ``json_lines``: one JSON object per record; an exception's traceback is kept under
   ``exception``; ``extra={"region": ..., "state": ...}`` fields are kept under their names.
+- Anywhere else (a terminal, a file, a pipe): ``2026-12-05 17:03:12.345 WARNING logger: message``,
+  the local time to the millisecond first (the journal adds its own, so its lines stay short).
 """
 
 from __future__ import annotations
@@ -57,6 +59,16 @@ class JournalFormatter(logging.Formatter):
     def format(self, record: logging.LogRecord) -> str:
         prefix = f"<{priority(record.levelno)}>"
         return "\n".join(prefix + line for line in super().format(record).splitlines())
+
+
+#: A log line outside the journal: local time to the millisecond, level, logger, message.
+TIMESTAMPED = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+class TimestampFormatter(logging.Formatter):
+    """``%(asctime)s`` as ``2026-12-05 17:03:12.345`` (logging's default has a comma)."""
+
+    default_msec_format = "%s.%03d"
 
 
 class JsonFormatter(logging.Formatter):
@@ -134,7 +146,7 @@ def configure_logging(level: str, json_lines: bool) -> None:
         if os.path.exists(JOURNAL_SOCKET):
             handler = JournalHandler(JOURNAL_SOCKET, fallback=handler)
     else:
-        handler.setFormatter(logging.Formatter(plain))
+        handler.setFormatter(TimestampFormatter(TIMESTAMPED))
     root = logging.getLogger()
     for old in root.handlers:
         if isinstance(old, JournalHandler):
