@@ -262,14 +262,17 @@ def draw(result: Result, path: Path) -> None:
     fig = figure_class()(figsize=(13, 4.8), layout="constrained")
     left, right = fig.subplots(1, 2)
     base = result.runs[case.variants[0]]
-    left.loglog(base.frames, base.truth, color="black", linewidth=2, label="truth: ∫dt/τc = 1")
-    left.loglog(base.frames, base.tau, ".", markersize=2, color="tab:blue", label="τ(t), kinetics")
+    film = scene_of(case, base.variant)
+    law = np.array([case.tau_start * film.activity.drying.factor(int(t)) for t in base.frames])
+    left.semilogy(base.frames, law, color="grey", linewidth=1, linestyle=":", label="the scene's τc(t)")
+    left.semilogy(base.frames, base.truth, color="black", linewidth=2, label="truth: ∫dt/τc = 1")
+    left.semilogy(base.frames, base.tau, ".", markersize=2, color="tab:blue", label="τ(t), kinetics")
     shown = base.window_status == WINDOW_MEASURED
-    left.loglog(base.window_frames[shown], base.window_tau[shown], "s", markersize=3, color="tab:red",
-                label=f"window τc (N={case.window}, K={case.max_lag})")
+    left.semilogy(base.window_frames[shown], base.window_tau[shown], "s", markersize=3, color="tab:red",
+                  label=f"window τc (N={case.window}, K={case.max_lag})")
     above = base.window_status == WINDOW_ABOVE
-    left.loglog(base.window_frames[above], base.window_tau[above], "^", markersize=3, color="tab:red",
-                markerfacecolor="none", label="window τc: above K")
+    left.semilogy(base.window_frames[above], base.window_tau[above], "^", markersize=3, color="tab:red",
+                  markerfacecolor="none", label="window τc: above K")
     left.axhline(case.longest_age, color="grey", linestyle="--", linewidth=1, label="longest age")
     left.set_xlabel("frame t")
     left.set_ylabel("decorrelation time (frames)")
@@ -279,8 +282,13 @@ def draw(result: Result, path: Path) -> None:
     for run in result.runs.values():
         inside = (run.truth >= 1.0) & (run.truth <= case.longest_age)
         right.semilogx(run.truth[inside], run.tau[inside] / run.truth[inside], ".", markersize=2, label=run.variant)
+    for run in result.runs.values():
+        if "beam" in run.variant:  # what the flattening is for
+            inside = (run.truth >= 1.0) & (run.truth <= case.longest_age)
+            right.semilogx(run.truth[inside], run.tau_plain[inside] / run.truth[inside], ".", markersize=2,
+                           color="black", label=f"{run.variant}, Eq. 1 unflattened")
     right.axhspan(1 - TOLERANCE, 1 + TOLERANCE, color="grey", alpha=0.15)
-    right.set_ylim(0.3, 1.7)
+    right.set_ylim(0.3, 2.0)
     right.set_xlabel("truth (frames)")
     right.set_ylabel("τ / truth")
     right.set_title("each effect alone (shaded: ±25 %)", fontsize=10)
