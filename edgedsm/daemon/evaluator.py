@@ -275,8 +275,10 @@ class Evaluator:
         return StateReport(t=self.clock.to_wall(status.now), estimator=estimator, laser=status.laser, regions=regions)
 
     def _alert(self, transition: Transition) -> Alert:
-        log.warning("region %s: %s -> %s (%s)", transition.region, transition.from_state, transition.to_state,
-                    transition.reason, extra={"region": transition.region, "state": transition.to_state.value})
+        # a normal transition is news (INFO); into fault it is an alert (WARNING)
+        level = logging.WARNING if transition.to_state.value == "fault" else logging.INFO
+        log.log(level, "region %s: %s -> %s (%s)", transition.region, transition.from_state, transition.to_state,
+                transition.reason, extra={"region": transition.region, "state": transition.to_state.value})
         return alert_of(transition, self.clock)
 
 
