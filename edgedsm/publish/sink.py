@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Iterable
 from typing import Protocol, runtime_checkable
 
-from edgedsm.messages import Alert, LaserState, MapFrame, StateReport, Stats
+from edgedsm.messages import Alert, AlertKind, LaserState, MapFrame, StateReport, Stats
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +119,9 @@ class LogSink:
         log.info("state: %s (laser %s)", states, report.laser)
 
     def publish_alert(self, alert: Alert) -> None:
-        log.warning("alert: %s", alert.describe())
+        # a fault or a warning is an alert (WARNING); a normal transition or a reset is news (INFO)
+        serious = alert.kind in (AlertKind.FAULT, AlertKind.WARNING) or alert.to_state == "fault"
+        log.log(logging.WARNING if serious else logging.INFO, "alert: %s", alert.describe())
 
     def publish_stats(self, stats: Stats) -> None:
         if log.isEnabledFor(logging.DEBUG):
