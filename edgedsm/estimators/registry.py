@@ -76,7 +76,7 @@ class Record:
 
     name: str
     unit: str  # "grey levels", "1", "s", "grey levels²"
-    label: str  # short, for tables and plots: "S1", "contrast σ/⟨I⟩"
+    label: str  # short, for tables, plots and tune's reasons: "S1", "contrast", "GD"
     summary: str  # its formula in one line
     source: str  # one of SOURCES
     sums: frozenset[str]  # the engine sums it is formed from (SUMS)
@@ -119,6 +119,8 @@ class Record:
             raise ValueError(f"{self.name}: a derived map names its derive function and its inputs")
         if self.source == "fused" and self.name not in VALUES:
             raise ValueError(f"{self.name}: a fused map is one of the fused pass's values {VALUES}")
+        if self.shared_floor and (self.floor is None or self.above is None or not self.above_inputs):
+            raise ValueError(f"{self.name}: a shared floor names its floor, its above-noise function and its inputs")
         if self.modes != frozenset(MODES) and self.modes and not self.mode_reason:
             raise ValueError(f"{self.name}: say why it is not formed in the other modes")
 
