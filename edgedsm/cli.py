@@ -12,7 +12,7 @@ import importlib
 import logging
 import sys
 
-from edgedsm import __version__
+from edgedsm import __version__, terminal
 from edgedsm.errors import ConfigError, EdgedsmError
 from edgedsm.estimators.jit import configure_threading
 
@@ -37,7 +37,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         prog="edgedsm",
         description="Dynamic speckle activity maps (S1, S2, S3 of Levchenko et al. 2022): "
                     "simulate speckle, compute maps, run the factory daemon.",
-        epilog="Run 'edgedsm COMMAND --help' for the options of one command.",
+        epilog="Run 'edgedsm COMMAND --help' for the options of one command; 'edgedsm completion bash' prints "
+               "the shell completion.",
     )
     parser.add_argument("--version", action="version", version=f"edgedsm {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
@@ -64,12 +65,20 @@ def main(argv: list[str] | None = None) -> int:
     configure_threading()  # before any kernel starts numba's threads
     if argv is None:
         argv = sys.argv[1:]
+    if argv[:1] == ["completion"]:  # `edgedsm completion bash`: the whole command line, as a script
+        return terminal.completion(argv[1:], build_parser())
     parser = build_parser(command_named(argv))
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
-        return int(args.handler(args) or 0)
+        code = int(args.handler(args) or 0)
+        sys.stdout.flush()  # a reader gone (`| head`) is met here, not in a traceback at exit
+        return code
+    except BrokenPipeError:
+        if not terminal.stdout_closed():
+            raise
+        return terminal.end_quietly()
     except ConfigError as exc:
         # one line per problem (each with its key path), so a file with three mistakes is fixed at once
         print(f"edgedsm: configuration error:\n{exc}", file=sys.stderr)
