@@ -86,13 +86,10 @@ class SlidingWindow:
         q: the constant of Eq. 2 (grey levels, >= 0) that keeps 0/0 away.
         bits: bit depth of the data (1..16); None infers it from the first frame's dtype
             (uint8 -> 8, uint16 -> 16). Values above 2^bits - 1 are refused.
-        estimators: which of "s1", "s2", "s3", "tau_c", "contrast", "fujii", "im" ``maps()``
-            returns (default: the first three), or "gd"; only their sums are kept. "fujii"
-            (200·S2 at q = 0, BSLTL's fujii.m) needs q = 0; "gd" (BSLTL's gendiff.m) needs mode
-            "sliding" or "tumbling" and costs O(N) per pixel per push (it reads the window's frames);
-            "band_low", "band_high", "band_ratio" (high/(low + q)): the power below and above
-            ``band_split`` (edgedsm.estimators.dft_bins), sliding or tumbling mode, O(bins) per pixel
-            per push; "bands": the power in each of ``bands``, one (K, H, W) map (not in snapshots).
+        estimators: the maps ``maps()`` returns (default S1, S2, S3), any streamed map of
+            :mod:`edgedsm.estimators.registry` (its record gives the modes it needs, q = 0 for Fujii,
+            its cost per push; only their sums are kept), or "bands": the power in each of
+            ``bands``, one (K, H, W) map (not in snapshots).
         mode: "sliding" (default), "exponential" or "tumbling" (docs/engine.md); the engine
             constructed is that mode's subclass.
         kernel: "numba" (parallel, fused), "numpy" (fallback) or "auto" (numba if installed).
