@@ -119,7 +119,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("dashboard",),
     ("daemon",),  # the wiring: builds every component and hands each its own settings
     ("commands",),
-    ("cli", "__main__"),
+    ("cli", "__main__", "terminal"),  # terminal: a closed pipe, shell completion (issue 36)
     ("edgedsm_lab",),  # the lab: benchmarks and the paper's reproduction, installed apart (lab/)
 )
 LAYER = {name: level for level, names in enumerate(LAYERS) for name in names}
