@@ -20,7 +20,7 @@ from edgedsm.config import DaemonConfig
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import registry
 from edgedsm.frameio import FrameReader, open_frames
-from edgedsm.timeline import DESCRIPTORS, Timeline, timeline
+from edgedsm.timeline import DESCRIPTORS, PAPER, Timeline, timeline
 
 SCENE_SUFFIXES = (".toml",)
 
@@ -183,14 +183,16 @@ def _pyplot():
     return plt
 
 
+def _label(name: str) -> str:
+    """A map's axis label with its unit (the registry's; none for the dimensionless)."""
+    record = registry.get(name)
+    return record.label if record.unit.startswith("1") else f"{record.label} ({record.unit})"
+
+
 def plot_activity(path: Path, result: Timeline, title: str) -> None:
     plt = _pyplot()
     names = list(dict.fromkeys(row[2] for row in result.rows))
-    labels = {"contrast": "contrast σ/⟨I⟩", "fujii": "Fujii", "im": "IM (grey levels²)", "gd": "GD (grey levels)",
-              "band_low": "low band (grey levels²)", "band_high": "high band (grey levels²)",
-              "band_ratio": "high / low band"}
-    columns = (("s1", "S1 (grey levels)"), ("s2", "S2"), ("s3", "S3"),
-               *((name, labels[name]) for name in result.descriptors), ("tau_c_s", "τc (s)"))
+    columns = (*((name, _label(name)) for name in (*PAPER, *result.descriptors)), ("tau_c_s", _label("tau_c")))
     fig, axes = plt.subplots(len(columns), 1, figsize=(8, 9 + 2 * len(result.descriptors)), sharex=True)
     for ax, (column, label) in zip(axes, columns, strict=True):
         for name in names:

@@ -15,14 +15,19 @@ from typing import Any
 import numpy as np
 
 from edgedsm.config import DaemonConfig
+from edgedsm.estimators import registry
 from edgedsm.tuning.candidates import ROBUST_D_PRIME, Outcome, pareto
 from edgedsm.tuning.session import Result, skipped_states
 
-#: the activities that have a unit (docs/descriptors.md; the others are dimensionless)
-UNITS = {"s1": " (grey levels)", "im": " (grey levels²)", "gd": " (grey levels)", "tau_c": " (s)"}
 #: the last report's files in device.commissioning_dir (the dashboard reads them: edgedsm.dashboard.commissioning)
 LAST_SUMMARY, LAST_PLOTS = "summary.json", ("activity.png", "tradeoff.png")
 THRESHOLD_KEYS = {"wet_above", "dry_below", "wet_below_s", "dry_above_s", "hysteresis", "min_dwell_s"}
+
+
+def unit_suffix(estimator: str) -> str:
+    """`` (unit)`` of an activity with a unit (the registry's; dimensionless ones: none)."""
+    unit = registry.get(estimator).unit
+    return "" if unit.startswith("1") else f" ({unit})"
 
 
 def _toml_value(value: Any) -> str:
@@ -128,7 +133,7 @@ def plot_chosen(path: Path, result: Result) -> None:
         ax.axvline(mark, color="black", lw=0.8)
         ax.text(mark, ax.get_ylim()[1], f" {text}", va="top", fontsize=8)
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(chosen.candidate.label().split(",")[0] + UNITS.get(chosen.candidate.estimator, ""))
+    ax.set_ylabel(chosen.candidate.label().split(",")[0] + unit_suffix(chosen.candidate.estimator))
     ax.set_title(f"{Path(result.run.name).name}: {chosen.candidate.label()}")
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -30,17 +30,17 @@ import numpy as np
 
 from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
-from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES, PAPER_MAPS, EstimatorSection
-from edgedsm.estimators import SlidingWindow
+from edgedsm.config.estimator import EstimatorSection
+from edgedsm.estimators import registry
 from edgedsm.estimators.value_set import gd_mode_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
 from edgedsm.measurement.judge import FLOORED
 from edgedsm.validation import validate
 
-PLAIN = PAPER_MAPS  # S1, S2, S3: always formed (the daemon does; S3's and τc's floors need S1)
+PLAIN = registry.paper_maps()  # S1, S2, S3: always formed (the daemon does; S3's and τc's floors need S1)
 #: every activity the daemon can judge on (``estimator.activity``), in the order candidates are listed;
 #: not the band ratio yet (its split would be one more tuned setting, and the exponential mode has no bands)
-JUDGEABLE = (*PAPER_MAPS, "tau_c", *(name for name in DESCRIPTOR_ACTIVITIES if name != "band_ratio"))
+JUDGEABLE = tuple(name for name in registry.activities() if name != "band_ratio")
 #: those tried unless asked for by name: all but GD, whose O(N)-per-pixel push makes every pass of
 #: a setting several times longer (docs/commissioning.md), so that a budget would cover fewer settings
 DEFAULT_CANDIDATES = tuple(name for name in JUDGEABLE if name != "gd")
@@ -87,7 +87,7 @@ def in_mode(estimators: Sequence[str], mode: str) -> tuple[str, ...]:
 def variants(estimators: Sequence[str], has_tau: bool = True) -> tuple[str, ...]:
     """The series a pass of ``estimators`` (among JUDGEABLE) gives per region: each plain (S1-S3
     always), those with a floor also above it ("@noise"), τc in seconds where the mode has it."""
-    plain = [*PLAIN, *(name for name in DESCRIPTOR_ACTIVITIES if name in estimators)]
+    plain = [*PLAIN, *(name for name in JUDGEABLE if name in estimators and name not in (*PLAIN, "tau_c"))]
     floored = [f"{name}@noise" for name in WITH_FLOOR if name in estimators]
     return (*plain, *floored, *(("tau_c",) if "tau_c" in estimators and has_tau else ()))
 
@@ -116,7 +116,7 @@ def run_pass(frames: Iterable[np.ndarray], setting: Setting, config: DaemonConfi
     q = config.estimator.q
     # Fujii needs an engine at q = 0 (its daemon runs so): the main one when q is 0, else a companion
     separate_fujii = "fujii" in estimators and q != 0.0
-    extra = tuple(name for name in DESCRIPTOR_ACTIVITIES if name in estimators
+    extra = tuple(name for name in JUDGEABLE if name in estimators and name not in (*PLAIN, "tau_c")
                   and not (name == "fujii" and separate_fujii))
     spec = EngineSpec.of_sections(estimator, tau_c=with_tau, extra=extra)
     companions = [spec.replaced(q=0.0, estimators=("fujii",))] if separate_fujii else []
@@ -159,9 +159,8 @@ def push_cost(frames: Sequence[np.ndarray], estimators: tuple[str, ...], setting
     """Seconds per push of one engine computing only ``estimators`` at ``setting`` on frames of the
     camera's size, measured: the best of ``repeats`` timings over ``frames`` (pushed after a
     window's worth to fill it; the first, compiling, push is not timed)."""
-    shape = frames[0].shape
-    engine = SlidingWindow(shape, setting.window, setting.lag, q=q, bits=bits, mode=setting.mode,
-                           estimators=estimators, max_lag=max_lag)
+    spec = EngineSpec(setting.window, setting.lag, q, setting.mode, tuple(estimators), max_lag)
+    engine = spec.engine(frames[0].shape, bits)
     fill = [frames[k % len(frames)] for k in range(setting.window + 1)]
     for frame in fill:
         engine.push(frame)
