@@ -124,8 +124,8 @@ class Discovery:
         template = (f"{{{{ value_json.get('tau_c', {{}}).get('{region}', {{}})"
                     f".get('tau_c_s') }}}}")
         return self._entity("sensor", f"{region}_tau_c", {
-            "name": f"{region} τc", "state_topic": self.topics.stats, "state_class": "measurement",
-            "device_class": "duration", "unit_of_measurement": "s", "value_template": template,
+            "name": f"{region} {label_of('tau_c')}", "state_topic": self.topics.stats, "state_class": "measurement",
+            "device_class": "duration", **_unit(unit_of("tau_c")), "value_template": template,
             "icon": "mdi:timer-sand"}, region)
 
     def signal_entities(self, region: str) -> list[Entity]:
@@ -159,5 +159,5 @@ class Discovery:
     def image_entity(self, name: str) -> Entity:
         """The colour picture of map ``name``."""
         return self._entity("image", f"map_{name}", {
-            "name": f"{name.upper()} map", "image_topic": colour_map_topic(self.topics, name),
+            "name": f"{label_of(name)} map", "image_topic": colour_map_topic(self.topics, name),
             "content_type": "image/png"})
