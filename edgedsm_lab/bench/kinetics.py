@@ -40,6 +40,7 @@ VARIANTS: dict[str, dict] = {
     "phase noise α=0.3": {"phase_noise": {"alpha": 0.3, "tau_noise": 1.0, "model": "white"}},
 }
 TOLERANCE = 0.25  # the issue's bound on the median relative error
+SAMPLING = 4  # the cost's sampling mask: every 4th pixel of the region in each direction
 
 
 @dataclass(frozen=True)
@@ -218,7 +219,8 @@ def cost(size: int = 512, longest_age: int = 4096, per_octave: int = 4, repeats:
     """Seconds per frame over a size² region, interleaved in one run (the fastest of ``repeats``
     rounds each, so that other work on the machine inflates no ratio): one S1 push and the default
     push (S1, S2, S3; sliding window N = ``window``, m = 1, one thread), the kinetics' push (fused
-    numba pass, and the NumPy path) and its measure; memory per region pixel."""
+    numba pass, and the NumPy path) and its measure, and both again keeping every SAMPLING-th pixel of
+    the region in each direction (the box means still read every pixel); memory per region pixel."""
     from edgedsm.estimators import SlidingWindow
 
     rng = np.random.default_rng(1)
@@ -228,11 +230,14 @@ def cost(size: int = 512, longest_age: int = 4096, per_octave: int = 4, repeats:
     default = SlidingWindow((size, size), window=window, lag=1, threads=1)
     fused = Kinetics(mask, model, longest_age, per_octave)
     numpy_path = Kinetics(mask, model, longest_age, per_octave, kernel="numpy")
+    rows, cols = np.indices(mask.shape)
+    sampled = Kinetics((rows % SAMPLING == 0) & (cols % SAMPLING == 0), model, longest_age, per_octave)
     steps = {"s1": s1.push, "default": default.push, "push": fused.push, "push_numpy": numpy_path.push,
-             "measure": lambda _frame: fused.measure()}
+             "measure": lambda _frame: fused.measure(), "push_sampled": sampled.push,
+             "measure_sampled": lambda _frame: sampled.measure()}
     for index in range(window + 8):  # fill the windows and the young slots (and compile)
         for name, step in steps.items():
-            if name != "measure":
+            if not name.startswith("measure"):
                 step(frames[index % 8])
     best = dict.fromkeys(steps, math.inf)
     for index in range(repeats):
@@ -249,7 +254,9 @@ def cost(size: int = 512, longest_age: int = 4096, per_octave: int = 4, repeats:
 def cost_rows(spent: dict[str, float]) -> list[list[str]]:
     names = {"s1": "S1 push", "default": "default push (S1, S2, S3)",
              "push": "kinetics push" + (" (numba)" if spent["fused"] else " (NumPy: numba missing)"),
-             "push_numpy": "kinetics push, NumPy path", "measure": "kinetics measure"}
+             "push_numpy": "kinetics push, NumPy path", "measure": "kinetics measure",
+             "push_sampled": f"kinetics push, every {SAMPLING}th pixel kept", "measure_sampled":
+             f"kinetics measure, every {SAMPLING}th pixel kept"}
     return [[label, f"{1e9 * spent[key] / spent['pixels']:.2f}", f"{spent[key] / spent['s1']:.2f}",
              f"{spent[key] / spent['default']:.2f}"] for key, label in names.items()]
 
