@@ -91,5 +91,9 @@ def ratio_lut(q: float, scale_bits: int) -> np.ndarray:
     return table
 
 
+#: The S2 term kinds the compiled kernels read from :func:`ratio_lut` (8-bit data): the table
+#: holds the exactly rounded terms, so "exact" and "lut" sums are those of the formula above.
+TABLED_KINDS = ("exact", "lut")
+
 _NO_LUT = np.zeros(0, np.int64)
 _NO_LUT.setflags(write=False)

@@ -60,7 +60,7 @@ def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - co
     The denominator is raised to at least 1: it is below 1 only when a = b = 0, where the
     term is 0 whatever it is divided by (no branch, no 0/0).
     """
-    if kind == "lut":
+    if kind == "lut" or (kind == "exact" and lut.size):
         return lut[(a << 8) | b]
     diff = abs(a - b)
     if kind == "exact":

@@ -542,3 +542,21 @@ def test_maps_can_leave_the_costly_tau_map_out():
     assert np.array_equal(engine.maps(("tau_c",))["tau_c"], everything["tau_c"])
     with pytest.raises(EstimatorError, match=r"\['s4'\] were not requested"):
         engine.maps(("s4",))
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("mode", ["sliding", "tumbling"])
+def test_the_engine_reads_exact_terms_from_the_table_with_the_formulas_sums(kernel, mode):
+    """8-bit data and an integer q: the kernels read each S2 term from the exactly rounded table
+    (faster than a division and its correction), and the running sums are the formula's, bit for bit."""
+    rng = np.random.default_rng(7)
+    frames = np.minimum(rng.exponential(70.0, (130, 24, 20)), 255).astype(np.uint8)
+    tabled, formula = (SlidingWindow((24, 20), 40, 3, q=1.0, bits=8, estimators=("s1", "s2"), kernel=kernel,
+                                     mode=mode) for _ in range(2))
+    assert tabled.ratio_kind == "exact" and tabled._moments.lut.size == 65536
+    formula._moments.lut = np.zeros(0, np.int64)  # what the kernels did before: the formula per term
+    for frame in frames:
+        tabled.push(frame)
+        formula.push(frame)
+    np.testing.assert_array_equal(tabled._arrays["ratio"], formula._arrays["ratio"])
+    np.testing.assert_array_equal(tabled.maps()["s2"], formula.maps()["s2"])
