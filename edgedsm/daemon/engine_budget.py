@@ -73,7 +73,12 @@ def make_engine(config: DaemonConfig, shape: tuple[int, int], bits: int, threads
     """The daemon's engine for ``config`` over ``shape`` (rows, columns) of ``bits``-bit frames: the
     measurement core's :class:`~edgedsm.measurement.EngineSpec` of the config, the one every user
     of the engine builds (the memory estimate's probe included)."""
-    return EngineSpec.of(config).engine(shape, bits, threads)
+    return _spec(config).engine(shape, bits, threads)
+
+
+def _spec(config: DaemonConfig) -> EngineSpec:
+    """The measurement core's engine spec of the config's sections."""
+    return EngineSpec.of_sections(config.estimator, tau_c=config.tau_c_on, **config.band_args)
 
 
 def queue_bytes(config: DaemonConfig, frame_shape: tuple[int, int], bits: int) -> dict[str, int]:
@@ -156,7 +161,7 @@ def _warm_up(config: DaemonConfig, parallel: bool) -> None:
     window = est.lag + 2
     if tau.on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
         window = max(window, est.lags + TAU_BATCH + 2)
-    engine = EngineSpec.of(config).replaced(window=window).engine((side, side), 16 if deep else 8, est.threads)
+    engine = _spec(config).replaced(window=window).engine((side, side), 16 if deep else 8, est.threads)
     frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
     for _ in range(window + TAU_BATCH + 1):  # past a full batch of lag products
         engine.push(frame)

@@ -73,7 +73,8 @@ class Evaluator:
         self.probes = probes or PipelineProbes()
         self.map_buffers = MapBuffers()  # float maps, reused once the sinks let go of them
         # the judge (evaluator thread only) and the state machines (under the lock)
-        self.judgement = Judgement(config, t0=clock.monotonic(), view=view_of(config.estimator.noise_patch))
+        self.judgement = Judgement(config.estimator, config.regions, config.camera.noise, t0=clock.monotonic(),
+                                   view=view_of(config.estimator.noise_patch))
         self.signal = self.judgement.judge
         self._lock = threading.Lock()  # guards the state machines and the generation
         self._generation = 0  # counts measurement restarts
@@ -128,9 +129,9 @@ class Evaluator:
         """New thresholds for the running state machines (states, dwell and trend history kept);
         the regions' names are those running (a reload that renames one restarts instead)."""
         with self._lock:
-            self.judgement.apply(config)
+            self.judgement.apply(config.regions)
             self.config = config
-        self._last = self._executor.submit(self.signal.apply, config)
+        self._last = self._executor.submit(self.signal.apply, config.estimator, config.regions, config.camera.noise)
 
     def publish_alert(self, alert: Alert) -> None:
         """Hand an alert to the sink on the evaluator thread (sinks are called from one thread,

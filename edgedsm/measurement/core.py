@@ -32,6 +32,9 @@ import numpy as np
 
 from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
+from edgedsm.config.devices import CameraNoiseSection
+from edgedsm.config.estimator import EstimatorSection
+from edgedsm.config.regions import RegionSettings
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow
@@ -104,12 +107,18 @@ def step_states(monitor: DryingMonitor, now: float, judged: Mapping[str, float |
 class Judgement:
     """The signal judge and the drying-state machines of a config's regions (one thread)."""
 
-    def __init__(self, config: DaemonConfig, t0: float = 0.0, floored: Sequence[str] = (),
+    def __init__(self, estimator: EstimatorSection, regions: Sequence[RegionSettings] = (),
+                 noise: CameraNoiseSection | None = None, t0: float = 0.0, floored: Sequence[str] = (),
                  view: str = REGION_VIEW) -> None:
-        self.config = config
-        self.judge = SignalJudge(config, floored=floored)
-        self.monitor = DryingMonitor({r.name: r.thresholds() for r in config.regions}, t0=t0)
+        self.judge = SignalJudge(estimator, regions, noise, floored=floored)
+        self.monitor = DryingMonitor({r.name: r.thresholds() for r in regions}, t0=t0)
         self.view = view
+
+    @classmethod
+    def of(cls, config: DaemonConfig, t0: float = 0.0, floored: Sequence[str] = (),
+           view: str = REGION_VIEW) -> Judgement:
+        """The judgement of a whole config's sections (``[estimator]``, ``[[regions]]``, ``[camera.noise]``)."""
+        return cls(config.estimator, config.regions, config.camera.noise, t0, floored, view)
 
     @property
     def on(self) -> bool:
@@ -137,16 +146,15 @@ class Judgement:
         """Every region back to warming up (the judge's restart: :meth:`SignalJudge.restart`)."""
         return self.monitor.reset(now, why)
 
-    def apply(self, config: DaemonConfig) -> None:
-        """New thresholds for the running machines (states, dwell and trend kept) and the judge's
-        settings; the regions' names are those running."""
-        thresholds = {region.name: region.thresholds() for region in config.regions}
+    def apply(self, regions: Sequence[RegionSettings]) -> None:
+        """New thresholds for the running machines (states, dwell and trend kept); the regions'
+        names are those running. (The judge's settings: :meth:`SignalJudge.apply`, on its thread.)"""
+        thresholds = {region.name: region.thresholds() for region in regions}
         for name, machine in self.monitor.regions.items():
             machine.thresholds = thresholds[name]
-        self.config = config
 
     def estimator(self, region: str) -> str:
-        return "tau_c" if self.judge.on_tau(region) else self.config.estimator.activity
+        return "tau_c" if self.judge.on_tau(region) else self.judge.estimator.activity
 
     def reading(self, region: str, plain: float | None, judged: float | None, values: Mapping[str, float],
                 tau: tuple[float, str] | None = None) -> RegionReading:
@@ -197,7 +205,7 @@ class Core:
         self.masks = dict(regions)
         self.patch = patch
         self.dt = dt
-        self.judgement = Judgement(config, t0=t0, floored=floored, view=view_of(patch))
+        self.judgement = Judgement.of(config, t0=t0, floored=floored, view=view_of(patch))
         self.engine: SlidingWindow | None = None
         self._others: list[tuple[SlidingWindow, tuple[str, ...]]] = []  # the companions' engines and maps
         self.patches: NoisePatches | None = None
@@ -282,7 +290,7 @@ def judge_window(config: DaemonConfig, frames: np.ndarray, values: Mapping[str, 
     rows, cols, inside = patch_of(box, patch if patch is not None else max(stack.shape[1:]))
     window = PatchWindow(np.ascontiguousarray(stack[:, rows, cols]), inside, full_scale(stack, bits))
     activity = config.estimator.activity
-    judgement = Judgement(config, view=view_of(patch))
+    judgement = Judgement.of(config, view=view_of(patch))
     if model is not None:
         judgement.judge.keeper.model = model
     evaluation = judgement.evaluate(0.0, {region: values.get(activity)}, {region: dict(values)}, {region: window})

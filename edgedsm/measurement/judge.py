@@ -30,6 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from edgedsm.config import DaemonConfig
+from edgedsm.config.devices import CameraNoiseSection
+from edgedsm.config.estimator import EstimatorSection
+from edgedsm.config.regions import RegionSettings
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import noise, registry, signal_quality
 from edgedsm.estimators.noise import NoiseModel
@@ -125,10 +128,13 @@ class SignalJudge:
     """Signal quality, noise floors and signal warnings of every region (one thread only: the
     daemon's evaluator thread). ``floored``: maps whose floors are kept beside the judged one's."""
 
-    def __init__(self, config: DaemonConfig, keeper: ModelKeeper | None = None, floored: Sequence[str] = ()) -> None:
-        self.config = config
-        camera_noise = config.camera.noise
-        self.keeper = keeper or ModelKeeper(camera_noise.model() if camera_noise is not None else None)
+    def __init__(self, estimator: EstimatorSection, regions: Sequence[RegionSettings] = (),
+                 noise: CameraNoiseSection | None = None, keeper: ModelKeeper | None = None,
+                 floored: Sequence[str] = ()) -> None:
+        self.estimator = estimator
+        self.noise = noise
+        self._on_tau = frozenset(region.name for region in regions if region.on_tau)
+        self.keeper = keeper or ModelKeeper(noise.model() if noise is not None else None)
         self.floored = tuple(name for name in floored if name in FLOORED)
         self._floors: dict[str, dict[str, RegionFloor]] = {}  # region -> map -> its floor
         self._basis: dict[tuple[str, str], tuple[NoiseModel | None, float, int]] = {}  # model, mean, assessment
@@ -143,7 +149,7 @@ class SignalJudge:
 
     @property
     def on(self) -> bool:
-        return self.config.estimator.noise_floor
+        return self.estimator.noise_floor
 
     def restart(self) -> None:
         """A new measurement: the reference intensities and the floors are taken again (the model
@@ -152,22 +158,28 @@ class SignalJudge:
         self._floors.clear()
         self.signals.clear()
 
-    def apply(self, config: DaemonConfig) -> None:
+    @classmethod
+    def of(cls, config: DaemonConfig, keeper: ModelKeeper | None = None, floored: Sequence[str] = ()) -> SignalJudge:
+        """The judge of a whole config's sections (``[estimator]``, ``[[regions]]``, ``[camera.noise]``)."""
+        return cls(config.estimator, config.regions, config.camera.noise, keeper, floored)
+
+    def apply(self, estimator: EstimatorSection, regions: Sequence[RegionSettings] = (),
+              noise: CameraNoiseSection | None = None) -> None:
         """A reload's settings (a new datasheet replaces the model; the rest is kept)."""
-        if config.camera.noise != self.config.camera.noise:
-            self.keeper.model = config.camera.noise.model() if config.camera.noise is not None else None
+        if noise != self.noise:
+            self.keeper.model = noise.model() if noise is not None else None
             self._floors.clear()
-        self.config = config
+        self.estimator, self.noise = estimator, noise
+        self._on_tau = frozenset(region.name for region in regions if region.on_tau)
 
     def on_tau(self, region: str) -> bool:
         """Whether ``region`` is judged on τc (the activity, or its own τc thresholds)."""
-        return self.config.estimator.activity == "tau_c" or any(r.name == region and r.on_tau
-                                                                for r in self.config.regions)
+        return self.estimator.activity == "tau_c" or region in self._on_tau
 
     def floor_estimator(self, region: str) -> str:
         """The estimator whose floor a region is judged against: the activity; S3 (for its signal
         share) for a region judged on τc."""
-        return "s3" if self.on_tau(region) else self.config.estimator.activity
+        return "s3" if self.on_tau(region) else self.estimator.activity
 
     def floor(self, region: str, estimator: str | None = None) -> RegionFloor | None:
         """The region's last floor of ``estimator`` (default: the one it is judged against)."""
@@ -185,7 +197,7 @@ class SignalJudge:
                ) -> list[SignalWarning]:
         """Judge every region with a patch window and its estimates ("s1", "s2", "s3", ... region
         means); returns the warnings that began or cleared."""
-        est = self.config.estimator
+        est = self.estimator
         self._assessments += 1
         self.keeper.see(patches)
         changes: list[SignalWarning] = []

@@ -141,11 +141,6 @@ KNOWN_VIOLATIONS: set[tuple[str, int]] = {
     # a region's section builds (and so validates) drying.Thresholds, a measurement type: the
     # thresholds' values belong to the config, the state machine that uses them to the core
     ("edgedsm.config.regions -> edgedsm.drying", 35),
-    # the daemon hands the measurement core the whole config where its sections would do
-    # (EngineSpec.of_sections(config.estimator, tau_c=config.tau_c_on, **config.band_args))
-    ("edgedsm.daemon.engine_budget.make_engine: EngineSpec.of(DaemonConfig)", 35),
-    ("edgedsm.daemon.engine_budget._warm_up: EngineSpec.of(DaemonConfig)", 35),
-    ("edgedsm.daemon.evaluator.__init__: Judgement(DaemonConfig)", 35),
 }
 
 

@@ -39,7 +39,7 @@ def _patch(frames):
 
 
 def test_a_static_surface_is_judged_on_its_activity_above_the_floor_near_zero():
-    judge = SignalJudge(_config(camera_noise={"gain": 0.5}))
+    judge = SignalJudge.of(_config(camera_noise={"gain": 0.5}))
     frames = _static()
     estimates = _estimates(frames)
     assert judge.assess({"a": _patch(frames)}, {"a": estimates}) == []
@@ -51,7 +51,7 @@ def test_a_static_surface_is_judged_on_its_activity_above_the_floor_near_zero():
 
 
 def test_saturated_light_holds_the_state_with_one_warning_cleared_when_it_recovers():
-    judge = SignalJudge(_config(camera_noise={"gain": 0.5}))
+    judge = SignalJudge.of(_config(camera_noise={"gain": 0.5}))
     frames = _static()
     bright = np.minimum(frames.astype(np.int32) * 4, 255).astype(np.uint8)
     estimates, bright_estimates = _estimates(frames), _estimates(bright)
@@ -68,7 +68,7 @@ def test_saturated_light_holds_the_state_with_one_warning_cleared_when_it_recove
 
 
 def test_an_intensity_change_beyond_the_factor_warns_once_each_way():
-    judge = SignalJudge(_config(camera_noise={"gain": 0.5}, intensity_change=2.0))
+    judge = SignalJudge.of(_config(camera_noise={"gain": 0.5}, intensity_change=2.0))
     frames = _static(mean=80.0)
     dim = _static(mean=30.0, seed=1)
     judge.assess({"a": _patch(frames)}, {"a": _estimates(frames)})
@@ -81,7 +81,7 @@ def test_an_intensity_change_beyond_the_factor_warns_once_each_way():
 
 
 def test_without_a_model_the_plain_activity_is_judged_and_the_reason_says_why():
-    judge = SignalJudge(_config())
+    judge = SignalJudge.of(_config())
     rng = np.random.default_rng(3)
     fast = rng.integers(0, 200, (60, 32, 32)).astype(np.uint8)  # decorrelates every frame: no noise to tell apart
     estimates = _estimates(fast)
@@ -92,7 +92,7 @@ def test_without_a_model_the_plain_activity_is_judged_and_the_reason_says_why():
 
 
 def test_a_model_from_the_frames_is_kept_and_a_floor_reused_while_the_light_holds():
-    judge = SignalJudge(_config())
+    judge = SignalJudge.of(_config())
     frames = _static(frames=120)
     estimates = _estimates(frames)
     judge.assess({"a": _patch(frames)}, {"a": estimates})
@@ -106,7 +106,7 @@ def test_a_model_from_the_frames_is_kept_and_a_floor_reused_while_the_light_hold
 
 
 def test_s3_above_the_noise_follows_the_current_s1_between_two_assessments():
-    judge = SignalJudge(_config(activity="s3", camera_noise={"gain": 0.5}))
+    judge = SignalJudge.of(_config(activity="s3", camera_noise={"gain": 0.5}))
     rng = np.random.default_rng(5)
     a, b = rng.exponential(80.0, (2, 32, 32))
     turn = np.linspace(0.0, 6 * np.pi, 60)[:, None, None]  # two patterns turning into each other
