@@ -36,6 +36,7 @@ from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
 from edgedsm.measurement.core import TAU_STATUS
+from edgedsm.noise_patches import MAX_PATCH_FRAMES
 from edgedsm.validation import validate
 
 STATUS_NAMES = TAU_STATUS
@@ -50,6 +51,9 @@ NOISE_COLUMNS = COLUMNS[9:]
 DESCRIPTORS = tuple(name for name in registry.names() if name not in (*PAPER, "tau_c")
                     and registry.get(name).modes)
 NAN = float("nan")
+#: pixel-frames of the regions' noise windows up to which a timeline judges every pixel of them
+#: (2^27: the 100 frames of a 1092x614 video, 128 MiB at 8 bits), beyond which the daemon's patch
+REGION_VIEW_SAMPLES = 1 << 27
 
 
 def analysis_config(window: int, lag: int, q: float = 0.0, mode: str = "sliding", activity: str = "s2",
@@ -64,6 +68,16 @@ def analysis_config(window: int, lag: int, q: float = 0.0, mode: str = "sliding"
              "activity": activity, "max_lag": max_lag, "noise_floor": noise_floor}
     estimator = validate(EstimatorSection, {**base.estimator.model_dump(exclude_unset=True), **asked}, "estimator")
     return base.model_copy(update={"estimator": estimator})
+
+
+def _view_patch(regions: Mapping[str, np.ndarray], window: int, config: DaemonConfig) -> int | None:
+    """The noise patch of a timeline asked for the regions' every pixel: None (every pixel) while the
+    regions' boxes over the patch window hold at most REGION_VIEW_SAMPLES pixel-frames, else the
+    daemon's patch (``estimator.noise_patch``): the window of a whole large frame would double the
+    timeline's memory (the ``noise_view`` column names the pixels judged)."""
+    boxes = sum(int(np.prod([len(np.flatnonzero(mask.any(axis=axis))) for axis in (1, 0)]))
+                for mask in regions.values())
+    return None if min(window, MAX_PATCH_FRAMES) * boxes <= REGION_VIEW_SAMPLES else config.estimator.noise_patch
 
 
 def _noise_cells(reading: RegionReading | None) -> tuple:
@@ -128,8 +142,9 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     engine, reduction and judge): with ``with_noise`` each region's light, its S1, S2, S3 above the
     camera's noise floor (docs/noise.md) and its ``activity`` (the column ``activity``: the value the
     daemon's thresholds judge, above the floor of ``activity``'s map, NaN while held) are judged on
-    every pixel of the region (``noise_patch`` None, the column ``noise_view`` "region") or, as the
-    daemon does, on a square of ``noise_patch`` pixels at its centre; ``noise_model`` (a
+    every pixel of the region (``noise_patch`` None, the column ``noise_view`` "region"; the daemon's
+    patch beyond REGION_VIEW_SAMPLES pixel-frames) or, as the daemon does, on a square of
+    ``noise_patch`` pixels at its centre; ``noise_model`` (a
     datasheet's), else the last model the frames gave. The above-noise columns read NaN while there
     is none, the signal column "off" without ``with_noise``. ``config``: the daemon config whose
     camera and regions' thresholds the judge takes (window, lag, ``q``, mode and ``activity`` as
@@ -159,9 +174,10 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         if core is None:
             depth = bits or 8 * frame.dtype.itemsize
             in_engine = with_tau and (mode != "tumbling" or int64_problem(frame.shape, window, depth) is not None)
+            patch = noise_patch if noise_patch is not None else _view_patch(regions, window, settings)
             spec = EngineSpec.of_sections(settings.estimator, tau_c=in_engine, dt=dt, band_split=band_split,
                                            extra=extra)
-            core = Core(settings, regions, patch=noise_patch, floored=PAPER, dt=dt, spec=spec)
+            core = Core(settings, regions, patch=patch, floored=PAPER, dt=dt, spec=spec)
             if noise_model is not None:
                 core.judgement.judge.keeper.model = noise_model
             if with_tau and not in_engine:

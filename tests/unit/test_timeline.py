@@ -184,3 +184,18 @@ def test_the_light_and_the_activity_above_the_noise_follow_a_darkening_film(tmp_
     assert main(["analyze", str(small), "--timeline", str(off), "--window", "100", "--lag", "5", "--every", "100",
                  "--no-noise-floor", "--no-tau-c", "--no-progress"]) == 0
     assert {r["signal"] for r in read_rows(off / "timeline.csv")} == {"off"}
+
+
+def test_a_timeline_judges_every_pixel_of_a_region_unless_its_window_is_large(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(5)
+    frames = rng.poisson(rng.exponential(60.0, (40, 40)), (60, 40, 40)).clip(0, 255).astype(np.uint8)
+    regions = {"all": np.ones((40, 40), bool)}
+    whole = timeline(iter(frames), regions, window=50, lag=2, every=10, with_tau=False)
+    assert {row[whole.columns.index("noise_view")] for row in whole.rows} == {"region"}
+    monkeypatch.setattr("edgedsm.timeline.REGION_VIEW_SAMPLES", 50 * 40 * 40 - 1)  # one pixel-frame too many
+    patched = timeline(iter(frames), regions, window=50, lag=2, every=10, with_tau=False)
+    views = {row[patched.columns.index("noise_view")] for row in patched.rows}
+    assert views == {"patch 64x64 px at the region's centre"}
+    # a 64-px patch of a 40-px region is the whole region: the same numbers, named otherwise
+    floor = whole.columns.index("noise_floor")
+    assert [row[floor] for row in patched.rows] == pytest.approx([row[floor] for row in whole.rows], rel=1e-12)
