@@ -82,13 +82,13 @@ def test_cmd_tells_an_offline_daemon_and_an_unreachable_or_refusing_broker_apart
     code, _ = daemon.terminate()
     assert code == 0
     started = time.monotonic()
-    stopped = _cmd("publish_maps", "--device", "line3", "--broker", broker_arg, "--timeout", "10", "--json")
+    stopped = _cmd("publish_maps", "--device", "line3", "--broker", broker_arg, "--timeout", "60", "--json")
     took = time.monotonic() - started
     assert stopped.returncode == 2, stopped.stderr
     assert "edgedsm/line3 is offline (its retained availability)" in stopped.stderr
     assert json.loads(stopped.stdout) == {"ok": None, "command": "publish_maps", "error": "offline",
                                           "base": "edgedsm/line3"}
-    assert took < 5.0  # at once, not after --timeout 10 (the interpreter's start included)
+    assert took < 20.0  # at once, not after --timeout 60 (the interpreter's start on a loaded machine included)
 
     nobody = _cmd("publish_maps", "--device", "line3", "--broker", f"127.0.0.1:{free_port()}")
     assert nobody.returncode == 69, nobody.stderr
