@@ -220,7 +220,8 @@ def cost(size: int = 512, longest_age: int = 4096, per_octave: int = 4, repeats:
     rounds each, so that other work on the machine inflates no ratio): one S1 push and the default
     push (S1, S2, S3; sliding window N = ``window``, m = 1, one thread), the kinetics' push (fused
     numba pass, and the NumPy path) and its measure, and both again keeping every SAMPLING-th pixel of
-    the region in each direction (the box means still read every pixel); memory per region pixel."""
+    the region in each direction (the box means still read every pixel), and on the frame itself
+    subsampled so (the box means too); all per pixel of the size² region; memory per region pixel."""
     from edgedsm.estimators import SlidingWindow
 
     rng = np.random.default_rng(1)
@@ -232,9 +233,12 @@ def cost(size: int = 512, longest_age: int = 4096, per_octave: int = 4, repeats:
     numpy_path = Kinetics(mask, model, longest_age, per_octave, kernel="numpy")
     rows, cols = np.indices(mask.shape)
     sampled = Kinetics((rows % SAMPLING == 0) & (cols % SAMPLING == 0), model, longest_age, per_octave)
+    coarse = Kinetics(np.ones(mask[::SAMPLING, ::SAMPLING].shape, bool), model, longest_age, per_octave)
     steps = {"s1": s1.push, "default": default.push, "push": fused.push, "push_numpy": numpy_path.push,
              "measure": lambda _frame: fused.measure(), "push_sampled": sampled.push,
-             "measure_sampled": lambda _frame: sampled.measure()}
+             "measure_sampled": lambda _frame: sampled.measure(),
+             "push_coarse": lambda frame: coarse.push(frame[::SAMPLING, ::SAMPLING]),
+             "measure_coarse": lambda _frame: coarse.measure()}
     for index in range(window + 8):  # fill the windows and the young slots (and compile)
         for name, step in steps.items():
             if not name.startswith("measure"):
@@ -256,7 +260,9 @@ def cost_rows(spent: dict[str, float]) -> list[list[str]]:
              "push": "kinetics push" + (" (numba)" if spent["fused"] else " (NumPy: numba missing)"),
              "push_numpy": "kinetics push, NumPy path", "measure": "kinetics measure",
              "push_sampled": f"kinetics push, every {SAMPLING}th pixel kept", "measure_sampled":
-             f"kinetics measure, every {SAMPLING}th pixel kept"}
+             f"kinetics measure, every {SAMPLING}th pixel kept",
+             "push_coarse": f"kinetics push of frame[::{SAMPLING}, ::{SAMPLING}]",
+             "measure_coarse": f"kinetics measure of frame[::{SAMPLING}, ::{SAMPLING}]"}
     return [[label, f"{1e9 * spent[key] / spent['pixels']:.2f}", f"{spent[key] / spent['s1']:.2f}",
              f"{spent[key] / spent['default']:.2f}"] for key, label in names.items()]
 

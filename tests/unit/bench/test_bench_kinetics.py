@@ -43,7 +43,8 @@ def test_a_tiny_film_is_scored_drawn_and_costed(tmp_path) -> None:
     assert spent["bytes_per_pixel"] == 4 * (spent["slots"] + 1)
     rows = bench.cost_rows(spent)
     assert [row[0][:13] for row in rows] == ["S1 push", "default push ", "kinetics push", "kinetics push",
-                                             "kinetics meas", "kinetics push", "kinetics meas"]
+                                             "kinetics meas", "kinetics push", "kinetics meas", "kinetics push",
+                                             "kinetics meas"]
     assert rows[0][2] == "1.00"
 
 
