@@ -198,8 +198,12 @@ class Kinetics:
         if image.shape != self.shape or not (np.issubdtype(image.dtype, np.integer)
                                              or np.issubdtype(image.dtype, np.floating)):
             raise EstimatorError(f"frame must be a numeric {self.shape} array, got {image.dtype} {image.shape}")
-        if np.issubdtype(image.dtype, np.floating) and not np.isfinite(self._layout.outer(image)).all():
-            raise EstimatorError("frame contains NaN or inf")
+        if not np.issubdtype(image.dtype, np.unsignedinteger):
+            outer = self._layout.outer(image)
+            if np.issubdtype(image.dtype, np.floating) and not np.isfinite(outer).all():
+                raise EstimatorError("frame contains NaN or inf")
+            if outer.size and outer.min() < 0:
+                raise EstimatorError("frame contains a negative intensity (intensities must be >= 0)")
         buffer = self._advance()
         self._verdict = self._store(image, buffer)
 
@@ -272,7 +276,8 @@ class Kinetics:
         if dtype not in self._luts:
             integer = np.issubdtype(dtype, np.integer)
             top = self.top if self.top is not None else (float(np.iinfo(dtype).max) if integer else None)
-            lut = self.noise.variance(np.arange(np.iinfo(dtype).max + 1.0)) if integer and dtype.itemsize <= 2 else None
+            table = np.issubdtype(dtype, np.unsignedinteger) and dtype.itemsize <= 2  # 8 to 16-bit cameras
+            lut = self.noise.variance(np.arange(np.iinfo(dtype).max + 1.0)) if table else None
             self._luts[dtype] = (lut, top)
         return self._luts[dtype]
 

@@ -110,13 +110,14 @@ def test_shot_and_read_noise_leave_the_zero_lag(flatten: int) -> None:
     normalised correlation is 1 once the noise is out of c(t, 0) (it would be 0.83 without)."""
     rng = np.random.default_rng(6)
     shape = (96, 96)
-    model = NoiseModel(gain=20.0, dark_variance=30.0, quantized=False)
+    model = NoiseModel(gain=20.0, dark_mean=200.0, dark_variance=30.0, quantized=False)
     pattern = speckle(rng, shape)
+    lit = model.dark_mean + pattern  # above a dark level: the noise never reaches below 0
     kinetics = Kinetics(np.ones(shape, bool), model, 16, flatten=flatten)
     for _ in range(20):
-        kinetics.push(pattern + rng.normal(0.0, 1.0, shape) * np.sqrt(model.variance(pattern)))
+        kinetics.push(lit + rng.normal(0.0, 1.0, shape) * np.sqrt(model.variance(lit)))
     corr = kinetics.correlation()
-    raw = corr.c / (corr.beta + float(model.variance(pattern).mean()) / pattern.mean() ** 2)
+    raw = corr.c / (corr.beta + float(model.variance(lit).mean()) / pattern.mean() ** 2)
     assert raw.mean() < 0.9  # what the noise does to an uncorrected zero lag
     assert np.abs(corr.g - 1.0).max() < 0.03
 
@@ -200,6 +201,21 @@ def test_flat_dark_and_saturated_regions_read_as_such() -> None:
     assert kinetics.measure().status == NOT_SPECKLE
 
 
+def test_signed_and_wide_integer_frames_are_intensities_too() -> None:
+    rng = np.random.default_rng(11)
+    model = NoiseModel(gain=0.25, dark_variance=1.0)
+    frames = [rng.integers(0, 4000, (24, 24)) for _ in range(4)]
+    results = []
+    for dtype in (np.uint16, np.int16, np.int32, np.uint32):
+        kinetics = Kinetics(np.ones((24, 24), bool), model, 8, top=4095.0)
+        for frame in frames:
+            kinetics.push(frame.astype(dtype))
+        results.append(kinetics.correlation())
+    for other in results[1:]:
+        np.testing.assert_allclose(other.c, results[0].c, rtol=1e-6)
+        assert other.beta == pytest.approx(results[0].beta, rel=1e-9)
+
+
 def test_the_first_frame_is_warming_up() -> None:
     kinetics = Kinetics(np.ones((16, 16), bool), EXACT, 8)
     kinetics.push(speckle(np.random.default_rng(9), (16, 16)))
@@ -231,7 +247,7 @@ def test_refusals() -> None:
     for call in (kinetics.measure, kinetics.correlation):
         with pytest.raises(EstimatorError, match="no frame"):
             call()
-    for frame in (np.ones((8, 9)), np.ones((8, 8), complex), np.full((8, 8), np.nan)):
+    for frame in (np.ones((8, 9)), np.ones((8, 8), complex), np.full((8, 8), np.nan), np.full((8, 8), -1, np.int16)):
         with pytest.raises(EstimatorError, match="frame"):
             kinetics.push(frame)
     assert kinetics.frames_seen == 0  # a refused frame changes nothing
