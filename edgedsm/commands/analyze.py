@@ -55,7 +55,7 @@ import numpy as np
 from edgedsm.commands.common import add_progress_flag, progress
 from edgedsm.commands.timeline_output import add_timeline_arguments, open_reader, run_timeline
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import ESTIMATORS
+from edgedsm.estimators import ESTIMATORS, registry
 from edgedsm.estimators.batch import s1
 from edgedsm.estimators.descriptors import DESCRIPTORS, compute
 from edgedsm.estimators.noise import from_datasheet
@@ -138,11 +138,12 @@ def run(args: argparse.Namespace) -> int:
         save_map_png(png, result, title=f"{args.estimator.upper()}  N={window}" + (
             f"  m={args.lag}" if descriptor.uses_lag else ""))
         message += f", {png}"
-    if descriptor.noise_floor:  # the maps with a floor (docs/noise.md): judged as the measurement core judges
+    if args.estimator in registry.with_floor():  # the maps with a floor (docs/noise.md), judged as the core judges
         noise_fields = _judged(frames, result, bits, args)
         noise_line = _noise_line(noise_fields)
     else:
-        reason = f"no noise floor is known for {args.estimator} yet (docs/noise.md covers s1-s3, fujii, im, gd)"
+        reason = (f"no noise floor is known for {args.estimator} yet (docs/noise.md covers "
+                  f"{', '.join(registry.with_floor())})")
         noise_fields = {"noise_floor": None, "noise_floor_reason": reason, "above_noise": None,
                         "above_noise_spread": None, "above_noise_verdict": None, "signal": None,
                         "noise_model": None, "noise_model_error": None, "activity": None, "noise_view": None}
