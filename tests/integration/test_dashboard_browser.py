@@ -409,7 +409,8 @@ def test_an_offline_device_is_greyed_and_the_chart_draws_the_judged_activity(pla
     card = plant.card_text("plate-a")
     assert "laser off" in card and "fps" not in card, card
     line = plant.js("return document.getElementById('device-stats').textContent")
-    assert line.startswith("offline offline · laser off · last heard ") and "fps" not in line, line
+    assert line.startswith("offline laser off · last heard ") and "fps" not in line, line  # badge, then text
+    assert line.endswith(" · the figures are the last received"), line
     rows = plant.js("return [...document.querySelectorAll('#regions tr.region-row')].map(r => [r.className, "
                     "r.querySelector('.time-to-dry').textContent, r.querySelector('.activity').textContent, "
                     "r.querySelector('.activity').title, r.querySelector('.plain').textContent])")
@@ -430,5 +431,6 @@ def test_an_offline_device_is_greyed_and_the_chart_draws_the_judged_activity(pla
         "S2 above the noise floor against wet_above (blue) and dry_below (green)"
     last = [y for _, y in plant.js("return window.edgedsmDashboard.plotPoints()") if y is not None][-1]
     assert last == pytest.approx(judged, rel=1e-9)  # the curve is the judged value, as the state report's
+    plant.js("window.scrollTo(0, 0)")
     plant.browser.save_screenshot(str(plant.shots / "dashboard-offline.png"))
     _no_errors(plant)

@@ -80,7 +80,8 @@ function laserText(device) {
 }
 
 function staleLine(device) {
-  return `offline · laser ${laserText(device)} · last heard ${clock(device.last_seen)} · the figures are the last received`;
+  // after the offline badge: what the daemon last said, and that nothing below is now
+  return `laser ${laserText(device)} · last heard ${clock(device.last_seen)} · the figures are the last received`;
 }
 
 const SIGNALS = ["ok", "low", "dark", "saturated", "not_speckle"];
