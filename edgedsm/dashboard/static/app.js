@@ -107,7 +107,7 @@ function judgedWhat(judged) {
   // what the activity is: "S2 above the noise floor", "τc", "S2 (no noise model yet)"
   if (!judged || typeof judged.label !== "string") return "activity";
   if (judged.basis === "above_noise") return `${judged.label} above the noise floor`;
-  return judged.estimator === "tau_c" ? judged.label : `${judged.label} (plain: no noise floor)`;
+  return judged.estimator === "tau_c" ? judged.label : `${judged.label} mean (no noise floor taken off)`;
 }
 
 function aboveNoise(signal) {
