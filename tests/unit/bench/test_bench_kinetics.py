@@ -56,3 +56,14 @@ def test_a_score_counts_a_missing_number_as_a_miss() -> None:
     assert score.median_error == pytest.approx(0.1)  # errors 0.1, inf, 0
     assert score.share_ok == pytest.approx(2 / 3)
     assert score.median_ratio == pytest.approx(1.05)
+
+
+def test_constant_films_give_tau_c_by_box_and_by_step() -> None:
+    from edgedsm_lab.bench import kinetics_films
+
+    films = kinetics_films.Films(frames=400, skip=150, stride=5, box_size=32, step_size=32, longest_age=64)
+    by_box = kinetics_films.boxes(films, 5.0)
+    by_step = kinetics_films.steps(films, 5.0)
+    assert set(by_box) == set(kinetics_films.BOXES) and set(by_step) == set(kinetics_films.STEPS)
+    for median, scatter, share in [*by_box.values(), *by_step.values()]:
+        assert 0.7 < median < 1.3 and 0.0 < scatter < 0.5 and share > 0.9
