@@ -61,7 +61,7 @@ def test_a_score_counts_a_missing_number_as_a_miss() -> None:
 def test_constant_films_give_tau_c_by_box_and_by_step() -> None:
     from edgedsm_lab.bench import kinetics_films
 
-    films = kinetics_films.Films(frames=400, skip=150, stride=5, box_size=32, step_size=32, longest_age=64)
+    films = kinetics_films.Films(frames=400, skip=150, stride=5, box_size=32, step_size=64, longest_age=64)
     by_box = kinetics_films.boxes(films, 5.0)
     by_step = kinetics_films.steps(films, 5.0)
     assert set(by_box) == set(kinetics_films.BOXES) and set(by_step) == set(kinetics_films.STEPS)
