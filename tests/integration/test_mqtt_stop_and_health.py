@@ -2,7 +2,8 @@
 daemon (`edgedsm run`, simulated camera and relay) against a REAL mosquitto.
 
 - SIGTERM: the retained state a subscriber arriving afterwards reads says ``offline``, the laser
-  ``off`` and no time to dry (it said ``on`` and a time to dry while measuring).
+  ``off`` and no time to dry (it said ``on`` and a time to dry while measuring); the Sparkplug
+  node's last DDATA says the same before its NDEATH.
 - A password the broker refuses at the first connection can never work: exit 78 within seconds,
   the key path in the log.
 - The broker starts refusing the daemon's password while it runs (its password file changed):
@@ -22,6 +23,7 @@ from helpers_daemon import Daemon, base_config, wait_frames_beyond, write_config
 from helpers_mqtt import WAIT_S, Broker, Subscriber, free_port, tool, wait_until
 
 from edgedsm.publish import Topics
+from tests.sparkplug_decoder import decode
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -53,8 +55,9 @@ def _healthz(port: int) -> tuple[int, str]:
 def test_sigterm_leaves_a_retained_state_that_says_offline_and_laser_off(
         tmp_path: Path, broker: Broker, subscribers: Callable[..., Subscriber], daemons: Callable[..., Daemon],
         sim_board_name: str) -> None:
-    live = subscribers(broker.port, [TOPICS.state, TOPICS.stats, TOPICS.availability])
+    live = subscribers(broker.port, [TOPICS.state, TOPICS.stats, TOPICS.availability, "spBv1.0/#"])
     config = base_config(tmp_path, port=broker.port, laser=f"sim:{sim_board_name}")
+    config["sparkplug"] = {"group_id": "line3"}
     daemon = daemons(write_config(tmp_path / "daemon.toml", config))
     wait_frames_beyond(live, TOPICS, 120, timeout=30)
     wait_until(lambda: any(m.json()["laser"] == "on" for m in live.on(TOPICS.state)), WAIT_S,
@@ -75,6 +78,18 @@ def test_sigterm_leaves_a_retained_state_that_says_offline_and_laser_off(
     assert state["t"] >= measuring[-1]["t"]
     region = late.on(f"{TOPICS.state}/plate")[-1].json()
     assert region["time_to_dry_s"] is None and region["state"] == state["regions"]["plate"]["state"]
+    # Sparkplug: a last DDATA says the laser is off and no time to dry, then the NDEATH
+    wait_until(lambda: any("/NDEATH/" in m.topic for m in live.messages), WAIT_S, "the NDEATH")
+    spb = [m for m in live.messages if m.topic.startswith("spBv1.0/")]
+    names = {metric.alias: metric.name for m in spb if "/DBIRTH/" in m.topic for metric in decode(m.payload).metrics}
+    last: dict[str, object] = {}
+    for message in spb:
+        if "/DBIRTH/" in message.topic or "/DDATA/" in message.topic:
+            for metric in decode(message.payload).metrics:
+                last[metric.name or names[metric.alias]] = metric.value()
+    assert last["laser"] == "off" and last["regions/plate/time_to_dry_s"] is None, last
+    death = max(i for i, m in enumerate(spb) if "/NDEATH/" in m.topic)
+    assert max(i for i, m in enumerate(spb) if "/DDATA/" in m.topic) < death
 
 
 @pytest.mark.timeout(60)

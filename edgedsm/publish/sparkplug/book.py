@@ -70,6 +70,10 @@ class MetricBook:
     def __len__(self) -> int:
         return len(self._entries)
 
+    def names(self) -> list[str]:
+        """Every metric's name, in the order they were declared."""
+        return list(self._entries)
+
     @property
     def needs_birth(self) -> bool:
         """A metric exists that the latest birth did not carry."""

@@ -28,7 +28,7 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.reasoncodes import ReasonCode
 
 from edgedsm import __version__
-from edgedsm.messages import Alert, Clock, MapFrame, StateReport, Stats
+from edgedsm.messages import Alert, Clock, LaserState, MapFrame, StateReport, Stats
 from edgedsm.publish.session import MqttSession
 from edgedsm.publish.settings import MqttSettings
 from edgedsm.publish.sparkplug import commands as ncmd
@@ -141,6 +141,17 @@ class SparkplugSink:
 
     def flush(self, timeout_s: float) -> bool:
         return True  # QoS 0 only: nothing is waited for
+
+    def stopping(self, laser: LaserState, t: float) -> None:
+        """The daemon stops (``FanOut.stopping``, before :meth:`close` and its NDEATH): a last
+        DDATA with the laser as confirmed at stop and no time to dry, so a host's last values of
+        them are not ``on`` and an extrapolation (the NDEATH then marks every metric stale)."""
+        with self._lock:
+            regions = [name.removeprefix("regions/").removesuffix("/time_to_dry_s")
+                       for name in self.device.names() if name.endswith("/time_to_dry_s")]
+        readings = {"laser": Reading(DataType.STRING, laser)}
+        readings.update((f"regions/{region}/time_to_dry_s", Reading(DataType.DOUBLE, None, "s")) for region in regions)
+        self._record(readings, t)
 
     def close(self, timeout_s: float) -> None:
         """Publish NDEATH (spec: before an intentional disconnect), disconnect, stop the threads."""
