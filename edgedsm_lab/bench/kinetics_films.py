@@ -1,8 +1,9 @@
 """Constant films for the kinetics benchmark (docs/kinetics.md): how the flattening's box side and
 pushing a subsampled frame move τ on films whose τc does not change (the truth is then τc itself,
-:func:`edgedsm.sim.activity.decorrelation_lags` of a scene without drying).
+:func:`edgedsm.sim.activity.decorrelation_lags` of a scene without drying); and, given its folder,
+the public glue series (docs/real-data.md): τ of each drying stage at its last frame.
 
-    python -m edgedsm_lab.bench.kinetics_films
+    python -m edgedsm_lab.bench.kinetics_films [--glue Fevicol_drying_04.03.2022]
 """
 
 from __future__ import annotations
@@ -12,8 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edgedsm.estimators.correlation_time import tau_c_bounds
 from edgedsm.estimators.kinetics import Kinetics
-from edgedsm.estimators.noise import NoiseModel
+from edgedsm.estimators.noise import NoiseModel, from_frames
+from edgedsm.frameio import open_frames
 from edgedsm.sim import Simulator, scene_from_dict
 from edgedsm.sim.detector import DetectorRows
 from edgedsm_lab.bench.report import Report, load_average
@@ -78,8 +81,43 @@ def steps(films: Films, tau: float) -> dict:
     return _medians(films, size, tau, True, estimators, lambda frame, step: frame[::step, ::step])
 
 
+GLUE_STAGES = ("0hr", "10min", "15min", "20min")  # the series' folder names: 0, 10, 15, 20 minutes
+GLUE_MODEL_STAGE = "10min"  # the noise model from these frames (the wet stage is too fast to separate)
+
+
+def glue(paths: dict[str, str], channel: str | None = "red", max_lag: int = 64) -> list[list[str]]:
+    """Per stage (name -> a frame source): the kinetics at the last frame (every age up to the
+    series' length), the share of its frames from the 33rd on that read ``above``, and the window
+    τc of all its frames (K = ``max_lag``); the noise model from the GLUE_MODEL_STAGE stage's frames
+    (:func:`edgedsm.estimators.noise.from_frames`; one camera, one setting)."""
+    stacks = {}
+    for stage, path in paths.items():
+        with open_frames(path, channel) as reader:
+            stacks[stage] = np.stack(list(reader.frames()))
+    model = from_frames(stacks[GLUE_MODEL_STAGE] if GLUE_MODEL_STAGE in stacks else next(iter(stacks.values())))
+    rows = []
+    for stage, stack in stacks.items():
+        mask = np.ones(stack.shape[1:], bool)
+        kinetics = Kinetics(mask, model, stack.shape[0] - 1)
+        results = []
+        for index, frame in enumerate(stack):
+            kinetics.push(frame)
+            if index >= 32:
+                results.append(kinetics.measure())
+        last = results[-1]
+        window = tau_c_bounds(stack, max_lag, mask)
+        value = f"{last.tau:.1f}" if last.tau is not None else f"{last.status} {last.bound:g}" if last.bound \
+            else last.status
+        rows.append([stage, str(stack.shape[0]), f"{stack.mean():.1f}", value,
+                     f"{sum(r.status == 'above' for r in results) / len(results):.0%}",
+                     f"{float(window.tau):.1f}" + (" (above K)" if window.tau == max_lag else "")])
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
-    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--glue", default="", help="the glue series' folder (its stages' data1 folders are read)")
+    args = parser.parse_args(argv)
     load = load_average()
     films = Films()
     report = Report("Kinetics on constant films")
@@ -100,6 +138,12 @@ def main(argv: list[str] | None = None) -> int:
     report.line(f"Gaussian beam Ω = {films.step_size // 2} px, {films.step_size}²: frame[::s, ::s], box 9")
     report.line()
     report.table(["τc (frames)"] + [f"s = {step}" for step in STEPS], rows)
+    if args.glue:
+        report.line()
+        report.line("Glue series (red channel, data1 of each stage): τ at the last frame (frames)")
+        report.line()
+        report.table(["stage", "frames", "mean (DN)", "τ, last frame", "frames 33.. reading above",
+                      "window τc (K = 64)"], glue({stage: f"{args.glue}/{stage}/data1" for stage in GLUE_STAGES}))
     return 0
 
 

@@ -67,3 +67,24 @@ def test_constant_films_give_tau_c_by_box_and_by_step() -> None:
     assert set(by_box) == set(kinetics_films.BOXES) and set(by_step) == set(kinetics_films.STEPS)
     for median, scatter, share in [*by_box.values(), *by_step.values()]:
         assert 0.7 < median < 1.3 and 0.0 < scatter < 0.5 and share > 0.9
+
+
+def test_the_glue_runner_ranks_stages_of_any_frame_source(tmp_path) -> None:
+    """The glue series is not shipped (no licence): its runner on two simulated stages, one fast
+    and one slower than the frames, saved as .npy stacks."""
+    from edgedsm.sim import Simulator, scene_from_dict
+    from edgedsm_lab.bench import kinetics_films
+
+    paths = {}
+    for stage, tau in (("10min", 8.0), ("20min", 5000.0)):
+        scene = scene_from_dict({"scene": {"size": 48, "seed": 2}, "activity": {"tau_c": tau},
+                                 "detector": {"n_max": 1000.0, "bits": 8}})
+        simulator = Simulator(scene)
+        paths[stage] = tmp_path / f"{stage}.npy"
+        np.save(paths[stage], np.stack([simulator.next_frame() for _ in range(64)]))
+    rows = kinetics_films.glue({stage: str(path) for stage, path in paths.items()}, channel=None, max_lag=16)
+    assert [row[0] for row in rows] == ["10min", "20min"]
+    assert 0.7 * 8.0 < float(rows[0][3]) < 1.3 * 8.0 and rows[0][4] == "0%"
+    status, bound = rows[1][3].split()
+    assert status == "above" and 32 < int(bound) <= 63  # the oldest age kept at the last frame
+    assert rows[1][4] == "100%" and rows[1][5] == "16.0 (above K)"
