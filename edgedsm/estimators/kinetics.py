@@ -3,10 +3,10 @@
 The window estimators (S1/S2/S3 over N frames, τc up to K <= N/2) see one window; a film that
 slows over decades leaves it. Multi-speckle dynamic light scattering has the tool: the
 *time-resolved correlation* of Cipelletti et al., J. Phys.: Condens. Matter 15 (2003) S257
-(Eq. 1; Duri et al., Phys. Rev. E 72 (2005) 051401 for its statistics). For a region of many
-speckles, the degree of correlation between the frame at t and the one at t - τ,
+(Duri et al., Phys. Rev. E 72 (2005) 051401 for its statistics). For a region of many speckles,
+their degree of correlation between the frame at t and the one at t - τ,
 
-    c(t, τ) = <I_p(t) I_p(t-τ)>_p / (<I_p(t)>_p <I_p(t-τ)>_p) - 1      (dimensionless)
+    c(t, τ) = <I_p(t) I_p(t-τ)>_p / (<I_p(t)>_p <I_p(t-τ)>_p) - 1      (Eq. 1 here; dimensionless)
 
 averaged over the region's pixels p, needs no time average, so it follows non-stationary
 dynamics frame by frame. HORUS (Formulaction; Brunel et al., "Adaptive Speckle Imaging
