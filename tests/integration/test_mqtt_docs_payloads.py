@@ -9,8 +9,9 @@ docs/sparkplug.md say:
 - every Prometheus metric, Home Assistant entity and Sparkplug metric published is in its table,
   and every one in the table is published (or said to appear only under a condition);
 - the judged activity is ONE number: the state report's ``activity``, the stats' ``activity``,
-  Prometheus ``edgedsm_region_activity``, Home Assistant's ``<region> activity`` and Sparkplug's
-  ``regions/<r>/activity`` agree, and it is below the plain S2 mean by the noise floor.
+  Prometheus ``edgedsm_region_activity``, Home Assistant's ``<region> activity``, Sparkplug's
+  ``regions/<r>/activity`` and the dashboard's history API (its chart) agree, and it is below the
+  plain S2 mean by the noise floor.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 import http.client
 import json
 import re
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,7 @@ from typing import Any
 import jinja2
 import pytest
 from helpers_daemon import Daemon, base_config, write_config
+from helpers_dashboard import DashboardProcess
 from helpers_mqtt import REPO, WAIT_S, Broker, Subscriber, free_port, wait_until
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -141,7 +144,17 @@ def test_every_payload_field_is_documented_and_every_sink_carries_the_one_judged
     config["sparkplug"] = {"group_id": "line3"}
     config["http"] = {"listen": f"127.0.0.1:{http_port}", "stale_after_s": 3.0}
     live = subscribers(broker.port, [f"{TOPICS.base}/#", "homeassistant/#", "spBv1.0/#"])
-    daemon = daemons(write_config(tmp_path / "daemon.toml", config))
+    dashboard = DashboardProcess(["--broker", f"127.0.0.1:{broker.port}", "--listen", "127.0.0.1:0",
+                                  "--database", str(tmp_path / "history.sqlite3")])
+    try:
+        wait_until(lambda: json.loads(dashboard.get("/api/info"))["broker_connected"], WAIT_S, "the dashboard")
+        daemon = daemons(write_config(tmp_path / "daemon.toml", config))
+        _run_and_check(daemon, live, dashboard, http_port)
+    finally:
+        dashboard.stop()
+
+
+def _run_and_check(daemon: Daemon, live: Subscriber, dashboard: DashboardProcess, http_port: int) -> None:
     # the plate goes wet -> drying -> dry in ~12 s at this pace; its alerts carry from/to/activity
     daemon.wait_until(lambda: any(a.get("to") == "dry" for a in _json(live, TOPICS.alerts)), 90, "the plate dry")
     daemon.wait_until(lambda: len(_json(live, f"{TOPICS.map('s2')}/meta")) >= 2, WAIT_S, "map metas")
@@ -150,6 +163,9 @@ def test_every_payload_field_is_documented_and_every_sink_carries_the_one_judged
     daemon.wait_until(lambda: _json(live, TOPICS.reply("publish_maps")), WAIT_S, "the command's reply")
     daemon.wait_until(lambda: _get(http_port, "/healthz")[0] == 200, WAIT_S, "/healthz 200")
     scraped = [_get(http_port, "/metrics")[1].decode()]
+    time.sleep(1.0)  # the dashboard writes its history every 0.5 s
+    start = min(m.json()["t"] for m in live.on(TOPICS.stats))
+    history = json.loads(dashboard.get(f"/api/history?device=e2e&region=plate&from={start - 1}&to={time.time() + 5}"))
     code, _ = daemon.terminate()
     assert code == 0, daemon.log
     wait_until(lambda: any(s.get("availability") == "offline" for s in _json(live, TOPICS.state)), WAIT_S,
@@ -251,6 +267,9 @@ def test_every_payload_field_is_documented_and_every_sink_carries_the_one_judged
     reported = {report["regions"]["plate"].get("activity") for report in states}
     assert sent and set(sent) <= reported, (sent[:5], sorted(reported)[:5])
     assert reported & values  # the report's numbers are the stats' numbers
+    # the dashboard's history (its chart and CSV): the stats' judged numbers, point for point
+    plotted = [activity for _, activity, _ in history["points"] if activity is not None]
+    assert len(plotted) >= 10 and set(plotted) <= values, (plotted[:5], sorted(values)[:5])
     print(f"judged activity: last {last['activity']['plate']['value']:.4g} (S2 mean "
           f"{last['regions']['plate']['s2']['mean']:.4g}, floor {floor:.4g}); {len(pairs)} report/stats pairs, "
           f"{len(sent)} Sparkplug values; {len(published)} metrics, {len(announced)} entities checked")
