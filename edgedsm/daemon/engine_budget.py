@@ -9,13 +9,13 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES
 from edgedsm.daemon.capture import queue_capacity
 from edgedsm.daemon.tau import TauRegions
 from edgedsm.errors import ConfigError
 from edgedsm.estimators import SlidingWindow
+from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH

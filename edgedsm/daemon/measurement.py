@@ -23,7 +23,6 @@ from collections import Counter
 
 import numpy as np
 
-from edgedsm.analysis import RegionBox, bounding_box
 from edgedsm.config import DaemonConfig, check_regions
 from edgedsm.daemon.engine_budget import check_memory, kernel_threads, make_engine
 from edgedsm.daemon.handover import Snapshot, Status
@@ -31,6 +30,7 @@ from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.tau import TauRegions
 from edgedsm.errors import FrameError
 from edgedsm.estimators import SlidingWindow
+from edgedsm.estimators.region_box import RegionBox, bounding_box
 from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan
 from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot
 from edgedsm.frames import Frame

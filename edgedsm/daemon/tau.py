@@ -28,7 +28,6 @@ from collections import deque
 
 import numpy as np
 
-from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.correlation_time import (
@@ -40,6 +39,7 @@ from edgedsm.estimators.correlation_time import (
     normalise,
     tau_threshold_problem,
 )
+from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.snapshot import TauSnapshot, tau_covariances
 from edgedsm.estimators.tau_pooled import block_covariances, pooled_covariances
 from edgedsm.estimators.tau_stream import tau_map, tau_region

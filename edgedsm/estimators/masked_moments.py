@@ -1,6 +1,6 @@
 """The region-statistics pass (:func:`masked_moments`): count, mean, standard deviation and an
 even sample of the pixels of a map inside a mask, in two passes over the region's box and no copy
-of it (used by :mod:`edgedsm.estimators.region_stats` and :mod:`edgedsm.analysis`).
+of it (used by :mod:`edgedsm.estimators.region_stats` and :mod:`edgedsm.estimators.region_box`).
 
 The numba version releases the GIL (``nogil``): the evaluator thread computes statistics while
 the pipeline thread pushes frames. Sums are compensated (Neumaier), so the mean and the
@@ -21,7 +21,9 @@ import numpy as np
 from edgedsm.estimators.jit import compiled
 
 
-def _moments_numpy(values: np.ndarray, mask: np.ndarray, samples: int) -> tuple[int, float, float, np.ndarray]:
+def masked_moments_numpy(values: np.ndarray, mask: np.ndarray, samples: int) -> tuple[int, float, float, np.ndarray]:
+    """:func:`masked_moments` in NumPy (a copy of the selected pixels, numpy's pairwise sums): the
+    pass without numba, and the compiled one's reference in the tests."""
     selected = values[mask]
     if selected.size == 0:
         return 0, 0.0, 0.0, selected
@@ -69,7 +71,7 @@ def _moments_source(values, mask, samples):  # pragma: no cover - compiled
 def _moments() -> Callable[..., Any]:
     """The compiled pass (numba imported on first use), or numpy without numba."""
     if importlib.util.find_spec("numba") is None:  # numba is the optional 'fast' extra
-        return _moments_numpy
+        return masked_moments_numpy
     return compiled(nogil=True)(_moments_source)
 
 

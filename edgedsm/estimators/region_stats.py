@@ -1,7 +1,7 @@
 """Region statistics straight from a window's sums: no float maps, no copy of the sums.
 
 The daemon needs, per region and map, the pixel count, mean, standard deviation and 5/50/95 %
-percentiles (:func:`edgedsm.analysis.region_stats`), and for the drying states only the activity
+percentiles (:func:`edgedsm.estimators.region_box.region_stats`), and for the drying states only the activity
 map's mean. Computing whole float maps first (:func:`edgedsm.estimators.snapshot.maps_from`)
 writes 32 bytes per pixel and reads them back per region and map. Here one pass over the rows
 the regions cover (:class:`RegionLayout`) reads the engine's sums once: each pixel of the
@@ -45,11 +45,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, percentiles
 from edgedsm.estimators.activity import pixel_values
 from edgedsm.estimators.dft_bins import BAND_NAMES
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.masked_moments import masked_moments
+from edgedsm.estimators.region_box import PERCENTILE_SAMPLES, RegionBox, RegionStats, percentiles
 from edgedsm.estimators.registry import PAIR_SUM, VALUES, KernelSpec, names
 from edgedsm.estimators.snapshot import EngineSnapshot, maps_from
 from edgedsm.estimators.value_set import gd_of_sum
@@ -189,7 +189,7 @@ class Moments:
     sample: np.ndarray
 
     def stats(self) -> RegionStats:
-        """With the 5/50/95 % percentiles of the sample (as :func:`edgedsm.analysis.region_stats`)."""
+        """With the 5/50/95 % percentiles of the sample (as :func:`edgedsm.estimators.region_box.region_stats`)."""
         return RegionStats(self.pixels, self.mean, self.std, *percentiles(self.sample))
 
 

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edgedsm.analysis import RegionBox
 from edgedsm.config import DaemonConfig
 from edgedsm.config.devices import CameraNoiseSection
 from edgedsm.config.estimator import EstimatorSection
@@ -42,6 +41,7 @@ from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNA
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_floor import AboveNoise
 from edgedsm.estimators.noise_summary import full_scale
+from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.measurement.judge import SignalJudge, SignalWarning

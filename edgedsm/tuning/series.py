@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import EstimatorSection
 from edgedsm.estimators import registry
+from edgedsm.estimators.region_box import bounding_box
 from edgedsm.estimators.value_set import gd_mode_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
 from edgedsm.measurement.judge import FLOORED

@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edgedsm.analysis import bounding_box
 from edgedsm.config import DaemonConfig
 from edgedsm.errors import DataError
+from edgedsm.estimators.region_box import bounding_box
 from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, pareto, recommend
 from edgedsm.tuning.scoring import ORDER
 from edgedsm.tuning.series import DEFAULT_CANDIDATES, Series, Setting, push_cost, run_pass

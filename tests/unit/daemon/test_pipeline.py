@@ -7,7 +7,6 @@ import time
 import numpy as np
 import pytest
 
-from edgedsm.analysis import region_stats
 from edgedsm.config import load_config
 from edgedsm.daemon.devices import couple_simulated_laser
 from edgedsm.daemon.pipeline import Cadence, Pipeline
@@ -15,6 +14,7 @@ from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.devices.laser import SimulatedRelay
 from edgedsm.estimators import all_maps
+from edgedsm.estimators.region_box import region_stats
 from edgedsm.messages import AlertKind, Clock
 from edgedsm.publish.commands import CommandResult, RebaselineCommand
 from edgedsm.publish.sink import RecordingSink

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edgedsm.analysis import RegionBox
 from edgedsm.estimators import SlidingWindow
+from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import RegionPlan, _moments_from_maps
 
 

@@ -9,8 +9,8 @@ import importlib.util
 import numpy as np
 import pytest
 
-from edgedsm.analysis import PERCENTILE_SAMPLES, RegionBox, RegionStats, bounding_box
 from edgedsm.estimators import SlidingWindow
+from edgedsm.estimators.region_box import PERCENTILE_SAMPLES, RegionBox, RegionStats, bounding_box
 from edgedsm.estimators.region_stats import RegionPlan, _moments_from_maps, region_moments
 from edgedsm.estimators.snapshot import maps_from
 from tests.unit.estimators.test_streaming import MODES, feed

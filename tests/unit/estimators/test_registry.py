@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from edgedsm.analysis import RegionBox
 from edgedsm.config.estimator import EstimatorSection
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import noise, noise_floor, registry
@@ -21,6 +20,7 @@ from edgedsm.estimators.descriptors import DESCRIPTORS, compute
 from edgedsm.estimators.engine_base import estimator_names
 from edgedsm.estimators.noise_floor import Floor
 from edgedsm.estimators.noise_summary import region_floor, region_noise
+from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import RegionPlan, region_moments
 from edgedsm.estimators.registry import MODES, KernelSpec, Record
 from edgedsm.estimators.snapshot import maps_from

@@ -15,10 +15,10 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from edgedsm.analysis import RegionBox
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow, bands, descriptors
 from edgedsm.estimators.dft_bins import BIN_BYTES, BOUND_FACTOR, BandPlan, error_bound
+from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 from tests.unit.estimators.test_streaming_descriptors import SHAPE

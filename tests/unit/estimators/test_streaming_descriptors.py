@@ -12,11 +12,11 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from edgedsm.analysis import RegionBox
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow, descriptors
 from edgedsm.estimators.fixed_point import s2_error_bound
 from edgedsm.estimators.lag_products import TAU_BATCH
+from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 
