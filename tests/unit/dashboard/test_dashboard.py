@@ -88,7 +88,8 @@ def test_stats_state_and_alerts_reach_the_view_and_the_history(plant: Plant, his
     (device,) = plant.snapshot()
     assert device["availability"] == "online" and device["rejected"] == 0
     # the judged value under `activity` (what the history and the chart carry), the plain mean beside it
-    assert device["stats"]["activity"] == {"plate": 0.20} and device["stats"]["drops"] == {"dropped_queue": 2, "dropped_invalid": 0}
+    assert device["stats"]["activity"] == {"plate": 0.20}
+    assert device["stats"]["drops"] == {"dropped_queue": 2, "dropped_invalid": 0}
     assert device["stats"]["plain"] == {"plate": 0.20 + FLOOR} and device["stats"]["plain_label"] == "S2 mean"
     assert device["stats"]["judged"] == {"plate": {"estimator": "s2", "unit": None, "label": "S2",
                                                    "basis": "above_noise"}}
