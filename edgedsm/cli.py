@@ -73,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         code = int(args.handler(args) or 0)
-        sys.stdout.flush()  # a reader gone (`| head`) is met here, not in a traceback at exit
+        if sys.stdout is not None:  # None: started with stdout closed
+            sys.stdout.flush()  # a reader gone (`| head`) is met here, not in a traceback at exit
         return code
     except BrokenPipeError:
         if not terminal.stdout_closed():
