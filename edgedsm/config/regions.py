@@ -10,7 +10,7 @@ import numpy as np
 from pydantic import Discriminator, Field, Tag, model_validator
 
 from edgedsm import geometry
-from edgedsm.drying import Thresholds
+from edgedsm.config.thresholds import Thresholds
 from edgedsm.errors import ConfigError
 from edgedsm.validation import StrictModel
 
