@@ -120,7 +120,8 @@ class Correlation:
 @dataclass(frozen=True)
 class KineticsResult:
     """τ (frames) and rate 1/τ (1/frame), or None with a status other than ``ok``; ``bound``:
-    the age (frames) τ is above (``above``) or below (``below``), else None."""
+    the age (frames) τ is above (``above``) or below (``below``), else None; ``amplitude``: what g
+    was divided by (1, or :func:`white_step`'s A when asked)."""
 
     frame: int
     status: str
@@ -128,6 +129,7 @@ class KineticsResult:
     rate: float | None
     bound: float | None
     correlation: Correlation | None
+    amplitude: float = 1.0
 
 
 class Kinetics:
@@ -296,18 +298,39 @@ class Kinetics:
         ages = (self.frames_seen - 1) - self._index[filled]
         return Correlation(self.frames_seen - 1, ages, c, g, float(self._beta[now]))
 
-    def measure(self) -> KineticsResult:
-        """τ(t) and the rate of the newest frame, or the status that says why there is none."""
+    def measure(self, white: bool = False) -> KineticsResult:
+        """τ(t) and the rate of the newest frame, or the status that says why there is none.
+        ``white``: take a white step out of g first (:func:`white_step`), for phase noise or
+        vibration that decorrelates the frames within one interval."""
         if self._current < 0:
             raise EstimatorError("no frame pushed yet")
         frame = self.frames_seen - 1
         if self._verdict != OK:
             return KineticsResult(frame, self._verdict, None, None, None, None)
         corr = self.correlation()
-        status, tau, bound = decorrelation_time(corr.ages, corr.g)
+        amplitude = white_step(corr.ages, corr.g) if white else 1.0
+        status, tau, bound = decorrelation_time(corr.ages, corr.g / amplitude)
         if status == WARMING_UP:
-            return KineticsResult(frame, WARMING_UP, None, None, None, corr)
-        return KineticsResult(frame, status, tau, None if tau is None else 1.0 / tau, bound, corr)
+            return KineticsResult(frame, WARMING_UP, None, None, None, corr, amplitude)
+        return KineticsResult(frame, status, tau, None if tau is None else 1.0 / tau, bound, corr, amplitude)
+
+
+def white_step(ages: np.ndarray, g: np.ndarray) -> float:
+    """The amplitude A in (0, 1] that g extrapolates to at age 0 from its two youngest ages a0 < a1,
+    as an exponential decay A·exp(-a/τ) does: ln A = (a1 ln g(a0) - a0 ln g(a1))/(a1 - a0), kept
+    between g(a0) (a decay's intercept is at least its first value: g rising from a0 to a1 is noise)
+    and 1; 1 where either is not positive.
+
+    Camera noise is out of c(t, 0) already; what else lowers every c(t, τ >= 1) alike is a phase
+    that changes independently from frame to frame (white phase noise, vibration: the seed paper's
+    environmental noise, §2A): g = A·exp(-Σ) with A = exp(-2σ²) for phase noise of σ rad. Exact for
+    exponential decays at any rate; a stretched one (exp(-(a/τ)^p), p < 1) decays fastest at the
+    shortest ages and is read as a step too (τ long), so it is asked for, not the default."""
+    age, value = _valid(ages, g)
+    if age.size < 2 or value[0] <= 0 or value[1] <= 0:
+        return 1.0
+    log_amplitude = (age[1] * math.log(value[0]) - age[0] * math.log(value[1])) / (age[1] - age[0])
+    return math.exp(min(max(log_amplitude, math.log(value[0])), 0.0))
 
 
 def decorrelation_time(ages: np.ndarray, g: np.ndarray) -> tuple[str, float | None, float | None]:
@@ -315,12 +338,7 @@ def decorrelation_time(ages: np.ndarray, g: np.ndarray) -> tuple[str, float | No
     τ where g first falls below 1/e, interpolated in ln(-ln g) against ln age (linearly in g
     where g >= 1 or <= 0 at a bracket end, the noise having pushed it out of (0, 1)); NaN ages
     are skipped. ``above`` with the oldest age, ``below`` with the youngest, ``warming_up`` if none."""
-    age = np.asarray(ages, np.float64)
-    value = np.asarray(g, np.float64)
-    if age.shape != value.shape or age.ndim != 1 or (age <= 0).any() or (np.diff(age) <= 0).any():
-        raise EstimatorError("ages must be increasing positive frames, one per correlation")
-    valid = np.isfinite(value)
-    age, value = age[valid], value[valid]
+    age, value = _valid(ages, g)
     if age.size == 0:
         return WARMING_UP, None, None
     under = np.flatnonzero(value < THRESHOLD)
@@ -336,6 +354,16 @@ def decorrelation_time(ages: np.ndarray, g: np.ndarray) -> tuple[str, float | No
     else:
         share = (g0 - THRESHOLD) / (g0 - g1)
     return OK, math.exp(a0 + share * (a1 - a0)), None
+
+
+def _valid(ages: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ages (frames) and correlations where g is a number, the ages checked."""
+    age = np.asarray(ages, np.float64)
+    value = np.asarray(g, np.float64)
+    if age.shape != value.shape or age.ndim != 1 or (age <= 0).any() or (np.diff(age) <= 0).any():
+        raise EstimatorError("ages must be increasing positive frames, one per correlation")
+    valid = np.isfinite(value)
+    return age[valid], value[valid]
 
 
 def _lit_level(noise: NoiseModel) -> float:

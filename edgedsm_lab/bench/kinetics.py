@@ -70,7 +70,8 @@ QUICK = Case(size=32, frames=12_000, longest_age=1024, window_every=400, variant
 @dataclass
 class Run:
     """One variant: sample frames, truth, τ (NaN where no number) and status for the flattened
-    (default) and plain Eq. 1 estimators, and the window τc (frames) with its status."""
+    (default) and plain Eq. 1 estimators, the default's τ with a white step taken out
+    (``measure(white=True)``), and the window τc (frames) with its status."""
 
     variant: str
     frames: np.ndarray
@@ -82,6 +83,7 @@ class Run:
     window_frames: np.ndarray
     window_tau: np.ndarray
     window_status: np.ndarray
+    tau_white: np.ndarray = field(default_factory=lambda: np.zeros(0))
     seconds: float = 0.0
 
 
@@ -128,7 +130,7 @@ def run_variant(case: Case, variant: str) -> Run:
     plain = Kinetics(mask, model, case.longest_age, case.per_octave, flatten=0)
     simulator = Simulator(scene)
     recent: deque[np.ndarray] = deque(maxlen=case.window)
-    samples, taus, statuses, taus_plain, statuses_plain = [], [], [], [], []
+    samples, taus, statuses, taus_plain, statuses_plain, taus_white = [], [], [], [], [], []
     window_at, window_tau, window_status = [], [], []
     start = time.perf_counter()
     for index in range(case.frames):
@@ -142,6 +144,8 @@ def run_variant(case: Case, variant: str) -> Run:
                 result = estimator.measure()
                 tau_list.append(math.nan if result.tau is None else result.tau)
                 status_list.append(result.status)
+            white = kinetics.measure(white=True).tau
+            taus_white.append(math.nan if white is None else white)
         if index % case.window_every == 0 and len(recent) == case.window:
             fit = tau_c_bounds(np.stack(recent), case.max_lag, mask)
             window_at.append(index)
@@ -150,7 +154,7 @@ def run_variant(case: Case, variant: str) -> Run:
     frames = np.asarray(samples, np.int64)
     return Run(variant, frames, decorrelation_lags(scene, frames), np.asarray(taus), statuses,
                np.asarray(taus_plain), statuses_plain, np.asarray(window_at, np.int64), np.asarray(window_tau),
-               np.asarray(window_status), time.perf_counter() - start)
+               np.asarray(window_status), np.asarray(taus_white), time.perf_counter() - start)
 
 
 def measure(case: Case) -> Result:
@@ -296,6 +300,10 @@ def draw(result: Result, path: Path) -> None:
         inside = (run.truth >= 1.0) & (run.truth <= case.longest_age)
         right.semilogx(run.truth[inside], run.tau[inside] / run.truth[inside], ".", markersize=2, label=run.variant)
     for run in result.runs.values():
+        if "phase noise" in run.variant:  # what measure(white=True) is for
+            inside = (run.truth >= 1.0) & (run.truth <= case.longest_age)
+            right.semilogx(run.truth[inside], run.tau_white[inside] / run.truth[inside], ".", markersize=2,
+                           color="tab:brown", label=f"{run.variant}, white step out")
         if "beam" in run.variant:  # what the flattening is for
             inside = (run.truth >= 1.0) & (run.truth <= case.longest_age)
             right.semilogx(run.truth[inside], run.tau_plain[inside] / run.truth[inside], ".", markersize=2,
@@ -314,7 +322,8 @@ def report_lines(result: Result, report: Report) -> None:
     case = result.case
     rows = []
     for run in result.runs.values():
-        for label, tau in (("kinetics", run.tau), ("Eq. 1 unflattened", run.tau_plain)):
+        for label, tau in (("kinetics", run.tau), ("Eq. 1 unflattened", run.tau_plain),
+                           ("kinetics, white step out", run.tau_white)):
             s = score(run.truth, tau, case.longest_age)
             rows.append([run.variant, label, f"{s.median_error:.3f}", f"{s.median_ratio:.3f}", f"{s.share_ok:.0%}",
                          f"{s.truth_low:.1f}–{s.truth_high:.0f}", str(s.samples)])

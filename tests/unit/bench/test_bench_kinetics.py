@@ -22,7 +22,7 @@ def test_a_tiny_film_is_scored_drawn_and_costed(tmp_path) -> None:
     assert list(result.runs) == list(TINY.variants)
     plain = result.runs["plain"]
     assert plain.frames.size == (TINY.frames - 1) // TINY.stride
-    assert plain.truth.shape == plain.tau.shape == plain.tau_plain.shape
+    assert plain.truth.shape == plain.tau.shape == plain.tau_plain.shape == plain.tau_white.shape
     score = bench.score(plain.truth, plain.tau, TINY.longest_age)
     assert score.samples > 100 and score.median_error < 0.25 and score.share_ok > 0.9
     assert score.truth_low < 3.0
@@ -35,6 +35,7 @@ def test_a_tiny_film_is_scored_drawn_and_costed(tmp_path) -> None:
     bench.report_lines(result, report)
     text = "\n".join(report.lines)
     assert "| plain | kinetics |" in text and "| darkening to 0.1 | Eq. 1 unflattened |" in text
+    assert "| plain | kinetics, white step out |" in text
     figure = tmp_path / "kinetics.png"
     bench.draw(result, figure)
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -18,6 +18,7 @@ from edgedsm.estimators.kinetics import (
     Kinetics,
     decorrelation_time,
     slot_schedule,
+    white_step,
 )
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.signal_quality import DARK, NOT_SPECKLE, SATURATED
@@ -164,6 +165,48 @@ def test_the_crossing_bounds_and_noisy_brackets() -> None:
     assert status == OK and tau == pytest.approx(math.exp(math.log(2.0) + share * math.log(2.0)))
 
 
+def test_a_white_step_is_the_exponentials_intercept() -> None:
+    ages = slot_schedule(1024, 3)[0]
+    for amplitude, tau in ((0.835, 3.0), (0.5, 40.0), (1.0, 700.0)):
+        assert white_step(ages, amplitude * np.exp(-ages / tau)) == pytest.approx(amplitude, rel=1e-12)
+    assert white_step(np.array([2.0, 5.0]), np.array([0.8, 0.6])) == pytest.approx(
+        math.exp((5 * math.log(0.8) - 2 * math.log(0.6)) / 3))  # actual ages, not 1 and 2
+    assert white_step(ages[:3], np.array([0.9, 0.95, 0.9])) == pytest.approx(0.9)  # rising: at least g(a0)
+    assert white_step(ages[:3], np.array([1.05, 1.02, 1.0])) == 1.0  # never above 1
+    assert white_step(ages[:3], np.array([0.2, -0.01, 0.0])) == 1.0  # nothing left at the second age
+    assert white_step(ages[:3], np.array([np.nan, 0.6, 0.36])) == pytest.approx(1.0)  # NaN skipped
+    assert white_step(ages[:1], np.array([0.5])) == 1.0
+    # a stretched decay is read as a step: exp(-(a/τ)^p) gives exp((2^p - 2)/τ^p) from ages 1, 2
+    assert white_step(np.array([1.0, 2.0]), np.exp(-np.array([1.0, 2.0]) ** 0.5 / 10**0.5)) == pytest.approx(
+        math.exp((2**0.5 - 2) / 10**0.5))
+
+
+def test_white_phase_noise_is_taken_out_when_asked() -> None:
+    """Per pixel an AR(1) field as above, each frame's scatterers seen through fresh phases of σ rad:
+    the pixel's field keeps e^(-σ²/2) of itself and gains an independent Gaussian part (its
+    correlation between frames falls by e^(-σ²), the intensity's by exp(-2σ²)); τ at 1/e reads short
+    unless the step is taken out."""
+    rng = np.random.default_rng(12)
+    shape = (96, 96)
+    a, sigma = math.exp(-1.0 / 60.0), 0.3  # τ = 30 frames
+    field = (rng.normal(size=shape) + 1j * rng.normal(size=shape)) / math.sqrt(2.0)
+    kinetics = Kinetics(np.ones(shape, bool), EXACT, 256, flatten=0)
+    plain, white, amplitude = [], [], []
+    for n in range(260):
+        fresh = (rng.normal(size=shape) + 1j * rng.normal(size=shape)) / math.sqrt(2.0)
+        kinetics.push(np.abs(math.exp(-sigma**2 / 2) * field + math.sqrt(1 - math.exp(-sigma**2)) * fresh) ** 2)
+        field = a * field + math.sqrt(1 - a * a) * (rng.normal(size=shape) + 1j * rng.normal(size=shape)) / math.sqrt(2)
+        if n >= 140 and n % 2 == 0:
+            plain.append(kinetics.measure().tau)
+            result = kinetics.measure(white=True)
+            white.append(result.tau)
+            amplitude.append(result.amplitude)
+    assert kinetics.measure().amplitude == 1.0
+    assert np.median(amplitude) == pytest.approx(math.exp(-2 * sigma**2), abs=0.03)
+    assert np.median(white) == pytest.approx(30.0, rel=0.05)
+    assert np.median(plain) == pytest.approx(30.0 * (1 - 2 * sigma**2), rel=0.05)  # exp(-2σ²)·exp(-τ/30) = 1/e
+
+
 def test_identical_frames_are_above_independent_ones_below() -> None:
     rng = np.random.default_rng(8)
     shape = (64, 64)
@@ -255,6 +298,8 @@ def test_refusals() -> None:
         decorrelation_time(np.array([1.0, 1.0]), np.array([0.5, 0.2]))
     with pytest.raises(EstimatorError, match="ages"):
         decorrelation_time(np.array([1.0, 2.0]), np.array([0.5]))
+    with pytest.raises(EstimatorError, match="ages"):
+        white_step(np.array([0.0, 2.0]), np.array([0.5, 0.2]))
 
 
 def test_the_fused_pass_is_the_numpy_path() -> None:
