@@ -17,6 +17,7 @@ import math
 import os
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
@@ -157,13 +158,52 @@ def _write_image(path: Path, frame: np.ndarray) -> None:
         raise ImageIOError(f"{path}: could not be written")
 
 
-def save_map_png(path: str | Path, values: np.ndarray, title: str = "",
-                 value_range: tuple[float, float] | None = None, unit: str = "") -> Path:
-    """Colour-mapped picture (viridis) of a float map with a labelled colour scale and a 50-px bar.
+@dataclass(frozen=True)
+class MapAxes:
+    """What a picture's axes are when they are not the camera's pixels (a THSP's time and
+    position, a co-occurrence matrix's grey levels): each axis's label with its unit and the
+    values at its first and last row or column. A picture with axes has no pixel scale bar."""
 
-    ``value_range`` fixes the colour scale (default: 1st to 99th percentile) so that several
-    maps can share one scale.
-    """
+    x: str
+    y: str
+    x_range: tuple[float, float]
+    y_range: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class MapPicture:
+    """A map drawn for a file: the BGR canvas and every text drawn on it (title, colour scale,
+    axes or scale bar), so that a test can check what the picture says."""
+
+    canvas: np.ndarray
+    texts: tuple[str, ...]
+
+
+#: The spatial scale bar of a picture in camera pixels (maps of a frame, without MapAxes).
+SCALE_BAR_PX = 50
+
+
+def _number(value: float) -> str:
+    return f"{value:.4g}"
+
+
+def _vertical_text(text: str, height: int, font_scale: float) -> np.ndarray:
+    """``text`` written bottom to top on a white strip ``height`` rows tall (a y axis label)."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    width = cv2.getTextSize(text, font, font_scale, 1)[0][0]
+    if width + 4 > height:  # a short picture: a smaller font rather than a cut label
+        font_scale *= max(height - 4, 1) / width
+    (width, text_h), base = cv2.getTextSize(text, font, font_scale, 1)
+    strip = np.full((text_h + base + 4, height, 3), 255, np.uint8)
+    cv2.putText(strip, text, (max(0, (height - width) // 2), text_h + 2), font, font_scale, (0, 0, 0), 1,
+                cv2.LINE_AA)
+    return np.ascontiguousarray(np.rot90(strip))
+
+
+def render_map(values: np.ndarray, title: str = "", value_range: tuple[float, float] | None = None,
+               unit: str = "", axes: MapAxes | None = None) -> MapPicture:
+    """The picture :func:`save_map_png` writes (viridis, a labelled colour scale): with ``axes``,
+    each axis labelled and its end values written; without, a bar of 50 camera pixels."""
     data = np.asarray(values, np.float64)
     if data.ndim != 2:
         raise ImageIOError(f"a map must be 2-D, got shape {data.shape}")
@@ -176,26 +216,64 @@ def save_map_png(path: str | Path, values: np.ndarray, title: str = "",
         high = low + 1.0
     picture, low, high = colour_picture(data, "viridis", (float(low), float(high)))
     zoom = max(1, math.ceil(384 / max(data.shape)))  # small maps are enlarged to stay legible
-    picture = cv2.resize(picture, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_NEAREST)
+    # axes that are not space have no aspect to keep: each is enlarged to at least 256 px on its own
+    zoom_y, zoom_x = ((zoom, zoom) if axes is None else
+                      (max(1, math.ceil(256 / data.shape[0])), max(1, math.ceil(256 / data.shape[1]))))
+    picture = cv2.resize(picture, None, fx=zoom_x, fy=zoom_y, interpolation=cv2.INTER_NEAREST)
     h, w = picture.shape[:2]
+    left = 64 if axes is not None else 0  # the y axis: its label and end values
     margin_top, bar_w, label_w = 28, 18, 90
-    canvas = np.full((h + margin_top + 30, w + bar_w + label_w + 20, 3), 255, np.uint8)
-    canvas[margin_top:margin_top + h, 0:w] = picture
-    x0 = w + 10
-    canvas[margin_top:margin_top + h, x0:x0 + bar_w] = colour_ramp(h, bar_w, "viridis")
+    bottom = 44 if axes is not None else 30
+    canvas = np.full((h + margin_top + bottom, left + w + bar_w + label_w + 20, 3), 255, np.uint8)
+    canvas[margin_top:margin_top + h, left:left + w] = picture
+    texts: list[str] = []
     font, black = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)
+
+    def write(text: str, x: int, y: int, scale: float = 0.4) -> None:
+        cv2.putText(canvas, text, (x, y), font, scale, black, 1, cv2.LINE_AA)
+        texts.append(text)
+
+    x0 = left + w + 10
+    canvas[margin_top:margin_top + h, x0:x0 + bar_w] = colour_ramp(h, bar_w, "viridis")
     for fraction in (0.0, 0.5, 1.0):
         y = margin_top + round((1 - fraction) * (h - 1))
-        label = f"{low + fraction * (high - low):.4g}{(' ' + unit) if unit else ''}"
-        cv2.putText(canvas, label, (x0 + bar_w + 4, min(max(y + 4, margin_top + 8), margin_top + h)),
-                    font, 0.4, black, 1, cv2.LINE_AA)
+        write(f"{_number(low + fraction * (high - low))}{(' ' + unit) if unit else ''}",
+              x0 + bar_w + 4, min(max(y + 4, margin_top + 8), margin_top + h))
     if title:
-        cv2.putText(canvas, title, (2, 18), font, 0.5, black, 1, cv2.LINE_AA)
-    bar_px = 50 * zoom  # spatial scale bar: 50 camera pixels
-    if bar_px < w:
-        y = margin_top + h + 14
-        cv2.line(canvas, (4, y), (4 + bar_px, y), black, 3)
-        cv2.putText(canvas, "50 px", (8 + bar_px, y + 5), font, 0.4, black, 1, cv2.LINE_AA)
+        write(title, 2, 18, 0.5)
+    if axes is not None:
+        below = margin_top + h + 14
+        first, last = _number(axes.x_range[0]), _number(axes.x_range[1])
+        write(first, left, below)
+        write(last, left + w - cv2.getTextSize(last, font, 0.4, 1)[0][0], below)
+        write(axes.x, max(2, left + (w - cv2.getTextSize(axes.x, font, 0.45, 1)[0][0]) // 2), below + 22, 0.45)
+        for value, y in ((axes.y_range[0], margin_top + 10), (axes.y_range[1], margin_top + h)):
+            text = _number(value)
+            write(text, left - 4 - cv2.getTextSize(text, font, 0.4, 1)[0][0], y)
+        label = _vertical_text(axes.y, h, 0.45)
+        width = min(label.shape[1], 22)
+        canvas[margin_top:margin_top + h, 0:width] = label[:, :width]
+        texts.append(axes.y)
+    else:
+        bar_px = SCALE_BAR_PX * zoom  # spatial scale bar: 50 camera pixels
+        if bar_px < w:
+            y = margin_top + h + 14
+            cv2.line(canvas, (4, y), (4 + bar_px, y), black, 3)
+            write(f"{SCALE_BAR_PX} px", 8 + bar_px, y + 5)
+    return MapPicture(canvas, tuple(texts))
+
+
+def save_map_png(path: str | Path, values: np.ndarray, title: str = "",
+                 value_range: tuple[float, float] | None = None, unit: str = "",
+                 axes: MapAxes | None = None) -> Path:
+    """Write :func:`render_map`'s colour-mapped picture of a float map (PNG, or the format of
+    ``path``'s suffix) whole or not at all; returns ``path``.
+
+    ``value_range`` fixes the colour scale (default: 1st to 99th percentile) so that several
+    maps can share one scale; ``axes`` names axes that are not the camera's pixels (then no
+    pixel scale bar is drawn).
+    """
+    canvas = render_map(values, title, value_range, unit, axes).canvas
     path = Path(path)
     try:
         encoded, data = cv2.imencode(path.suffix or ".png", canvas)

@@ -12,8 +12,9 @@ AVD = Σ COM[i,j] |i-j| / Σ COM (grey levels).
 BSLTL's COM is 256 x 256 (8-bit levels): data of more bits are divided by 2^(bits-8) (their top 8
 bits) for the COM, and IM and AVD are then in 8-bit grey levels; the THSP keeps full depth.
 
-OUT_DIR gets thsp.png and com.png (colour-mapped pictures; the COM on a log scale), thsp.npy
-(float64, pixels x frames) and com.npy (int64 counts).
+OUT_DIR gets thsp.png and com.png (colour-mapped pictures with labelled axes: the THSP's time in
+frames across and position along the line in pixels down; the COM's grey level at t down and at
+t+1 across, on a log scale), thsp.npy (float64, pixels x frames) and com.npy (int64 counts).
 
 Examples:
   edgedsm thsp frames.npy --row 120 -o thsp-row120/
@@ -34,7 +35,7 @@ from edgedsm.commands.timeline_output import open_reader
 from edgedsm.errors import DataError
 from edgedsm.estimators.thsp import avd, coom, inertia_moment, thsp
 from edgedsm.frameio import CHANNELS
-from edgedsm.imageio import save_map_png
+from edgedsm.imageio import MapAxes, save_map_png
 
 NAME = "thsp"
 HELP = "THSP image, co-occurrence matrix, IM and AVD of one row or column (as BSLTL)"
@@ -74,10 +75,11 @@ def run(args: argparse.Namespace) -> int:
     np.save(out / "thsp.npy", image)
     np.save(out / "com.npy", com)
     window = len(frames)
-    thsp_png = save_map_png(out / "thsp.png", image, title=f"THSP {what} {index}  frames {args.start}.."
-                                                            f"{args.start + window - 1}", unit="grey levels")
-    com_png = save_map_png(out / "com.png", np.log1p(com), title=f"COM {what} {index} (log(1 + count))",
-                           value_range=(0.0, max(float(np.log1p(com.max())), 1.0)))
+    last = args.start + window - 1
+    thsp_png = save_map_png(out / "thsp.png", image, title=f"THSP {what} {index}", unit="grey levels",
+                            axes=thsp_axes(what, image.shape[0], args.start, last))
+    com_png = save_map_png(out / "com.png", np.log1p(com), title=f"COM {what} {index}: log(1 + count)",
+                           value_range=(0.0, max(float(np.log1p(com.max())), 1.0)), axes=com_axes(divisor))
     scale = f" (8-bit levels: {bits}-bit data / {divisor})" if divisor > 1 else ""
     if args.json:
         print(json.dumps({"line": what, "index": index, "start": args.start, "window": window,
@@ -89,6 +91,20 @@ def run(args: argparse.Namespace) -> int:
               f" x {window} frames -> {thsp_png}, {com_png}")
         print(f"IM {moment:.6g} grey levels², AVD {differences:.6g} grey levels{scale}")
     return 0
+
+
+def thsp_axes(what: str, pixels: int, first: int, last: int) -> MapAxes:
+    """The THSP picture's axes: time along x (frame indices of the input), the line's pixels
+    down y (0 = its left or top end)."""
+    return MapAxes(x="time (frames)", y=f"position along the {what} (px)", x_range=(first, last),
+                   y_range=(0, pixels - 1))
+
+
+def com_axes(divisor: int) -> MapAxes:
+    """The COM picture's axes: COM[a, b] counts level a at time k followed by level b at k + 1,
+    so a runs down y and b along x; 8-bit levels (the data's divided by ``divisor``)."""
+    levels = "grey level" if divisor == 1 else f"grey level / {divisor}"
+    return MapAxes(x=f"{levels} at t+1", y=f"{levels} at t", x_range=(0, 255), y_range=(0, 255))
 
 
 def _check_line(args: argparse.Namespace, shape: tuple[int, ...]) -> None:

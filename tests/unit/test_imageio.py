@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edgedsm.frameio.recording import WriteFailed
-from edgedsm.imageio import ImageIOError, save_map_png, write_atomic
+from edgedsm.imageio import ImageIOError, MapAxes, colour_picture, render_map, save_map_png, write_atomic
 
 
 def test_a_failed_write_leaves_the_old_file_and_no_partial_one(tmp_path):
@@ -79,3 +79,35 @@ def test_one_colour_renderer_draws_the_same_pixels_for_home_assistant_the_dashbo
     for name in COLORMAPS:
         ha = render_colour_map(values, colormap=name, max_size=None)
         assert np.array_equal(ha[:48, :64], colour_picture(values, name)[0])
+
+
+def test_a_map_of_camera_pixels_carries_a_50_px_scale_bar_and_no_axis_labels():
+    picture = render_map(np.random.default_rng(1).random((64, 64)), title="S2  N=64", unit="grey")
+    assert "50 px" in picture.texts and picture.texts[-2] == "S2  N=64"
+    zoom = 384 // 64  # the bar is 50 camera pixels long at the picture's zoom (its round caps add 2 px a side)
+    row = (picture.canvas[28 + 64 * zoom + 14, :4 + 50 * zoom + 3] == 0).all(axis=1)
+    black = np.flatnonzero(row)
+    assert 50 * zoom < black.size <= 50 * zoom + 5 and black.size == black.max() - black.min() + 1
+
+
+def test_a_map_whose_axes_are_not_space_says_what_they_are_without_a_pixel_bar():
+    axes = MapAxes(x="time (frames)", y="position along the row (px)", x_range=(2, 61), y_range=(0, 39))
+    values = np.random.default_rng(2).random((40, 60))
+    picture = render_map(values, title="THSP row 4", axes=axes)
+    assert not any("px" in text and text != axes.y for text in picture.texts)  # no "50 px" scale bar
+    for text in ("time (frames)", "position along the row (px)", "2", "61", "0", "39", "THSP row 4"):
+        assert text in picture.texts
+    # each axis stretched to at least 256 px on its own (40 rows x 7, 60 columns x 5)
+    canvas, left, top = picture.canvas, 64, 28
+    reference, _, _ = colour_picture(values, "viridis", tuple(np.percentile(values, [1, 99])))
+    assert np.array_equal(canvas[top:top + 280:7, left:left + 300:5], reference)
+    # the y label is drawn (dark pixels) in its strip left of the values, the x label below the picture
+    assert (canvas[top:top + 280, 0:22] < 128).sum() > 100
+    assert (canvas[top + 280 + 24:top + 280 + 44, left:left + 300] < 128).sum() > 100
+
+
+def test_a_y_label_longer_than_a_short_picture_is_drawn_smaller_not_cut():
+    axes = MapAxes(x="t", y="a rather long label for a short picture", x_range=(0, 1), y_range=(0, 1))
+    strip_full = render_map(np.zeros((300, 300)), axes=axes).canvas[28:28 + 300, 0:22]
+    dark_rows = np.flatnonzero((strip_full < 128).any(axis=(1, 2)))
+    assert dark_rows.size and dark_rows.min() > 0 and dark_rows.max() < 299  # whole, inside the picture

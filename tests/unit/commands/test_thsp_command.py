@@ -68,3 +68,30 @@ def test_row_or_column_is_required(tmp_path: Path, capsys: pytest.CaptureFixture
     with pytest.raises(SystemExit) as stop:
         main(["thsp", "f.npy", "-o", str(tmp_path)])
     assert stop.value.code == 2 and "one of the arguments --row --column is required" in capsys.readouterr().err
+
+
+def test_the_pictures_name_their_axes_time_position_and_grey_levels_without_a_pixel_bar(tmp_path: Path) -> None:
+    from edgedsm.commands.thsp import com_axes, thsp_axes
+    from edgedsm.imageio import render_map
+
+    frames = _frames()
+    np.save(tmp_path / "f.npy", frames)
+    out = tmp_path / "out"
+    assert main(["thsp", str(tmp_path / "f.npy"), "--column", "3", "--start", "2", "--window", "12", "-o",
+                 str(out)]) == 0
+    image, com = np.load(out / "thsp.npy"), np.load(out / "com.npy")
+    axes = thsp_axes("column", 9, 2, 13)
+    assert (axes.x, axes.y, axes.x_range, axes.y_range) == ("time (frames)", "position along the column (px)",
+                                                            (2, 13), (0, 8))
+    drawn = render_map(image, "THSP column 3", unit="grey levels", axes=axes)
+    # the file is that picture, pixel for pixel: its texts are the ones checked here
+    assert np.array_equal(cv2.imread(str(out / "thsp.png")), drawn.canvas)
+    assert {"time (frames)", "position along the column (px)", "2", "13", "0", "8"} <= set(drawn.texts)
+    assert not any(text.endswith(" px") for text in drawn.texts)
+    levels = com_axes(1)
+    assert (levels.x, levels.y, levels.x_range) == ("grey level at t+1", "grey level at t", (0, 255))
+    top = max(float(np.log1p(com.max())), 1.0)
+    drawn = render_map(np.log1p(com), "COM column 3: log(1 + count)", value_range=(0.0, top), axes=levels)
+    assert np.array_equal(cv2.imread(str(out / "com.png")), drawn.canvas)
+    assert {"grey level at t+1", "grey level at t", "255"} <= set(drawn.texts) and "50 px" not in drawn.texts
+    assert com_axes(256).y == "grey level / 256 at t"  # 16-bit data: the COM's levels are its top 8 bits
