@@ -10,19 +10,13 @@ from __future__ import annotations
 import numpy as np
 
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators.region_box import (
-    PERCENTILE_SAMPLES,
-    RegionBox,
-    RegionStats,
-    bounding_box,
-    checked,
-    percentiles,
-    region_mean,
-    region_stats,
-)
-
-__all__ = ["PERCENTILE_SAMPLES", "RegionBox", "RegionStats", "bounding_box", "contrast", "histogram", "percentiles",
-           "region_mean", "region_means", "region_stats"]
+from edgedsm.estimators.region_box import PERCENTILE_SAMPLES as PERCENTILE_SAMPLES
+from edgedsm.estimators.region_box import RegionBox as RegionBox
+from edgedsm.estimators.region_box import RegionStats as RegionStats
+from edgedsm.estimators.region_box import bounding_box as bounding_box
+from edgedsm.estimators.region_box import checked, region_mean
+from edgedsm.estimators.region_box import percentiles as percentiles
+from edgedsm.estimators.region_box import region_stats as region_stats
 
 
 def region_means(values: np.ndarray, masks: dict[str, np.ndarray]) -> dict[str, float]:

@@ -60,11 +60,12 @@ def analysis_config(window: int, lag: int, q: float = 0.0, mode: str = "sliding"
                     max_lag: int | None = None, noise_floor: bool = True, base: DaemonConfig | None = None
                     ) -> DaemonConfig:
     """The config ``analyze`` measures with: ``base``'s (the daemon's: its camera's noise, its
-    regions' thresholds) or a default one, its ``[estimator]`` with the window, lag, q (0 for
-    Fujii), mode and activity analysed (validated: a lag too long is refused as in a config)."""
+    regions' thresholds) or a default one, its ``[estimator]`` with the window, lag, q (0 for a
+    map formed at q = 0: Fujii), mode and activity analysed (validated: a lag too long is refused as in a config)."""
     if base is None:
         base = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<analyze>")
-    asked = {"window": window, "lag": lag, "q": 0.0 if activity == "fujii" else q, "mode": mode,
+    record = registry.REGISTRY.get(activity)  # an unknown name is refused by the validation below
+    asked = {"window": window, "lag": lag, "q": q if record is None else record.q_for(q), "mode": mode,
              "activity": activity, "max_lag": max_lag, "noise_floor": noise_floor}
     estimator = validate(EstimatorSection, {**base.estimator.model_dump(exclude_unset=True), **asked}, "estimator")
     return base.model_copy(update={"estimator": estimator})

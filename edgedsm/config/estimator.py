@@ -121,7 +121,7 @@ class EstimatorSection(StrictModel):
     @property
     def engine_q(self) -> float:
         """The q the engine runs at: 0 when judged on a map formed at q = 0 (Fujii: 200·S2 at q = 0), else ``q``."""
-        return 0.0 if registry.get(self.activity).needs_q_zero else self.q
+        return registry.get(self.activity).q_for(self.q)
 
     @property
     def maps(self) -> tuple[str, ...]:

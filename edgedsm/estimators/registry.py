@@ -133,6 +133,11 @@ class Record:
     def has_floor(self) -> bool:
         return self.floor is not None
 
+    def q_for(self, q: float) -> float:
+        """The q (Eq. 2's offset, grey levels) this map is formed at: 0 for one that needs it
+        (Fujii: 200·S2 at q = 0), else ``q``."""
+        return 0.0 if self.needs_q_zero else q
+
     def mode_problem(self, mode: str) -> str | None:
         """Why the engine cannot form this map in window ``mode`` (None: it can); the one
         statement of it (engine and config)."""

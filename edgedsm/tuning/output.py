@@ -62,7 +62,7 @@ def snippet(result: Result, config: DaemonConfig, command: str) -> str:
              f"window = {candidate.setting.window}", f"lag = {candidate.setting.lag}",
              f"mode = {_toml_value(candidate.setting.mode)}",
              f"noise_floor = {_toml_value(candidate.noise_floor or candidate.estimator == 'tau_c')}"]
-    if candidate.estimator == "fujii":  # 200·S2 at q = 0: the config refuses another q beside it
+    if registry.get(candidate.estimator).needs_q_zero:  # Fujii, 200·S2 at q = 0: the config refuses another q
         lines.append("q = 0.0")
     series = next(s for s in result.series if s.setting == candidate.setting)
     if candidate.estimator == "tau_c" and series.max_lag is not None:

@@ -32,18 +32,19 @@ from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import EstimatorSection
 from edgedsm.estimators import registry
 from edgedsm.estimators.region_box import bounding_box
-from edgedsm.estimators.value_set import gd_mode_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
 from edgedsm.measurement.judge import FLOORED
 from edgedsm.validation import validate
 
 PLAIN = registry.paper_maps()  # S1, S2, S3: always formed (the daemon does; S3's and τc's floors need S1)
 #: every activity the daemon can judge on (``estimator.activity``), in the order candidates are listed;
-#: not the band ratio yet (its split would be one more tuned setting, and the exponential mode has no bands)
-JUDGEABLE = tuple(name for name in registry.activities() if name != "band_ratio")
-#: those tried unless asked for by name: all but GD, whose O(N)-per-pixel push makes every pass of
-#: a setting several times longer (docs/commissioning.md), so that a budget would cover fewer settings
-DEFAULT_CANDIDATES = tuple(name for name in JUDGEABLE if name != "gd")
+#: not the bands' (the band ratio: its split would be one more tuned setting, and the exponential mode
+#: has no bands)
+JUDGEABLE = tuple(name for name in registry.activities() if registry.get(name).source != "bins")
+#: those tried unless asked for by name: all but those whose push reads the window (cost O(N): GD),
+#: which makes every pass of a setting several times longer (docs/commissioning.md), so that a budget
+#: would cover fewer settings
+DEFAULT_CANDIDATES = tuple(name for name in JUDGEABLE if registry.get(name).cost != "O(N)")
 #: those the daemon judges above a noise floor (τc is held, not lowered)
 WITH_FLOOR = tuple(name for name in JUDGEABLE if name in FLOORED)
 
@@ -79,9 +80,9 @@ class Series:
 
 
 def in_mode(estimators: Sequence[str], mode: str) -> tuple[str, ...]:
-    """``estimators`` without those the engine cannot keep in window ``mode`` (GD in the exponential
-    mode; τc is left to ``Setting.has_tau``)."""
-    return tuple(name for name in estimators if not (name == "gd" and gd_mode_problem(mode)))
+    """``estimators`` without those the engine cannot form in window ``mode`` (the registry's
+    modes: GD and τc not in the exponential mode)."""
+    return registry.in_mode(estimators, mode)
 
 
 def variants(estimators: Sequence[str], has_tau: bool = True) -> tuple[str, ...]:
@@ -114,12 +115,12 @@ def run_pass(frames: Iterable[np.ndarray], setting: Setting, config: DaemonConfi
         "estimator")
     settings = config.model_copy(update={"estimator": estimator})
     q = config.estimator.q
-    # Fujii needs an engine at q = 0 (its daemon runs so): the main one when q is 0, else a companion
-    separate_fujii = "fujii" in estimators and q != 0.0
-    extra = tuple(name for name in JUDGEABLE if name in estimators and name not in (*PLAIN, "tau_c")
-                  and not (name == "fujii" and separate_fujii))
+    # a map formed at q = 0 (Fujii) needs an engine at q = 0 (its daemon runs so): the main one when
+    # q is 0, else a companion
+    at_zero = tuple(name for name in estimators if q != 0.0 and registry.get(name).needs_q_zero)
+    extra = tuple(name for name in JUDGEABLE if name in estimators and name not in (*PLAIN, "tau_c", *at_zero))
     spec = EngineSpec.of_sections(estimator, tau_c=with_tau, extra=extra)
-    companions = [spec.replaced(q=0.0, estimators=("fujii",))] if separate_fujii else []
+    companions = [spec.replaced(q=0.0, estimators=at_zero)] if at_zero else []
     core = Core(settings, cropped, patch=config.estimator.noise_patch, floored=floored, dt=dt, spec=spec,
                 companions=companions)
     series = Series(setting, values={name: {variant: [] for variant in variants(estimators, setting.has_tau)}

@@ -24,6 +24,7 @@ import numpy as np
 
 from edgedsm.config import DaemonConfig
 from edgedsm.errors import DataError
+from edgedsm.estimators import registry
 from edgedsm.estimators.region_box import bounding_box
 from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, pareto, recommend
 from edgedsm.tuning.scoring import ORDER
@@ -177,6 +178,7 @@ def _cost_frames(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray]) -
 
 
 def _cost(frames: list[np.ndarray], candidate: Candidate, series: Series, bits: int | None, q: float) -> float:
-    """The candidate's estimator alone in the engine, at the q its daemon runs at (Fujii: 0)."""
+    """The candidate's estimator alone in the engine, at the q its daemon runs at (a map formed at
+    q = 0, Fujii: 0)."""
     return push_cost(frames, (candidate.estimator,), candidate.setting, bits, max_lag=series.max_lag if
-                     candidate.estimator == "tau_c" else None, q=0.0 if candidate.estimator == "fujii" else q)
+                     candidate.estimator == "tau_c" else None, q=registry.get(candidate.estimator).q_for(q))

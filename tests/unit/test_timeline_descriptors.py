@@ -12,8 +12,9 @@ import pytest
 
 from edgedsm.cli import main
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import bands, descriptors
-from edgedsm.timeline import COLUMNS, timeline
+from edgedsm.estimators import bands, descriptors, registry
+from edgedsm.estimators.registry import Record
+from edgedsm.timeline import COLUMNS, analysis_config, timeline
 from tests.unit.test_timeline import small_drying_scene
 
 
@@ -164,3 +165,17 @@ def test_the_configs_band_ratio_and_split_give_the_column(tmp_path: Path) -> Non
         index = int(row["frame"])
         expected = bands.ratio(*bands.split_powers(frames[index - 15:index + 1], 0.02, 5.0)).mean()
         assert float(row["band_ratio"]) == pytest.approx(expected, rel=1e-5)
+
+
+def test_the_q_analyzed_is_the_records_not_a_name_test() -> None:
+    """A map formed at q = 0 (its record's needs_q_zero) is analysed at q = 0 whatever q is asked,
+    every other at the q asked; a new record with the property is formed at 0 too, by no name."""
+    for name in registry.activities():
+        config = analysis_config(window=20, lag=2, q=3.0, mode="sliding", activity=name)
+        assert config.estimator.q == (0.0 if registry.get(name).needs_q_zero else 3.0), name
+        assert config.estimator.engine_q == config.estimator.q, name
+    assert [name for name in registry.activities() if registry.get(name).needs_q_zero] == ["fujii"]
+    twin = Record("fujii_twin", "1 (0..200)", "Fujii twin", "200 S2(q = 0)", "derived", frozenset({"ratio"}),
+                  ("s2",), frozenset(registry.MODES), uses_lag=True, needs_q_zero=True,
+                  derive="edgedsm.estimators.activity:fujii_values")
+    assert twin.q_for(3.0) == 0.0 and registry.get("s2").q_for(3.0) == 3.0
