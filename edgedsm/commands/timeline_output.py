@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -158,8 +159,9 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)
-    plot_activity(out / "timeline.png", result, f"{args.frames}: N = {window}, m = {args.lag}")
-    plot_histograms(out / "histogram.png", result, f"{args.frames}: N = {window}, m = {args.lag}")
+    title = figure_title(args.frames, window, args.lag)
+    plot_activity(out / "timeline.png", result, title, source=str(args.frames))
+    plot_histograms(out / "histogram.png", result, title, source=str(args.frames))
     samples = len(result.sample_frames)
     print(f"{samples} samples of {len(regions)} region(s) from {read[0]} frames (Δt = {dt:g} s) -> "
           f"{out / 'timeline.csv'}, {out / 'timeline.png'}, {out / 'histogram.png'}")
@@ -189,7 +191,54 @@ def _label(name: str) -> str:
     return record.label if record.unit.startswith("1") else f"{record.label} ({record.unit})"
 
 
-def plot_activity(path: Path, result: Timeline, title: str) -> None:
+def figure_title(source: str, window: int, lag: int) -> str:
+    """A figure's title: the input's file name (its folder would not fit across the figure; the
+    whole path goes in the PNG's ``Source`` text), the window and the lag."""
+    return f"{Path(source).name or source}: N = {window}, m = {lag}"
+
+
+#: SI prefixes of engineering notation (powers of 1000) the tick labels use.
+_PREFIXES = {-9: "n", -6: "µ", -3: "m", 0: ""}
+
+
+def seconds_label(value: float) -> str:
+    """A time as a tick reads it, in engineering notation with its unit: 0.6675 -> "667.5 ms",
+    2 -> "2 s", 1.5e-5 -> "15 µs", 1500 -> "1500 s" (at most 4 significant digits; 0 -> "0 s")."""
+    if value == 0 or not math.isfinite(value):
+        return f"{value:g} s"
+    exponent = min(max(3 * math.floor(math.log10(abs(value)) / 3), -9), 0)
+    scaled = float(f"{value / 10.0 ** exponent:.4g}")
+    if abs(scaled) >= 1000 and exponent < 0:  # 999.96 ms rounds to 1000: write 1 s
+        exponent, scaled = exponent + 3, float(f"{scaled / 1000:.4g}")
+    return f"{scaled:g} {_PREFIXES[exponent]}s"
+
+
+def _seconds_formatter():
+    """Tick labels of a logarithmic axis in seconds: the ticks matplotlib's log formatter would
+    label (so minor ticks do not crowd), each written by :func:`seconds_label` instead of
+    "6.675×10⁻¹"."""
+    from matplotlib.ticker import Formatter, LogFormatterSciNotation
+
+    class SecondsFormatter(Formatter):
+        def __init__(self, minor: bool) -> None:
+            self.chooser = LogFormatterSciNotation(labelOnlyBase=not minor)
+
+        def set_axis(self, axis) -> None:
+            super().set_axis(axis)
+            self.chooser.set_axis(axis)
+
+        def set_locs(self, locs) -> None:
+            super().set_locs(locs)
+            self.chooser.set_locs(locs)
+
+        def __call__(self, x: float, pos: int | None = None) -> str:
+            return seconds_label(x) if self.chooser(x, pos) else ""
+
+    return SecondsFormatter
+
+
+def activity_figure(result: Timeline, title: str):
+    """timeline.png's figure: each estimator's region means against time, and τc on a log axis."""
     plt = _pyplot()
     names = list(dict.fromkeys(row[2] for row in result.rows))
     columns = (*((name, _label(name)) for name in (*PAPER, *result.descriptors)), ("tau_c_s", _label("tau_c")))
@@ -200,18 +249,26 @@ def plot_activity(path: Path, result: Timeline, title: str) -> None:
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[-1].axhline(result.max_lag * result.dt, color="grey", ls="--", lw=0.8,
-                     label=f"K·Δt = {result.max_lag * result.dt:g} s: longer τc reads as this")
+                     label=f"K·Δt = {seconds_label(result.max_lag * result.dt)}: longer τc reads as this")
     axes[-1].legend(fontsize=8)
     axes[-1].set_yscale("log")
+    formatter = _seconds_formatter()
+    axes[-1].yaxis.set_major_formatter(formatter(minor=False))
+    axes[-1].yaxis.set_minor_formatter(formatter(minor=True))
     axes[-1].set_xlabel("time (s)")
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Activity against time — {title}")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig
 
 
-def plot_histograms(path: Path, result: Timeline, title: str) -> None:
+def plot_activity(path: Path, result: Timeline, title: str, source: str | None = None) -> None:
+    fig = activity_figure(result, title)
+    fig.savefig(path, dpi=100, metadata={"Source": source} if source else None)
+    _pyplot().close(fig)
+
+
+def plot_histograms(path: Path, result: Timeline, title: str, source: str | None = None) -> None:
     plt = _pyplot()
     image = result.histogram_image()
     times = np.asarray(result.sample_times, np.float64)
@@ -225,5 +282,5 @@ def plot_histograms(path: Path, result: Timeline, title: str) -> None:
     ax.set_ylabel(f"{result.histogram_estimator.upper()} of the pixels")
     ax.set_title(f"Histogram of the {result.histogram_estimator.upper()} map against time — {title}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, metadata={"Source": source} if source else None)
     plt.close(fig)
