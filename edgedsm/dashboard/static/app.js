@@ -149,6 +149,7 @@ function card(name) {
 }
 
 function select(name) {
+  if (name !== selected) forgetDraft();
   selected = name;
   renderCards();
   renderDetail();
@@ -498,6 +499,16 @@ function startEditor() {
     if (navigator.clipboard) navigator.clipboard.writeText(text).catch(() => $("editor-toml").select());
     else $("editor-toml").select();
   });
+}
+
+// a shape drawn on one device's map, its statistics, its TOML and the last command's answer belong
+// to that device: another device's page starts without them
+function forgetDraft() {
+  drawing = null;
+  lastShape = null;
+  $("editor-stats").textContent = "";
+  $("editor-toml").value = "";
+  $("command-result").textContent = "";
 }
 
 function shapeFrom(a, b) {
