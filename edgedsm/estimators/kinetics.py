@@ -37,6 +37,9 @@ What this module adds to Eq. 1 (each for a stated reason):
 * **Decorrelation time.** τ(t) is the age at which g falls to 1/e, interpolated between the two
   ages that bracket it linearly in ln(-ln g) against ln age (exact for stretched exponentials
   exp(-(τ/τ0)^p), Cipelletti's and DDM's shape); rate = 1/τ (1/frame; the caller divides by Δt).
+* **A white step, when asked.** Phase noise and vibration (the seed paper's environmental noise)
+  lower every c(t, τ >= 1) alike, which no camera noise model sees; ``measure(white=True)`` divides
+  g by its extrapolation to age 0 (:func:`white_step`) first.
 
 Statuses (never a number where there is none): ``ok``; ``above`` (g still above 1/e at the
 oldest age kept: τ > that age, the ``bound``); ``below`` (under 1/e at the youngest: τ < 1
