@@ -80,21 +80,52 @@ def _pair_sums(stack: np.ndarray, lag: int, q: float | None) -> tuple[np.ndarray
 
 
 def s1(frames: np.ndarray, lag: int) -> np.ndarray:
-    """Eq. 1: S1 = 1/(N-m) Σ_{i=1}^{N-m} |I_i - I_{i+m}| (modified structure function)."""
+    """Eq. 1: S1 = 1/(N-m) Σ_{i=1}^{N-m} |I_i - I_{i+m}| (modified structure function).
+
+    Args:
+        frames: (N, H, W) stack of N >= 2 frames, any integer or float dtype, finite and >= 0;
+            intensities in the frames' unit (grey levels for camera data).
+        lag: m, in frames (an int, 1 <= m <= N-1).
+
+    Returns:
+        (H, W) float64 map in the frames' unit (grey levels), >= 0.
+
+    Example:
+        >>> import numpy as np
+        >>> frames = np.array([[[0]], [[4]], [[2]]], np.uint8)   # N=3 frames of 1x1 px
+        >>> s1(frames, 1)                                         # (|0-4| + |4-2|) / 2
+        array([[3.]])
+    """
     stack = check_stack(frames, lag)
     abs_sum, _ = _pair_sums(stack, lag, None)
     return abs_sum / (stack.shape[0] - lag)
 
 
 def s2(frames: np.ndarray, lag: int, q: float = 0.0) -> np.ndarray:
-    """Eq. 2: S2 = 1/(N-m) Σ |I_i - I_{i+m}| / (I_i + I_{i+m} + q); q >= 0 avoids 0/0."""
+    """Eq. 2: S2 = 1/(N-m) Σ |I_i - I_{i+m}| / (I_i + I_{i+m} + q); q >= 0 avoids 0/0.
+
+    Args:
+        frames: (N, H, W) stack of N >= 2 frames, any integer or float dtype, finite and >= 0.
+        lag: m, in frames (an int, 1 <= m <= N-1).
+        q: added to each pair's sum, in the frames' unit (grey levels); 0 counts a pair of two
+            zeros as 0 (no fluctuation).
+
+    Returns:
+        (H, W) float64 map, dimensionless, in [0, 1].
+
+    Example:
+        >>> import numpy as np
+        >>> s2(np.array([[[1]], [[3]], [[1]]], np.uint8), 1)      # (2/4 + 2/4) / 2
+        array([[0.5]])
+    """
     stack = check_stack(frames, lag)
     _, ratio_sum = _pair_sums(stack, lag, _check_q(q))
     return ratio_sum / (stack.shape[0] - lag)
 
 
 def temporal_sigma(frames: np.ndarray) -> np.ndarray:
-    """Eq. 4: σ with the 1/N (population) normalisation, float64.
+    """Eq. 4: σ with the 1/N (population) normalisation: (N, H, W) frames in, an (H, W) float64
+    map out, in the frames' unit (grey levels).
 
     Integer data: N·ΣI² - (ΣI)² is formed exactly in integers (no cancellation), then
     σ = sqrt(that)/N; for windows too long for int64 the deviations N·I - ΣI (exact integers)
@@ -131,7 +162,20 @@ def temporal_sigma(frames: np.ndarray) -> np.ndarray:
 
 
 def s3(frames: np.ndarray, lag: int) -> np.ndarray:
-    """Eq. 3-4: S3 = S1/σ with σ of Eq. 4 over the same N frames; S3 = 0 where σ = 0."""
+    """Eq. 3-4: S3 = S1/σ with σ of Eq. 4 over the same N frames; S3 = 0 where σ = 0.
+
+    Args:
+        frames: (N, H, W) stack of N >= 2 frames, any integer or float dtype, finite and >= 0.
+        lag: m, in frames (an int, 1 <= m <= N-1).
+
+    Returns:
+        (H, W) float64 map, dimensionless (S1 and σ share the frames' unit), >= 0.
+
+    Example:
+        >>> import numpy as np
+        >>> s3(np.array([[[0]], [[4]], [[2]]], np.uint8), 1)      # S1 = 3, σ = 1.633 grey levels
+        array([[1.83711731]])
+    """
     stack = check_stack(frames, lag)
     abs_sum, _ = _pair_sums(stack, lag, None)
     sigma = temporal_sigma(stack)
@@ -141,7 +185,8 @@ def s3(frames: np.ndarray, lag: int) -> np.ndarray:
 
 
 def all_maps(frames: np.ndarray, lag: int, q: float = 0.0) -> dict[str, np.ndarray]:
-    """S1, S2 and S3 in one pass over the stack."""
+    """S1, S2 and S3 in one pass over the stack: ``{"s1", "s2", "s3"}`` -> (H, W) float64 maps
+    equal to :func:`s1`, :func:`s2` (with ``q``) and :func:`s3` of the same (N, H, W) frames."""
     stack = check_stack(frames, lag)
     abs_sum, ratio_sum = _pair_sums(stack, lag, _check_q(q))
     pairs = stack.shape[0] - lag

@@ -104,7 +104,6 @@ def tau_mode_problem(mode: str) -> str | None:
     """Why τc cannot be estimated in window ``mode`` (None: it can); the one statement of it."""
     return registry.mode_problem("tau_c", mode)
 LAG1_MIN = 0.05  # fitted lag-1 correlation below this: nothing left to time
-DEFAULT_MAX_LAG = 20
 DENSE_LAGS = 4  # every lag up to this one
 LAG_FACTOR = 1.4  # then each lag about this factor above the previous (rounded)
 _GRID_STEP = 2.0 ** (1.0 / 16.0)  # 4.4 % between grid values of τ
@@ -378,11 +377,11 @@ def _fits_int64(stack: np.ndarray) -> bool:
     return stack.shape[0] * top * top < 2**62
 
 
-def covariances(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG) -> tuple[np.ndarray, np.ndarray]:
-    """Lagged covariances (L, H, W) at the lags ``tau_lags(max_lag)`` and variance (H, W) of
-    every pixel over the stack (see covariances_from_sums); integer data use exact integer
-    sums, as the streaming engine."""
-    stack = _check(frames, max_lag)
+def covariances(frames: np.ndarray, max_lag: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Lagged covariances (L, H, W) at the lags ``tau_lags(K)`` and variance (H, W) of every
+    pixel over the stack (see covariances_from_sums); integer data use exact integer sums, as the
+    streaming engine. K = ``max_lag``, by default :func:`default_max_lag` (N/2)."""
+    stack, max_lag = _check(frames, max_lag)
     n, h, w = stack.shape
     lags = tau_lags(max_lag)
     if _fits_int64(stack):
@@ -393,13 +392,16 @@ def covariances(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG) -> tuple[np.
 
 
 # ----------------------------------------------------------------------------- public
-def _check(frames: np.ndarray, max_lag: int) -> np.ndarray:
+def _check(frames: np.ndarray, max_lag: int | None) -> tuple[np.ndarray, int]:
+    """The stack and K: ``max_lag``, or the daemon's default N/2 (:func:`default_max_lag`) when None."""
     stack = check_frames(frames)
+    if max_lag is None:
+        max_lag = default_max_lag(stack.shape[0])
     if isinstance(max_lag, bool) or not isinstance(max_lag, int | np.integer):
         raise EstimatorError(f"max_lag must be an integer number of frames, got {max_lag!r}")
     if problem := max_lag_problem(max_lag, stack.shape[0]):
         raise EstimatorError(problem)
-    return stack
+    return stack, int(max_lag)
 
 
 def _check_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -462,11 +464,12 @@ def fit_map(cov: np.ndarray, var: np.ndarray, n: int, lags: np.ndarray) -> TauC:
     return TauC(tau.reshape(h, w), status.reshape(h, w))
 
 
-def tau_c_bounds(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG, mask: np.ndarray | None = None) -> TauC:
+def tau_c_bounds(frames: np.ndarray, max_lag: int | None = None, mask: np.ndarray | None = None) -> TauC:
     """τc (frames) with its status: MEASURED, ABOVE (τ = K, read "> K·Δt"), BELOW (τ =
     TAU_FLOOR) or NO_SIGNAL (σ = 0, τ = 0.0). Per pixel ((H, W) arrays), or for the boolean
-    (H, W) ``mask`` from the region-averaged correlations (a float and an int)."""
-    stack = _check(frames, max_lag)
+    (H, W) ``mask`` from the region-averaged correlations (a float and an int). K = ``max_lag``,
+    by default N/2 as the daemon's (:func:`default_max_lag`)."""
+    stack, max_lag = _check(frames, max_lag)
     region = None if mask is None else _check_mask(mask, stack.shape[1:])
     cov, var = covariances(stack, max_lag)
     n, lags = stack.shape[0], tau_lags(max_lag)
@@ -475,13 +478,22 @@ def tau_c_bounds(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG, mask: np.nd
     return fit_region(cov, var, region, n, lags)
 
 
-def tau_c(frames: np.ndarray, max_lag: int = DEFAULT_MAX_LAG, mask: np.ndarray | None = None) -> np.ndarray | float:
+def tau_c(frames: np.ndarray, max_lag: int | None = None, mask: np.ndarray | None = None) -> np.ndarray | float:
     """Correlation time τc in frames (Δt) from an (N, H, W) stack: an (H, W) float64 map, or
     with a boolean (H, W) ``mask`` the region's τc from its averaged correlations.
 
     Fits A·exp(-k/τ) with the finite-N bias of the window mean corrected, at the lags
-    ``tau_lags(K)`` (1, 2, 3, 4, then spaced by about 1.4, up to K = ``max_lag``, 1 <= K < N-1).
-    Degenerate values: see :func:`tau_c_bounds` (which also tells which values are bounds
-    rather than measurements).
+    ``tau_lags(K)`` (1, 2, 3, 4, then spaced by about 1.4, up to K, 1 <= K <= N-2). K =
+    ``max_lag`` frames, by default N/2 (:func:`default_max_lag`, as the daemon's
+    ``estimator.max_lag`` and the streaming engine's): τc above K reads K. Degenerate values:
+    see :func:`tau_c_bounds` (which also tells which values are bounds rather than measurements).
+
+    Args:
+        frames: (N, H, W) stack, N >= 3, integer or float, finite and >= 0.
+        max_lag: K in frames, or None for N/2.
+        mask: a boolean (H, W) region, or None for a per-pixel map.
+
+    Returns:
+        τc in frames: an (H, W) float64 map, or a float with ``mask``.
     """
     return tau_c_bounds(frames, max_lag, mask).tau

@@ -110,3 +110,25 @@ def test_a_darkening_drying_film_keeps_rising_through_its_stages() -> None:
     assert statuses == ["measured"] * 5 + ["above"]  # the last set's τc (126…200) is beyond N/2
     assert np.all(np.diff(taus[:5]) > 0) and 1.5 < taus[0] < 3 and 50 < taus[4] < 100
     assert [row[8] for row in short.rows][3:] == ["above"] * 3
+
+
+def test_the_batch_functions_default_to_the_daemons_k_of_half_the_window() -> None:
+    """tau_c and tau_c_bounds without max_lag use N/2 as the daemon and the engine do (they used
+    20): a τc = 40 decay at N = 200 is measured, where K = 20 reads only "above 20"."""
+    from edgedsm.estimators import tau_c
+    from edgedsm.estimators.correlation_time import covariances
+
+    frames = _speckle(200, 24, 40.0, seed=7)
+    region = np.ones(frames.shape[1:], bool)
+    default = tau_c_bounds(frames, mask=region)
+    assert tuple(default) == tuple(tau_c_bounds(frames, 100, mask=region))
+    assert default.status == MEASURED and 20 < default.tau < 100
+    assert tuple(tau_c_bounds(frames, 20, mask=region)) == (20.0, ABOVE)
+    np.testing.assert_array_equal(tau_c(frames[:40]), tau_c(frames[:40], default_max_lag(40)))
+    assert covariances(frames[:40])[0].shape[0] == tau_lags(20).size  # N = 40: K = 20
+    engine = SlidingWindow(frames.shape[1:], 200, 10, estimators=("s1", "tau_c"))
+    for frame in frames:
+        engine.push(frame)
+    assert engine.max_lag == 100 and engine.region_tau_c(region).tau == pytest.approx(default.tau, rel=1e-9)
+    with pytest.raises(EstimatorError, match="max_lag K=1 does not fit a window of N=2"):
+        tau_c(frames[:2])  # N/2 = 1 does not fit N = 2: the same refusal as an explicit K
