@@ -58,3 +58,29 @@ def test_tau_follows_a_film_drying_over_four_decades() -> None:
     # the window estimator of the same frames: measured early, saturated "above K" late
     assert window[0].status != WINDOW_ABOVE and window[0].tau < MAX_LAG
     assert window[-1].status == WINDOW_ABOVE and window[-1].tau == MAX_LAG
+
+
+@pytest.mark.compute
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_white_phase_noise_shortens_tau_unless_taken_out() -> None:
+    """The simulator's white phase noise (α = 0.3 rad a frame) lowers every pair's correlation by
+    exp(-2·0.09): τ reads about 18 % short; measure(white=True) takes the step out."""
+    frames = 6000
+    film = scene_from_dict({"scene": {"size": SIZE, "seed": 12},
+                            "activity": {"tau_c": 2.0, "drying": {"duration": frames, "final_factor": 300.0}},
+                            "phase_noise": {"alpha": 0.3, "tau_noise": 1.0, "model": "white"},
+                            "detector": {"n_max": 1000.0, "bits": 8}})
+    kinetics = Kinetics(np.ones((SIZE, SIZE), bool), NoiseModel(gain=DetectorRows(film).scale), LONGEST)
+    simulator = Simulator(film)
+    samples, plain, white = [], [], []
+    for index in range(frames):
+        kinetics.push(simulator.next_frame())
+        if index % STRIDE == 0 and index > 0:
+            samples.append(index)
+            plain.append(kinetics.measure().tau or np.nan)
+            white.append(kinetics.measure(white=True).tau or np.nan)
+    truth = decorrelation_lags(film, np.array(samples))
+    inside = (truth >= 1.0) & (truth <= LONGEST)
+    assert abs(np.nanmedian(np.array(plain)[inside] / truth[inside]) - 0.82) < 0.06
+    assert abs(np.nanmedian(np.array(white)[inside] / truth[inside]) - 1.0) < 0.08
