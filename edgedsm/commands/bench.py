@@ -29,7 +29,7 @@ HELP = "measure speed and accuracy (simulator, streaming engine, camera drivers,
 SUITES = {name: f"edgedsm_lab.bench.{module}" for name, module in (
     ("sim", "sim"), ("engine", "engine"), ("devices", "devices"), ("e2e", "e2e_report"), ("ambient", "ambient"),
     ("soak", "soak"), ("accuracy", "accuracy_report"), ("compression", "compression"), ("recording", "recording"),
-    ("light", "light"), ("video", "video"), ("dashboard", "dashboard"))}
+    ("light", "light"), ("video", "video"), ("dashboard", "dashboard"), ("kinetics", "kinetics"))}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -6,7 +6,7 @@ exponentially over four decades; then the same film with ambient light, a Gaussi
 darkening film and phase noise, each alone; then the cost per frame against one S1 push and the
 memory. Writes the figure (PNG) and prints the tables docs/kinetics.md quotes.
 
-    python -m edgedsm_lab.bench.kinetics [--quick] [--figure docs/kinetics.png] [-o FILE.md]
+    edgedsm bench kinetics [--quick] [--figure docs/kinetics.png] [-o FILE.md]
 """
 
 from __future__ import annotations
