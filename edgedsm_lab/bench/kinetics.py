@@ -359,7 +359,7 @@ def run(args: argparse.Namespace) -> int:
     case = QUICK if args.quick else Case()
     result = measure(case)
     report = Report("Drying kinetics over decades")
-    report.line(report.machine("python -m edgedsm_lab.bench.kinetics" + (" --quick" if args.quick else ""),
+    report.line(report.machine("edgedsm bench kinetics" + (" --quick" if args.quick else ""),
                                load=load))
     report.line()
     report_lines(result, report)
