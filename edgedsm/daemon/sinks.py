@@ -50,7 +50,9 @@ def _build_sparkplug(config: DaemonConfig, on_command: CommandHandler, needed: S
 
     assert config.mqtt is not None and config.sparkplug is not None
     return SparkplugSink(config.sparkplug, config.mqtt, config.device.state_dir, regions=_regions(config),
-                         maps=engine_estimators(config), signal=config.estimator.noise_floor).start()
+                         maps=engine_estimators(config), signal=config.estimator.noise_floor,
+                         judged={region.name: "tau_c" if region.on_tau else config.estimator.activity
+                                 for region in config.regions}).start()
 
 
 def _build_homeassistant(config: DaemonConfig, on_command: CommandHandler, needed: Sink | None) -> Sink:

@@ -8,7 +8,7 @@ Metric names use '/' for folders, as Sparkplug hosts (Ignition) expect.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from edgedsm.messages import DROP_CAUSES, Alert, RegionSignal, StateReport, Stats
@@ -49,11 +49,14 @@ def _datetime_ms(wall_s: float | None) -> Reading:
 
 
 def region_readings(region: str, *, state: str | None = None, since: float | None = None,
-                    activity: float | None = None, time_to_dry_s: float | None = None) -> dict[str, Reading]:
-    """A region's drying metrics (all of them, null where unknown)."""
+                    activity: float | None = None, time_to_dry_s: float | None = None,
+                    judged: str | None = None) -> dict[str, Reading]:
+    """A region's drying metrics (all of them, null where unknown); ``activity`` is of the
+    estimator ``judged`` (its unit: :func:`map_unit`; τc: s), none when not known."""
     base = f"regions/{region}"
     return {f"{base}/state": _text(state), f"{base}/since": _datetime_ms(since),
-            f"{base}/activity": _double(activity), f"{base}/time_to_dry_s": _double(time_to_dry_s, "s")}
+            f"{base}/activity": _double(activity, None if judged is None else map_unit(judged)),
+            f"{base}/time_to_dry_s": _double(time_to_dry_s, "s")}
 
 
 def map_reading(region: str, map_name: str, mean: float | None) -> tuple[str, Reading]:
@@ -61,10 +64,13 @@ def map_reading(region: str, map_name: str, mean: float | None) -> tuple[str, Re
     return f"regions/{region}/{map_name}/mean", _double(mean, map_unit(map_name))
 
 
-def declared_readings(regions: Iterable[str], maps: Iterable[str], *, signal: bool = True) -> dict[str, Reading]:
+def declared_readings(regions: Iterable[str], maps: Iterable[str], *, signal: bool = True,
+                      judged: Mapping[str, str] | None = None) -> dict[str, Reading]:
     """Every device metric known before the first message, null-valued, so that the first birth
     already carries the whole set (a later birth adds what appears after). ``signal``: each
-    region's signal quality is published (``estimator.noise_floor``, on by default)."""
+    region's signal quality is published (``estimator.noise_floor``, on by default); ``judged``:
+    the estimator each region's activity is of (its unit in the birth; a region missing from it
+    gets its unit, and a new birth, with its first state report)."""
     readings: dict[str, Reading] = {
         "frames": _count(None), "frames_dropped": _count(None), "fps": _double(None, "frames/s"),
         "ready": Reading(DataType.BOOLEAN, None), "laser": _text(None), "estimator": _text(None),
@@ -75,7 +81,7 @@ def declared_readings(regions: Iterable[str], maps: Iterable[str], *, signal: bo
     }
     map_names = [name for name in maps if name != "tau_c"]  # τc: one pooled value per region, not a map mean
     for region in regions:
-        readings.update(region_readings(region))
+        readings.update(region_readings(region, judged=(judged or {}).get(region)))
         readings.update(map_reading(region, name, None) for name in map_names)
         if "tau_c" in maps:
             readings.update(tau_readings(region))
@@ -135,11 +141,13 @@ def stats_readings(stats: Stats) -> dict[str, Reading]:
 
 
 def state_readings(report: StateReport) -> dict[str, Reading]:
-    """The metrics of one state report: each region's state, since, activity and time to dry."""
+    """The metrics of one state report: each region's state, since, activity (in its estimator's
+    unit) and time to dry."""
     readings: dict[str, Reading] = {"laser": _text(report.laser), "estimator": _text(report.estimator)}
     for name, region in report.regions.items():
         readings.update(region_readings(name, state=region.state, since=region.since, activity=region.activity,
-                                        time_to_dry_s=region.time_to_dry_s))
+                                        time_to_dry_s=region.time_to_dry_s,
+                                        judged=region.estimator or report.estimator))
     return readings
 
 

@@ -20,6 +20,7 @@ import itertools
 import logging
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,13 +65,15 @@ class SparkplugTopics:
 class SparkplugSink:
     """Implements :class:`edgedsm.publish.sink.Sink` as a Sparkplug B edge node (see the module
     docstring). ``regions`` and ``maps`` name the device metrics known before the first message,
-    with each region's signal quality when ``signal`` (``estimator.noise_floor``); others appear
-    with a new birth. ``state_dir`` keeps the bdSeq (ConfigError naming
-    ``device.state_dir`` when unusable). Nothing connects until :meth:`start`."""
+    with each region's signal quality when ``signal`` (``estimator.noise_floor``) and its
+    activity's unit when ``judged`` names the estimator it is of; others appear with a new birth.
+    ``state_dir`` keeps the bdSeq (ConfigError naming ``device.state_dir`` when unusable). Nothing
+    connects until :meth:`start`."""
 
     def __init__(self, settings: SparkplugSettings, mqtt_settings: MqttSettings, state_dir: str | Path, *,
                  regions: tuple[str, ...] | list[str] = (), maps: tuple[str, ...] | list[str] = (),
-                 signal: bool = True, password: str | None = None, clock: Clock | None = None) -> None:
+                 signal: bool = True, judged: Mapping[str, str] | None = None, password: str | None = None,
+                 clock: Clock | None = None) -> None:
         self.settings, self.mqtt_settings = settings, mqtt_settings
         self.clock = clock or Clock()
         self.topics = SparkplugTopics(settings.group_id, settings.edge_node_id or mqtt_settings.device,
@@ -87,7 +90,7 @@ class SparkplugSink:
                            "Properties/Software": Reading(DataType.STRING, f"edgedsm {__version__}"),
                            "Node Info/commands_refused": Reading(DataType.UINT64, 0),
                            "Node Info/rebirth_requests": Reading(DataType.UINT64, 0)})
-        self.device.declare(declared_readings(regions, maps, signal=signal))
+        self.device.declare(declared_readings(regions, maps, signal=signal, judged=judged))
         self._seq = SeqCounter()
         self.host = PrimaryHost(settings.primary_host_id) if settings.primary_host_id else None
         self._limiter = BirthLimiter(settings.rebirth_min_interval_s)

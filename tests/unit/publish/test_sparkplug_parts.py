@@ -331,3 +331,21 @@ def test_commands_are_judged(payload: bytes, retained: bool, rebirth: bool, refu
         assert verdict.refusals == []
     else:
         assert len(verdict.refusals) == 1 and refusal in verdict.refusals[0]
+
+
+def test_a_regions_activity_carries_its_estimators_unit_in_the_birth_and_in_each_state() -> None:
+    judged = {"plate": "s1", "film": "tau_c", "glass": "s2"}
+    declared = declared_readings(list(judged), ["s1", "s2", "tau_c"], judged=judged)
+    assert {name: declared[f"regions/{name}/activity"].unit for name in judged} == {
+        "plate": "grey levels", "film": "s", "glass": None}  # the registry's units; S2 is dimensionless
+    regions = {"plate": RegionState(region="plate", state="wet", since=1.0, activity=12.5),
+               "film": RegionState(region="film", state="drying", since=1.0, activity=0.75, estimator="tau_c",
+                                   tau_c_status="measured"),
+               "glass": RegionState(region="glass", state="wet", since=1.0, activity=0.25)}
+    state = state_readings(StateReport(t=2.0, estimator="s1", regions=regions))
+    assert {name: state[f"regions/{name}/activity"].unit for name in regions} == {
+        "plate": "grey levels", "film": "s", "glass": "grey levels"}  # glass: the report's estimator, s1
+    state = state_readings(StateReport(t=2.0, estimator="s2", regions={"glass": regions["glass"]}))
+    # the birth and the data agree, so a state report does not make the node announce a new birth
+    assert state["regions/glass/activity"] == Reading(DataType.DOUBLE, 0.25, declared["regions/glass/activity"].unit)
+    assert declared_readings(["plate"], ["s1"])["regions/plate/activity"].unit is None  # unknown: none declared
