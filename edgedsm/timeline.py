@@ -35,11 +35,10 @@ from edgedsm.estimators.correlation_time import TauC
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
-from edgedsm.measurement.core import TAU_STATUS
+from edgedsm.measurement.tau import STATUS_NAMES
 from edgedsm.noise_patches import MAX_PATCH_FRAMES
 from edgedsm.validation import validate
 
-STATUS_NAMES = TAU_STATUS
 PAPER = registry.paper_maps()  # S1, S2, S3: always columns
 COLUMNS = ("frame", "time_s", "region", *PAPER, "tau_c_frames", "tau_c_s", "tau_c_status",
            "mean_intensity", "signal", *(f"{name}_above_noise" for name in PAPER),
@@ -192,11 +191,11 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
         time = index * dt if times_s is None else float(times_s[index])
         readings = core.read(time).readings
         assert core.engine is not None
-        for name, mask in regions.items():
+        for name in regions:
             reading = readings.get(name)
             values = reading.values if reading is not None else {}
             if with_tau:
-                tau: TauC = pooled.last[name] if pooled is not None and pooled.last else core.engine.region_tau_c(mask)
+                tau: TauC = pooled.last[name] if pooled is not None and pooled.last else core.fits[name]
                 taus = (float(tau.tau), float(tau.tau) * dt, STATUS_NAMES[int(tau.status)])
             else:
                 taus = (NAN, NAN, "off")

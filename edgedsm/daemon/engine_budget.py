@@ -12,16 +12,15 @@ import numpy as np
 from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import DESCRIPTOR_ACTIVITIES
 from edgedsm.daemon.capture import queue_capacity
-from edgedsm.daemon.tau import TauRegions
 from edgedsm.errors import ConfigError
 from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
-from edgedsm.estimators.tau_pooled import pooled_covariances
 from edgedsm.measurement import EngineSpec
 from edgedsm.measurement.judge import warm_up as warm_up_noise
+from edgedsm.measurement.tau import map_seconds, region_fits
 
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
 SMALL_FRAME_PIXELS = 1 << 18
@@ -155,11 +154,11 @@ def warm_up(config: DaemonConfig, frame_shape: tuple[int, int] | None = None) ->
 def _warm_up(config: DaemonConfig, parallel: bool) -> None:
     """Load the ``parallel`` or the serial variants of the kernels (:func:`warm_up`)."""
     est = config.estimator
-    tau = TauRegions(config)
+    tau_on = config.tau_c_on
     deep = config.camera.pixel_format not in (None, "Mono8")
     side = WARM_UP_SIDES[parallel]
     window = est.lag + 2
-    if tau.on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
+    if tau_on:  # long enough for every τc kernel (sliding batches need N >= K + TAU_BATCH)
         window = max(window, est.lags + TAU_BATCH + 2)
     engine = _spec(config).replaced(window=window).engine((side, side), 16 if deep else 8, est.threads)
     frame = np.zeros((side, side), np.uint16 if deep else np.uint8)
@@ -174,8 +173,7 @@ def _warm_up(config: DaemonConfig, parallel: bool) -> None:
     wanted = [maps] + ([(est.activity,)] if est.activity in maps else [])
     for names in wanted:
         region_moments(engine.snapshot(names, live=True), layout, names, spread=names is maps, parallel=parallel)
-    if tau.on:  # the pooled-covariance kernels of the regions and the block map
+    if tau_on:  # the pooled-covariance kernels of the regions and the block map
         sums = engine.tau_snapshot()
-        tau.map_seconds(sums, 1.0, block=2)
-        pooled_covariances(sums.window, sums.total, sums.total_sq, sums.products, sums.edges, sums.ends,
-                           np.flatnonzero(mask), sums.lags)
+        map_seconds(sums, 1.0, block=2)
+        region_fits(sums, {"inner": np.flatnonzero(mask)})

@@ -24,11 +24,12 @@ from concurrent.futures import TimeoutError as FuturesTimeout
 from edgedsm.config import DaemonConfig
 from edgedsm.daemon.handover import Snapshot, Status
 from edgedsm.daemon.probes import PipelineProbes
-from edgedsm.daemon.tau import TauRegions, map_block
+from edgedsm.daemon.tau import TauRegions
 from edgedsm.daemon.worker import SerialWorker
 from edgedsm.drying import Transition
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
 from edgedsm.measurement import Judgement, view_of
+from edgedsm.measurement.tau import map_block, map_seconds
 from edgedsm.messages import (
     Alert,
     AlertKind,
@@ -187,6 +188,7 @@ class Evaluator:
         activities.update({name: tau.tau_c_s for name, tau in taus.items() if name in self.tau.judged})
         # the core's steps in its order (Judgement.evaluate), the state machines' under the lock
         self._judge_signal(snapshot, estimates)
+        plain = dict(activities)  # the statistic before the judge takes the noise floor off
         activities = self.judgement.judged(activities, estimates)
         with self._lock:
             if snapshot.generation != self._generation:
@@ -194,7 +196,7 @@ class Evaluator:
                 return
             transitions = self.judgement.step(status.now, activities, ready=snapshot.ready and status.fault is None,
                                               fault=status.fault)
-            report = self._report(status, estimator)
+            report = self._report(status, estimator, plain)
         for transition in transitions:
             self.sink.publish_alert(self._alert(transition))
         if self.probes.states_evaluated is not None:
@@ -205,12 +207,15 @@ class Evaluator:
                 self._last_report = report
             return
         t = self.clock.to_wall(status.now)
+        view = self.judgement.view  # the pixels the signal was judged on, named in each region's signal
         stats = Stats(t=t, frames=status.frames, ready=snapshot.ready, fps=status.fps, laser=status.laser,
                       estimator=estimator, drops=status.drops, camera=status.camera,
                       ambient_level=status.ambient_level, regions=regions,
                       states={name: region.state for name, region in report.regions.items()},
                       warning=status.warning, tau_c=taus, frame_interval_s=interval_s,
-                      recording=status.recording, signal=dict(self.signal.signals) if self.signal.on else {},
+                      recording=status.recording,
+                      signal={name: signal.model_copy(update={"view": view})
+                              for name, signal in self.signal.signals.items()} if self.signal.on else {},
                       activity=judged_activity(report, self.signal.signals if self.signal.on else {}))
         self.sink.publish_stats(stats)
         # on a transition, and at most once per stats interval when time to dry or activity moved
@@ -234,7 +239,7 @@ class Evaluator:
         if snapshot.tau is not None and interval_s is not None and est.tau_c_map:
             self.counters["maps_published"] += 1
             block = map_block(snapshot.tau.shape, est.tau_c_map_block)
-            seconds = self.tau.map_seconds(snapshot.tau, interval_s, block)
+            seconds = map_seconds(snapshot.tau, interval_s, block)
             self.sink.publish_map(MapFrame("tau_c", seconds, seq=frames, t=t, window=est.window, lag=est.lag,
                                            extra={"estimator": "tau_c", "unit": "s", "frames": frames,
                                                   "max_lag": est.lags, "frame_interval_s": interval_s,
@@ -264,11 +269,12 @@ class Evaluator:
         names = None if snapshot.publish_stats else self.tau.judged
         return self.tau.regions(snapshot.tau, interval_s, names), interval_s
 
-    def _report(self, status: Status, estimator: str) -> StateReport:
-        """Every region's state (the lock held)."""
+    def _report(self, status: Status, estimator: str, plain: dict[str, float | None]) -> StateReport:
+        """Every region's state (the lock held); ``plain``: the statistics the judged values came from."""
         judged_on_tau = self.tau.judged
         regions = {name: RegionState(region=name, state=machine.state.value, since=self.clock.to_wall(machine.since),
-                                     activity=machine.activity, time_to_dry_s=machine.time_to_dry(),
+                                     activity=machine.activity, plain=plain.get(name),
+                                     time_to_dry_s=machine.time_to_dry(),
                                      signal=signal.signal if (signal := self.signal.signals.get(name)) else None,
                                      **({"estimator": "tau_c", "tau_c_status": self.tau.status.get(name)}
                                         if name in judged_on_tau else {}))

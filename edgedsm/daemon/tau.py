@@ -1,14 +1,16 @@
-"""τc in the daemon: the frame interval that puts it in seconds, the snapshot of its sums, and
-the region values and map the evaluator publishes (docs/tau_c.md, "In the daemon").
+"""τc in the daemon: the frame interval that puts it in seconds, when the snapshot of its sums is
+taken, and which regions' values the evaluator asks for (docs/tau_c.md, "In the daemon"). The
+values and the map themselves are the measurement core's (:mod:`edgedsm.measurement.tau`): the
+daemon wires, it does not compute them.
 
 Where the work runs. The pipeline thread copies the integer sums τc is formed from
 (:meth:`SlidingWindow.tau_snapshot`: ΣI, ΣI², the lag products at the multi-tau lags (9 for
 K = 20), and the window's first and last K frames or the tumbling edge sums; a memory copy). Forming the
 covariances from them costs about 1.5 µs per pixel and the per-pixel fit about 5 µs: far too
 much for the pipeline thread, which must keep pushing frames. So the snapshot carries the sums,
-and the evaluator thread forms each region's covariances (its pixels only), pools them and fits
-once per region (``tau_region``: the region's τc from its pooled correlations, not the mean of
-per-pixel τ), and the per-pixel map only when maps are due.
+and the evaluator thread hands them to the core, which forms each region's pooled covariances (its
+pixels only) and fits once per region (the region's τc from its pooled correlations, not the mean
+of per-pixel τ), and the map only when maps are due.
 
 The frame interval Δt. A paced camera exposes on its own clock: its configured
 ``camera.frame_interval_s`` *is* the time between the frames the engine correlates. The rate
@@ -23,45 +25,22 @@ count twice), and only when those say nothing, 1/fps.
 from __future__ import annotations
 
 import itertools
-import math
 from collections import deque
 
 import numpy as np
 
 from edgedsm.config import DaemonConfig
 from edgedsm.estimators import SlidingWindow
-from edgedsm.estimators.correlation_time import (
-    ABOVE,
-    BELOW,
-    MEASURED,
-    NO_SIGNAL,
-    fit_correlations,
-    normalise,
-    tau_threshold_problem,
-)
+from edgedsm.estimators.correlation_time import tau_threshold_problem
 from edgedsm.estimators.region_box import RegionBox
-from edgedsm.estimators.snapshot import TauSnapshot, tau_covariances
-from edgedsm.estimators.tau_pooled import block_covariances, pooled_covariances
-from edgedsm.estimators.tau_stream import tau_map, tau_region
+from edgedsm.estimators.snapshot import TauSnapshot
 from edgedsm.frames import Frame
 from edgedsm.measurement.spec import engine_estimators as spec_estimators
+from edgedsm.measurement.tau import region_taus
 from edgedsm.messages import RegionTau, TauStatus
 
-#: Published names of the estimator's statuses (``edgedsm.messages.TauStatus``).
-STATUS_NAMES: dict[int, TauStatus] = {MEASURED: "measured", ABOVE: "above", BELOW: "below",
-                                      NO_SIGNAL: "no_signal"}
 #: Frame timestamps the interval is the median step of.
 INTERVAL_FRAMES = 64
-#: The automatic τc map block keeps the map at about this many fitted values (~5 µs each).
-MAP_FITS = 1 << 16
-
-
-def map_block(shape: tuple[int, int], configured: int | None) -> int:
-    """Side b of the b×b blocks the τc map is pooled over: ``estimator.tau_c_map_block``, or the
-    smallest b that keeps the map at MAP_FITS values or fewer (2048²: 8, 512²: 2, 256²: 1)."""
-    if configured is not None:
-        return configured
-    return max(1, math.ceil(math.sqrt(shape[0] * shape[1] / MAP_FITS)))
 
 
 def engine_estimators(config: DaemonConfig) -> tuple[str, ...]:
@@ -148,32 +127,9 @@ class TauRegions:
         return engine.tau_snapshot(into=into)
 
     def regions(self, snapshot: TauSnapshot, interval_s: float, names: set[str] | None = None) -> dict[str, RegionTau]:
-        """Each region's (or each of ``names``') τc in seconds from its pooled correlations."""
-        out = {}
-        for name, pixels in self.pixels.items():
-            if names is not None and name not in names:
-                continue
-            cov, var = pooled_covariances(snapshot.window, snapshot.total, snapshot.total_sq, snapshot.products,
-                                          snapshot.edges, snapshot.ends, pixels, snapshot.lags)
-            fit = tau_region(snapshot.window, snapshot.max_lag, cov[:, None], np.array([var]))
-            out[name] = RegionTau(tau_c_s=float(fit.tau) * interval_s, status=STATUS_NAMES[int(fit.status)])
-            self.status[name] = out[name].status
+        """Each region's (or each of ``names``') τc in seconds from its pooled correlations: the
+        measurement core's (:func:`edgedsm.measurement.tau.region_taus`), remembering each status."""
+        pixels = {name: flat for name, flat in self.pixels.items() if names is None or name in names}
+        out = region_taus(snapshot, pixels, interval_s)
+        self.status.update({name: tau.status for name, tau in out.items()})
         return out
-
-    @staticmethod
-    def map_seconds(snapshot: TauSnapshot, interval_s: float, block: int = 1) -> np.ndarray:
-        """The τc map in seconds, in the snapshot's shape (bounds where the status says so; 0
-        without signal). ``block`` 1: per pixel (median-unbiased, ~6 µs per pixel); b > 1: one
-        value per b×b block from its pooled correlations, as a region's, repeated over the
-        block's pixels (b² times fewer fits, and the pooled value's smaller bias)."""
-        if block == 1:
-            cov, var = tau_covariances(snapshot)
-            return np.asarray(tau_map(snapshot.window, snapshot.max_lag, snapshot.shape, cov, var).tau) * interval_s
-        cov, var = block_covariances(snapshot.window, snapshot.shape, block, snapshot.total, snapshot.total_sq,
-                                     snapshot.products, snapshot.edges, snapshot.ends, snapshot.lags)
-        lags, rows, cols = cov.shape
-        corr, valid = normalise(cov.reshape(lags, -1), var.reshape(-1))
-        tau, _, _ = fit_correlations(corr, snapshot.window, snapshot.lags)
-        tau = np.where(valid, tau, 0.0).reshape(rows, cols)  # NO_SIGNAL: 0, as fit_map
-        full = np.repeat(np.repeat(tau, block, axis=0), block, axis=1)[:snapshot.shape[0], :snapshot.shape[1]]
-        return np.ascontiguousarray(full) * interval_s

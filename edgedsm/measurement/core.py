@@ -37,19 +37,20 @@ from edgedsm.config.regions import RegionSettings
 from edgedsm.drying import DryingMonitor, Transition
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import SlidingWindow
-from edgedsm.estimators.correlation_time import ABOVE, BELOW, MEASURED, NO_SIGNAL
+from edgedsm.estimators.correlation_time import TauC
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.noise_floor import AboveNoise
 from edgedsm.estimators.noise_summary import full_scale
 from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, region_moments
+from edgedsm.estimators.snapshot import TauSnapshot
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.measurement.judge import SignalJudge, SignalWarning
 from edgedsm.measurement.spec import EngineSpec
+from edgedsm.measurement.tau import in_seconds, region_fits
 from edgedsm.messages import RegionSignal
 from edgedsm.noise_patches import MAX_PATCH_FRAMES, NoisePatches, PatchWindow, patch_of
 
-TAU_STATUS = {MEASURED: "measured", ABOVE: "above", BELOW: "below", NO_SIGNAL: "no_signal"}
 #: ``view`` of a reading whose noise is judged on every pixel of the region
 REGION_VIEW = "region"
 
@@ -210,7 +211,10 @@ class Core:
         self._others: list[tuple[SlidingWindow, tuple[str, ...]]] = []  # the companions' engines and maps
         self.patches: NoisePatches | None = None
         self._layout: RegionLayout | None = None
-        self._crop: tuple[slice, slice] | None = None
+        self._pixels: dict[str, np.ndarray] = {}  # each region's flat indices in the engine's frame
+        self._tau_sums: TauSnapshot | None = None  # the last τc snapshot, its arrays reused
+        #: each region's τc fit (frames, status) at the last :meth:`read` (empty without τc)
+        self.fits: dict[str, TauC] = {}
 
     def _prepare(self, frame: np.ndarray, bits: int | None) -> None:
         shape = frame.shape
@@ -222,6 +226,7 @@ class Core:
         self.engine = self.spec.engine(shape, bits, threads=None)
         self._others = [(spec.engine(shape, bits, threads=None), spec.maps) for spec in self.companions]
         self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in boxes.items()})
+        self._pixels = {name: np.flatnonzero(mask) for name, mask in self.masks.items()}
         if self.judgement.on:
             side = self.patch if self.patch is not None else max(shape)  # a patch the region's box: all of it
             self.patches = NoisePatches(boxes, min(self.spec.window, MAX_PATCH_FRAMES), side, frame.dtype, bits)
@@ -251,14 +256,15 @@ class Core:
         return out
 
     def taus(self) -> dict[str, tuple[float, str]]:
-        """Each region's τc in seconds from its pooled correlations, with its status (none without τc)."""
+        """Each region's τc in seconds from its pooled correlations, with its status (none without τc):
+        the daemon's computation (:mod:`edgedsm.measurement.tau`) on a snapshot of the live sums;
+        the fits in frames stay in :attr:`fits`."""
         if self.engine is None or not self.spec.tau_c:
             return {}
-        out = {}
-        for name, mask in self.masks.items():
-            tau = self.engine.region_tau_c(mask)
-            out[name] = (float(tau.tau) * self.dt, TAU_STATUS[int(tau.status)])
-        return out
+        self._tau_sums = self.engine.tau_snapshot(into=self._tau_sums)
+        self.fits = region_fits(self._tau_sums, self._pixels)
+        return {name: (tau.tau_c_s, tau.status) for name, tau in
+                ((name, in_seconds(fit, self.dt)) for name, fit in self.fits.items())}
 
     def read(self, now: float, assess: bool = True) -> Evaluation:
         """Evaluate now (the window full): the readings of every region and the transitions;

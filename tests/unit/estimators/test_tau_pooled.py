@@ -1,14 +1,13 @@
 """Pooled τc covariances from the engine's sums (edgedsm.estimators.tau_pooled) equal the sums of
-the per-pixel covariances, for regions and blocks, sliding and tumbling, with and without numba;
-and the daemon's block-pooled τc map."""
+the per-pixel covariances, for regions and blocks, sliding and tumbling, with and without numba
+(what the measurement core fits them to: tests/unit/measurement/test_tau.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from edgedsm.daemon.tau import TauRegions, map_block
-from edgedsm.estimators import SlidingWindow, tau_c, tau_pooled
+from edgedsm.estimators import SlidingWindow, tau_pooled
 from edgedsm.estimators.snapshot import TauSnapshot, tau_covariances
 from edgedsm.sim import Simulator, scene_from_dict
 
@@ -76,35 +75,3 @@ def test_a_block_pool_is_the_sum_over_its_blocks_pixels(path: str, block: int) -
         inside[r * block:(r + 1) * block, c * block:(c + 1) * block] = True
         np.testing.assert_allclose(pooled_cov[:, r, c], cov[:, inside.ravel()].sum(axis=1), rtol=1e-12, atol=1e-9)
         assert pooled_var[r, c] == pytest.approx(float(var[inside.ravel()].sum()), rel=1e-12, abs=1e-12)
-
-
-def test_the_daemon_region_tau_equals_the_batch_reference() -> None:
-    snapshot, frames = _snapshot("sliding")
-    mask = np.zeros((SIZE, SIZE), bool)
-    mask[:, SIZE // 2:] = True  # τc 5 frames: measured within K = 8
-    regions = TauRegions.__new__(TauRegions)
-    regions.pixels, regions.status = {"right": np.flatnonzero(mask)}, {}
-    got = regions.regions(snapshot, interval_s=0.5)["right"]
-    expected = tau_c(frames[-snapshot.window:], max_lag=MAX_LAG, mask=mask)
-    assert got.status == "measured"
-    assert got.tau_c_s == pytest.approx(expected * 0.5, rel=1e-9)
-
-
-def test_the_block_map_reads_each_half_of_a_two_level_scene() -> None:
-    window = 400
-    frames = _frames(window + 5, tau=3.0)  # τc 6 frames on the left half, 3 on the right
-    engine = SlidingWindow((SIZE, SIZE), window=window, lag=LAG, estimators=("tau_c",), max_lag=MAX_LAG)
-    for frame in frames:
-        engine.push(np.ascontiguousarray(frame))
-    seconds = TauRegions.map_seconds(engine.tau_snapshot(), interval_s=0.1, block=5)
-    assert seconds.shape == (SIZE, SIZE) and np.all(np.isfinite(seconds))
-    assert np.all(seconds[5:10, :5] == seconds[5, 0])  # one value per block
-    left, right = np.median(seconds[10:, :SIZE // 2 - 5]), np.median(seconds[10:, SIZE // 2 + 5:])
-    assert left == pytest.approx(0.6, rel=0.2) and right == pytest.approx(0.3, rel=0.2)
-
-
-@pytest.mark.parametrize(("shape", "configured", "block"),
-                         [((2048, 2048), None, 8), ((512, 512), None, 2), ((256, 256), None, 1),
-                          ((4096, 2168), None, 12), ((2048, 2048), 1, 1), ((64, 64), 16, 16)])
-def test_the_map_block(shape: tuple[int, int], configured: int | None, block: int) -> None:
-    assert map_block(shape, configured) == block

@@ -56,3 +56,40 @@ def test_the_daemon_and_the_core_judge_the_same_frames_alike(tmp_path):
         compared += 1
     assert compared == len(judged)
     assert any(stats.signal["film"].noise_floor is not None for stats in judged)  # a floor was compared
+
+
+def test_the_daemon_and_the_core_give_the_same_region_tau(tmp_path):
+    """τc in one place: the daemon's evaluator (TauRegions on the pipeline's snapshots, Δt from the
+    frames' timestamps) and the Core (its engine's snapshot, Δt given) publish the same τc in
+    seconds and status at every stats message."""
+    scene = tmp_path / "film.toml"
+    scene.write_text(SCENE)
+    config = validate(DaemonConfig, {"camera": {"uri": f"sim:{scene}"}, "acquisition": {"dark_frames": 0},
+                                     "estimator": {"window": 100, "lag": 5, "activity": "s2", "tau_c": True,
+                                                   "max_lag": 20},
+                                     "regions": [{"name": "film", "wet_above": 0.30, "dry_below": 0.05}]},
+                      "<agreement>")
+    sink = RecordingSink()
+    camera = SimulatedCamera(load_scene(scene), time_scale=0)
+    pipeline = make_pipeline(config, camera, None, sink, dt=0.05)
+    hold_back(camera, pipeline)
+    frames = 400
+    pipeline.run(lambda: False, max_frames=frames)
+    at = {stats.frames: stats for stats in sink.stats if stats.ready and "film" in stats.tau_c}
+    assert len(at) >= 3
+    interval_s = 1.0  # the scene gives no frame interval: the simulator's frames are 1 s apart
+    core = Core(config, {"film": config.regions[0].mask((48, 48), config.base_dir)}, patch=32, dt=interval_s)
+    compared, statuses = 0, set()
+    for index, frame in enumerate(Simulator(load_scene(scene)).frames(frames)):
+        core.push(frame, 8)
+        stats = at.get(index + 1)
+        if stats is None:
+            continue
+        reading = core.read(index * 0.05).readings["film"]
+        daemon = stats.tau_c["film"]
+        assert stats.frame_interval_s == pytest.approx(interval_s, rel=1e-9)  # from the frames' timestamps
+        assert reading.tau_c_status == daemon.status
+        assert reading.tau_c_s == pytest.approx(daemon.tau_c_s, rel=1e-12)  # bit for bit when both Δt are 1 s
+        statuses.add(daemon.status)
+        compared += 1
+    assert compared == len(at) and "measured" in statuses
