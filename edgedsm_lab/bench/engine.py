@@ -170,6 +170,8 @@ def exact_s2(samples: np.ndarray, lag: int) -> np.ndarray:
 
 #: The field's streaming descriptors (docs/descriptors.md), each timed beside S1+S2+S3.
 DESCRIPTOR_SETS = tuple(("s1", "s2", "s3", name) for name in ("contrast", "fujii", "im", "gd", "band_ratio"))
+#: The paper's maps each alone, against S1 (what S2's exact term costs: issue 38).
+SINGLE_MAPS = (("s1",), ("s2",), ("s3",))
 
 
 def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, threads: int | None,
@@ -178,7 +180,7 @@ def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, thread
     descriptor beside S1, S2, S3 (q = 0: Fujii's): ms/frame and maps() ms."""
     lags = max(1, min(2 * lag, longest_lag(window)))  # K = 2m, as the tables before the N/2 default
     out = []
-    for estimators in (("s1", "s2", "s3"), ("tau_c",), ("s1", "s2", "s3", "tau_c"), *DESCRIPTOR_SETS):
+    for estimators in (*SINGLE_MAPS, ("s1", "s2", "s3"), ("tau_c",), ("s1", "s2", "s3", "tau_c"), *DESCRIPTOR_SETS):
         engine = SlidingWindow(shape, window, lag, bits=8, kernel=kernel, threads=threads,
                                estimators=estimators, max_lag=lags)
         for j in range(window):
@@ -194,22 +196,27 @@ def bench_tau(shape: tuple[int, int], window: int, lag: int, kernel: str, thread
     return out
 
 
-def tau_table(rows: list[dict[str, Any]], bandwidth: float, descriptors: bool = False) -> list[str]:
-    """The τc rows (with S1+S2+S3 alone), or with ``descriptors`` the descriptors' rows; each
-    push's time also against its own memory-bandwidth bound (moved bytes at ``bandwidth`` B/s)."""
-    lines = [f"| frame | estimators (sliding{'' if descriptors else ', K'}) | ms/frame best (median) | x S1+S2+S3 | "
-             "state B/px | moved B/px | x bandwidth bound | maps() ms |",
-             "|---|---|---:|---:|---:|---:|---:|---:|"]
-    named = {"+".join(names) for names in DESCRIPTOR_SETS}
+def tau_table(rows: list[dict[str, Any]], bandwidth: float, which: str = "tau") -> list[str]:
+    """The rows of ``which`` set of estimators: "tau" (τc, with S1+S2+S3 alone), "descriptors" (each
+    beside S1+S2+S3) or "maps" (S1, S2, S3 each alone, and together); each push's time against
+    S1+S2+S3's, S1's, and its own memory-bandwidth bound (moved bytes at ``bandwidth`` B/s)."""
+    chosen = {"tau": {"s1+s2+s3", "tau_c", "s1+s2+s3+tau_c"},
+              "descriptors": {"+".join(names) for names in DESCRIPTOR_SETS},
+              "maps": {"+".join(names) for names in (*SINGLE_MAPS, ("s1", "s2", "s3"))}}[which]
+    lines = [f"| frame | estimators (sliding{', K' if which == 'tau' else ''}) | ms/frame best (median) | "
+             "x S1+S2+S3 | x S1 | state B/px | moved B/px | x bandwidth bound | maps() ms |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for row in rows:
-        if (row["estimators"] in named) != descriptors:
+        if row["estimators"] not in chosen:
             continue
         base = next(r for r in rows if r["shape"] == row["shape"] and r["estimators"] == "s1+s2+s3")
-        lags = "" if descriptors else f" (K = {row['K']})"
+        s1 = next(r for r in rows if r["shape"] == row["shape"] and r["estimators"] == "s1")
+        lags = f" (K = {row['K']})" if which == "tau" and "tau_c" in row["estimators"] else ""
         bound_ms = row["traffic"] * row["shape"][0] * row["shape"][1] / bandwidth * 1e3
         lines.append(f"| {row['shape'][1]}x{row['shape'][0]} | {row['estimators']}{lags} | "
                      f"{row['ms']:.2f} ({row['median_ms']:.2f}) | {row['ms'] / base['ms']:.2f} | "
-                     f"{row['state']:.0f} | {row['traffic']:.0f} | {row['ms'] / bound_ms:.2f} | {row['maps_ms']:.0f} |")
+                     f"{row['ms'] / s1['ms']:.2f} | {row['state']:.0f} | {row['traffic']:.0f} | "
+                     f"{row['ms'] / bound_ms:.2f} | {row['maps_ms']:.0f} |")
     return lines
 
 
@@ -413,6 +420,16 @@ def run(args: argparse.Namespace) -> int:
              f"{'met' if r.ms / r.bound_ms <= 2 else 'NOT met'}).")
     if tau_rows:
         emit()
+        emit("## Each map alone")
+        emit()
+        emit(f"Sliding window, {kernels[0]} kernel, q = 0, S1, S2 and S3 each alone and together, in the same run: "
+             f"*x S1* is what a map costs against S1's push (S2's exact fixed-point term is read from a 256x256 "
+             f"table on 8-bit data: docs/engine.md, \"S2's term\"; target S2 <= 2x S1, and the three maps <= 1.5x "
+             f"their bandwidth bound).")
+        emit()
+        for line in tau_table(tau_rows, bandwidth, "maps"):
+            emit(line)
+        emit()
         emit("## Correlation time τc")
         emit()
         emit(f"Sliding window, {kernels[0]} kernel, the estimators named, K lags of τc (K = 2m). "
@@ -430,7 +447,7 @@ def run(args: argparse.Namespace) -> int:
              f"does not apply): contrast and Fujii reuse S3's and S2's sums, IM keeps one more sum, GD's "
              f"update reads the whole ring (O(N) per pixel per push: its moved bytes count the N frames).")
         emit()
-        for line in tau_table(tau_rows, bandwidth, descriptors=True):
+        for line in tau_table(tau_rows, bandwidth, "descriptors"):
             emit(line)
     emit()
     emit("## Map noise at constant activity")

@@ -29,13 +29,19 @@ def test_bench_engine_writes_tables_and_plot(tmp_path, capsys):
     assert "## Correlation time τc" in text and "| 64x64 | tau_c (K = 6) |" in text
     assert "| 64x64 | s1+s2+s3+tau_c (K = 6) |" in text
     assert "## The field's streaming descriptors" in text
+    assert "## Each map alone" in text
+    alone = {name: [cell.strip() for cell in next(line for line in text.splitlines()
+                                                    if line.startswith(f"| 64x64 | {name} |")).split("|")]
+             for name in ("s1", "s2", "s3")}
+    assert alone["s1"][5] == "1.00"  # x S1 of S1 itself
+    assert float(alone["s2"][7]) > float(alone["s1"][7])  # S2 moves its fixed-point sum too
     moved = {}
     for name in ("s1+s2+s3", "s1+s2+s3+contrast", "s1+s2+s3+fujii", "s1+s2+s3+im", "s1+s2+s3+gd",
                  "s1+s2+s3+band_ratio"):
         line = next(line for line in text.splitlines() if line.startswith(f"| 64x64 | {name} "))  # S1-S3: (K = 6)
         cells = [cell.strip() for cell in line.split("|")]
-        moved[name] = float(cells[6])
-        assert float(cells[7]) > 0  # x its own bandwidth bound
+        moved[name] = float(cells[7])
+        assert float(cells[8]) > 0  # x its own bandwidth bound
     # contrast and Fujii reuse S3's and S2's sums; GD reads the N = 20 ring frames (1 B each at
     # 8 bits) and reads and writes its int64 sum (2 x 8 B)
     assert moved["s1+s2+s3+contrast"] == moved["s1+s2+s3+fujii"] == moved["s1+s2+s3"]
