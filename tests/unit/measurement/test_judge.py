@@ -1,5 +1,6 @@
-"""The evaluator's signal judge (docs/noise.md, §5c): what a region is judged on, when its state
-is held, the warnings, the model and the floors it keeps."""
+"""The measurement core's signal judge, which the daemon's evaluator, analyze and tune run
+(docs/noise.md, §5c): what a region is judged on, when its state is held, the warnings, the model
+and the floors it keeps."""
 
 from __future__ import annotations
 
@@ -7,9 +8,9 @@ import numpy as np
 import pytest
 
 from edgedsm.config import DaemonConfig
-from edgedsm.daemon.signal_judge import REFRESH_EVERY, SignalJudge
 from edgedsm.estimators import s1, s2, s3
 from edgedsm.estimators.noise_summary import region_floor
+from edgedsm.measurement.judge import REFRESH_EVERY, SignalJudge
 from edgedsm.noise_patches import PatchWindow
 from edgedsm.validation import validate
 
