@@ -19,8 +19,9 @@ PAPER_MAPS: tuple[str, ...] = registry.paper_maps()
 def descriptor_activities() -> tuple[str, ...]:
     """The field's descriptors the daemon can judge on (docs/descriptors.md): the registry's
     activities formed as a map of their own beside S1-S3 when the activity is one of them (not τc,
-    which is fitted; each costs a little per push: docs/descriptors.md)."""
-    return tuple(r.name for r in registry.records(activity=True, paper=False) if r.source != "tau")
+    which is fitted, nor kinetics, a region-level measure of its own: ``[kinetics]``; each costs a
+    little per push: docs/descriptors.md)."""
+    return tuple(r.name for r in registry.records(activity=True, paper=False) if r.source != "tau" and r.streams)
 
 
 #: :func:`descriptor_activities` of the records registered at import (for importers of a constant).
@@ -39,7 +40,9 @@ class EstimatorSection(StrictModel):
                     "mode 'sliding' or 'tumbling', O(N) a pixel: a push of S1+S2+S3+gd 10-12x one of S1+S2+S3 at "
                     "N = 64 sliding, ~6x tumbling; band_ratio = high-band / (low-band power + q) of each pixel's "
                     "periodogram, split at band_split_hz, mode 'sliding' or 'tumbling', 16 bytes per pixel per "
-                    "DFT bin of the smaller band; docs/descriptors.md)")
+                    "DFT bin of the smaller band; docs/descriptors.md; kinetics = each region's decorrelation "
+                    "time in s over decades, thresholds wet_below_s / dry_above_s, needs [kinetics] enabled: "
+                    "docs/kinetics.md)")
     window: int = Field(200, ge=2, le=100_000, description="N: frames per map (paper: 200)")
     lag: int = Field(10, ge=1, le=99_999, description="m: time lag in frames (paper: 10)")
     q: float = Field(1.0, ge=0, le=1e9, description="S2 regulariser q in grey levels (avoids 0/0)")

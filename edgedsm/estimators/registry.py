@@ -55,13 +55,18 @@ PAIR_SUM = "gd"
 SUMS = frozenset({"abs", "ratio", "total", "total_sq", "sq", PAIR_SUM, "bins", "products"})
 
 #: Cost classes per pixel per pushed frame: O(1) (a few running sums), O(N) (reads the window),
-#: O(B) (B DFT bins), O(K) (K lag products); "batch": no streaming form.
-COSTS = ("O(1)", "O(N)", "O(B)", "O(K)", "batch")
+#: O(B) (B DFT bins), O(K) (K lag products), O(R) (R reference frames, per measure); "batch": no
+#: streaming form.
+COSTS = ("O(1)", "O(N)", "O(B)", "O(K)", "O(R)", "batch")
 
 #: How each family of maps is formed by the engine: the fused maps pass ("fused"), NumPy from the
 #: fused pass's values ("derived"), GD's exact pair sum ("pair_sum"), the DFT bins ("bins"), τc's
-#: fit ("tau"), or not at all ("batch").
-SOURCES = ("fused", "derived", "pair_sum", "bins", "tau", "batch")
+#: fit ("tau"), or not at all ("batch"); "kinetics": no map and not the engine's, a per-region
+#: estimator with reference frames of its own (edgedsm.estimators.kinetics), beside the engine
+#: in every window mode (docs/kinetics.md).
+SOURCES = ("fused", "derived", "pair_sum", "bins", "tau", "kinetics", "batch")
+#: The sources of region-level measures: no engine sums, no map, formed in every window mode.
+REGION_SOURCES = frozenset({"kinetics"})
 
 
 def load(ref: str) -> Callable[..., Any]:
@@ -113,7 +118,10 @@ class Record:
             raise ValueError(f"{self.name}: inputs {sorted(unknown)} are not values of the fused pass")
         if unknown := set(self.modes) - set(MODES):
             raise ValueError(f"{self.name}: unknown modes {sorted(unknown)}")
-        if (self.source == "batch") != (not self.modes):
+        if self.region_level:
+            if self.modes or self.sums or self.inputs or self.floor is not None:
+                raise ValueError(f"{self.name}: a region-level measure has no engine modes, sums, inputs or floor")
+        elif (self.source == "batch") != (not self.modes):
             raise ValueError(f"{self.name}: a batch-only map has no modes, a streamed one at least one")
         if self.source == "derived" and (self.derive is None or not self.inputs):
             raise ValueError(f"{self.name}: a derived map names its derive function and its inputs")
@@ -130,6 +138,12 @@ class Record:
         return bool(self.modes)
 
     @property
+    def region_level(self) -> bool:
+        """A per-region measure with its own state (:data:`REGION_SOURCES`): no map, not the
+        engine's, the daemon forms it beside the engine in every window mode."""
+        return self.source in REGION_SOURCES
+
+    @property
     def has_floor(self) -> bool:
         return self.floor is not None
 
@@ -141,7 +155,7 @@ class Record:
     def mode_problem(self, mode: str) -> str | None:
         """Why the engine cannot form this map in window ``mode`` (None: it can); the one
         statement of it (engine and config)."""
-        if mode in self.modes:
+        if mode in self.modes or self.region_level:
             return None
         if not self.modes:
             return f"{self.name} is a batch map only (edgedsm analyze), the engine does not stream it"
@@ -151,6 +165,8 @@ class Record:
 
     def streaming(self) -> str:
         """Its streaming cost, in words (docs/descriptors.md's table)."""
+        if self.region_level:
+            return f"{self.cost} per region pixel per measure ({self.cost_note})"
         if not self.modes:
             return "batch only"
         modes = ", ".join(m for m in MODES if m in self.modes)
@@ -254,6 +270,10 @@ _RECORDS: tuple[Record, ...] = (
            batch=f"{_DESC}:band_high", batch_args=("dt", "split")),
     Record("band_ratio", "1", "high / low band", "high-band power / (low-band power + q)", **_BAND, activity=True,
            batch=f"{_DESC}:band_ratio", batch_args=("dt", "split", "q")),
+    Record("kinetics", "s", "τ (kinetics)", "decorrelation time: the age at which the region's normalised "
+           "two-time correlation falls to 1/e, from reference frames at geometric ages (docs/kinetics.md)",
+           "kinetics", frozenset(), activity=True, cost="O(R)",
+           cost_note="R the reference frames kept; O(1) per push, every window mode; [kinetics]"),
     Record("skewness", "1", "skewness", "mean ((I - ⟨I⟩)/σ)³", "batch", frozenset(), cost="batch",
            batch=f"{_DESC}:skewness", bsltl="graphskew"),
     Record("kurtosis", "1", "kurtosis", "mean ((I - ⟨I⟩)/σ)⁴", "batch", frozenset(), cost="batch",
@@ -345,7 +365,8 @@ def markdown_table() -> str:
     rows = ["| name | label | unit | definition | lag m | engine modes | cost per pixel per frame | noise floor | "
             "judged on (activity) | BSLTL |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in REGISTRY.values():
-        modes = ", ".join(m for m in MODES if m in r.modes) or "batch only"
+        modes = ", ".join(m for m in MODES if m in r.modes) or ("every (its own state)" if r.region_level
+                                                                 else "batch only")
         floor = ("yes, through the signal's share" if r.shared_floor else "yes") if r.has_floor else "no"
         rows.append(f"| `{r.name}` | {cell(r.label)} | {cell(r.unit)} | {cell(r.summary)} | "
                     f"{'yes' if r.uses_lag else 'no'} | {modes} | {cell(r.cost)} | {floor} | "

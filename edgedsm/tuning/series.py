@@ -39,8 +39,10 @@ from edgedsm.validation import validate
 PLAIN = registry.paper_maps()  # S1, S2, S3: always formed (the daemon does; S3's and τc's floors need S1)
 #: every activity the daemon can judge on (``estimator.activity``), in the order candidates are listed;
 #: not the bands' (the band ratio: its split would be one more tuned setting, and the exponential mode
-#: has no bands)
-JUDGEABLE = tuple(name for name in registry.activities() if registry.get(name).source != "bins")
+#: has no bands), nor the region-level measures' (kinetics: its reference frames span hours, no
+#: window setting to tune; scoring it is issue 37's, not done yet)
+JUDGEABLE = tuple(name for name in registry.activities()
+                  if registry.get(name).source != "bins" and not registry.get(name).region_level)
 #: those tried unless asked for by name: all but those whose push reads the window (cost O(N): GD),
 #: which makes every pass of a setting several times longer (docs/commissioning.md), so that a budget
 #: would cover fewer settings

@@ -61,7 +61,8 @@ def test_tau_c_is_off_unless_asked_for_or_needed():
     (CAMERA + "frame_interval_s = 0.7\n[estimator]\nwindow = 100\nlag = 5\n" + TAU_REGION,
      "wet_below_s (0.2 s; 0.1905 s with the hysteresis) is below the shortest τc measured, Δt/3 = 0.2333 s"),
     (CAMERA + "[estimator]\nactivity = 'tau'\n",
-     "estimator.activity: Input should be 's1', 's2', 's3', 'tau_c', 'contrast', 'fujii', 'im', 'gd' or 'band_ratio'"),
+     "estimator.activity: Input should be 's1', 's2', 's3', 'tau_c', 'contrast', 'fujii', 'im', 'gd', 'band_ratio' "
+     "or 'kinetics'"),
 ])
 def test_bad_tau_settings_name_their_key_and_exit_78(tmp_path, capsys, text, message):
     path = tmp_path / "bad.toml"
