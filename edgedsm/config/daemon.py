@@ -13,6 +13,7 @@ from pydantic_core.core_schema import ValidationInfo
 from edgedsm import geometry
 from edgedsm.config.devices import AcquisitionSection, CameraSection, DeviceSection, LaserSection
 from edgedsm.config.estimator import EstimatorSection
+from edgedsm.config.kinetics import KineticsSection, kinetics_problem
 from edgedsm.config.outputs import CadenceSection, HomeAssistantSection, HttpSection, LoggingSection
 from edgedsm.config.recording import RecordingSection
 from edgedsm.config.regions import RegionSection, _default_regions, _default_shape
@@ -43,6 +44,9 @@ class DaemonConfig(StrictModel):
     http: HttpSection | None = Field(None, description="metrics and health over HTTP; absent = off")
     recording: RecordingSection | None = Field(None, description="frames kept on disk (continuous, alert clips, "
                                                                  "time-lapse); absent = none (docs/recording.md)")
+    kinetics: KineticsSection = Field(default_factory=KineticsSection,
+                                      description="each region's decorrelation time over decades; off by "
+                                                  "default (docs/kinetics.md)")
     _base_dir: Path = PrivateAttr(default_factory=lambda: Path("."))
     _source: str = PrivateAttr("")
     _notes: list[str] = PrivateAttr(default_factory=list)
@@ -93,6 +97,8 @@ class DaemonConfig(StrictModel):
             raise ValueError("[homeassistant] needs [mqtt]: discovery is published on the broker")
         if self.sparkplug is not None and self.sparkplug.edge_node_id is None:
             self.sparkplug.edge_node_id = self.device.name
+        if problem := kinetics_problem(self.kinetics, self.estimator.activity, self.regions):
+            raise ValueError(problem)
         self._check_tau_c()
         self._check_bands()
         return self
@@ -121,8 +127,9 @@ class DaemonConfig(StrictModel):
     @property
     def tau_c_on(self) -> bool:
         """τc is estimated: asked for (estimator.tau_c), judged on (activity = 'tau_c') or needed by a
-        region's wet_below_s / dry_above_s."""
-        return self.estimator.tau_c or self.estimator.activity == "tau_c" or any(r.on_tau for r in self.regions)
+        region's wet_below_s / dry_above_s (unless those judge the kinetics: activity = 'kinetics')."""
+        return self.estimator.tau_c or self.estimator.activity == "tau_c" or (
+            self.estimator.activity != "kinetics" and any(r.on_tau for r in self.regions))
 
     def _check_tau_c(self) -> None:
         """τc settings that depend on more than one table (messages name the key path)."""
@@ -131,7 +138,7 @@ class DaemonConfig(StrictModel):
             if est.activity == "tau_c" and not region.on_tau:
                 raise ValueError(f"regions.{index}.wet_above: estimator.activity = 'tau_c' judges every region on "
                                  "its τc in seconds: give wet_below_s and dry_above_s")
-            if region.on_tau and (problem := tau_mode_problem(est.mode)):
+            if region.on_tau and est.activity != "kinetics" and (problem := tau_mode_problem(est.mode)):
                 raise ValueError(f"regions.{index}.wet_below_s: τc thresholds in seconds: estimator.mode: {problem}")
         if not self.tau_c_on:
             return
@@ -141,7 +148,7 @@ class DaemonConfig(StrictModel):
         if dt is None:
             return  # known once frames flow: checked then (a warning alert per region, edgedsm.daemon.tau)
         for index, region in enumerate(self.regions):
-            if region.wet_below_s is None or region.dry_above_s is None:
+            if region.wet_below_s is None or region.dry_above_s is None or est.activity == "kinetics":
                 continue
             problem = tau_threshold_problem(region.wet_below_s, region.dry_above_s, region.hysteresis, est.lags, dt)
             if problem:

@@ -100,6 +100,7 @@ SECTION_CHANGE: dict[str, str] = {
     "homeassistant": KEEP,
     "http": KEEP,
     "recording": KEEP,      # the recorder is rebuilt beside the running measurement
+    "kinetics": RESTART,    # each region's reference frames are built for its settings
 }
 
 #: Fields of restarting sections that the evaluator applies in place (the noise model's datasheet,

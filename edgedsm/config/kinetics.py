@@ -1,0 +1,80 @@
+"""``[kinetics]``: each region's decorrelation time over decades (docs/kinetics.md, issue 37).
+
+Per region the daemon keeps past frames at ages spread evenly in log age up to ``longest_age_s``
+and reads, at the states cadence, the age at which the region's normalised two-time correlation
+falls to 1/e (:class:`edgedsm.estimators.kinetics.Kinetics`). Off by default: it costs memory
+((slots + 1) × 4 bytes per kept pixel) and a push per frame about 1.7× the default S1+S2+S3 push
+at full resolution (docs/kinetics.md, "Cost and memory"); ``step`` keeps every step-th pixel each
+way and divides both by step².
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from pydantic import Field
+
+from edgedsm.config.regions import RegionSettings
+from edgedsm.estimators.kinetics import DEFAULT_PER_OCTAVE, MAX_LONGEST_AGE, slot_schedule
+from edgedsm.validation import StrictModel
+
+#: The longest age a config may ask for: 30 days.
+MAX_LONGEST_AGE_S = 30 * 86_400.0
+#: Coarsest subsampling: every 16th pixel each way (a 2048² frame keeps 128²).
+MAX_STEP = 16
+#: Refs per octave a config may ask for (the estimator takes up to 64; beyond 16 the slots cost
+#: memory without telling τ apart better than its frame-by-frame scatter).
+MAX_PER_OCTAVE = 16
+
+
+class KineticsSection(StrictModel):
+    """``[kinetics]``: the per-region decorrelation time τ(t) in s and its rate 1/τ in Hz."""
+
+    enabled: bool = Field(False, description="measure each region's decorrelation time over decades "
+                                             "(docs/kinetics.md); off by default: a push costs about 1.7x the "
+                                             "default S1+S2+S3 push at full resolution (step = 1), about 0.17x at "
+                                             "step = 4")
+    per_octave: int = Field(DEFAULT_PER_OCTAVE, ge=1, le=MAX_PER_OCTAVE,
+                            description="reference frames per octave of age (4: 57 kept frames up to 4,096 frames, "
+                                        "each age within 19 % of its nominal one)")
+    longest_age_s: float = Field(3600.0, gt=0, le=MAX_LONGEST_AGE_S,
+                                 description="the oldest reference frame in seconds: τ longer than this reads "
+                                             "'above' it (memory: 4 bytes per kept pixel per age kept)")
+    step: int = Field(1, ge=1, le=MAX_STEP,
+                      description="keep every step-th pixel each way of each region (frame[::step, ::step]): "
+                                  "memory and cost fall by step²; pixels further apart than a speckle keep "
+                                  "the measure (docs/kinetics.md: 1.02 τ/τc at step 4)")
+    white: bool = Field(False, description="take a white step (phase noise, vibration: outdoor or vibrating "
+                                           "set-ups) out of the correlation before reading τ; off: a stretched "
+                                           "decay would be read long (docs/kinetics.md)")
+
+    def longest_age(self, interval_s: float) -> int:
+        """The longest age in frames at frame interval ``interval_s`` (s): ceil(longest_age_s/Δt),
+        at least 2 (one reference beside the previous frame)."""
+        if not (math.isfinite(interval_s) and interval_s > 0):
+            raise ValueError(f"frame interval must be a positive number of seconds, got {interval_s!r}")
+        return int(min(max(math.ceil(self.longest_age_s / interval_s - 1e-9), 2), MAX_LONGEST_AGE))
+
+    def slots(self, interval_s: float) -> int:
+        """Reference frames kept per region at ``interval_s`` (memory: slots + 1 buffers)."""
+        return int(slot_schedule(self.longest_age(interval_s), self.per_octave)[0].size)
+
+
+def kinetics_problem(section: KineticsSection, activity: str, regions: Sequence[RegionSettings]) -> str | None:
+    """What is wrong with judging on the kinetics (``estimator.activity = 'kinetics'``) or with
+    ``[kinetics]`` beside the regions, with the key path; None when nothing is."""
+    if activity != "kinetics":
+        return None
+    if not section.enabled:
+        return ("estimator.activity: 'kinetics' judges each region on its decorrelation time: it needs "
+                "[kinetics] enabled = true (off by default: it costs memory and a push per frame)")
+    for index, region in enumerate(regions):
+        if region.wet_below_s is None or region.dry_above_s is None:
+            return (f"regions.{index}.wet_above: estimator.activity = 'kinetics' judges every region on its "
+                    "decorrelation time in seconds: give wet_below_s and dry_above_s")
+        if region.dry_above_s * (1.0 + region.hysteresis) >= section.longest_age_s:
+            return (f"regions.{index}.dry_above_s: {region.dry_above_s:g} s (with its hysteresis "
+                    f"{region.hysteresis:g}) is not below kinetics.longest_age_s = {section.longest_age_s:g} s: "
+                    "τ is measured up to the longest age only, the region could never read dry")
+    return None
