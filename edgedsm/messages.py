@@ -39,6 +39,11 @@ TauStatus = Literal["measured", "above", "below", "no_signal"]
 #: the activity is within the camera's noise; ``dark``, ``saturated``, ``not_speckle``: the light
 #: cannot be judged (the region keeps its state).
 SignalName = Literal["ok", "low", "dark", "saturated", "not_speckle"]
+#: What a region's kinetics reading is (``edgedsm.estimators.kinetics`` statuses; docs/kinetics.md):
+#: ``ok``; ``above``: τ is longer than the oldest reference (``bound_s``); ``below``: shorter than one
+#: frame interval (``bound_s``); ``dark``, ``saturated``, ``not_speckle``: no light to time, never a
+#: number; ``warming_up``: no reference frame yet.
+KineticsStatus = Literal["ok", "above", "below", "dark", "saturated", "not_speckle", "warming_up"]
 
 
 @dataclass(frozen=True)
@@ -83,7 +88,7 @@ class Message(BaseModel):
 class RegionState(Message):
     """The drying state of one region (``<base>/state`` and ``<base>/state/<region>``)."""
 
-    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"estimator", "tau_c_status", "signal"})
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"estimator", "tau_c_status", "signal", "kinetics"})
 
     region: str = Field(description="region name from the config")
     state: RegionStateName = Field(description="drying state")
@@ -91,6 +96,10 @@ class RegionState(Message):
     activity: float | None = Field(None, description="latest region mean of the judged estimator, above the "
                                                      "camera's noise floor with estimator.noise_floor (docs/noise.md); "
                                                      "a region judged on τc: its τc in seconds (see ``estimator``)")
+    plain: float | None = Field(None, description="the plain statistic ``activity`` is judged from: the region "
+                                                  "mean of the judged estimator's map with no noise floor taken off "
+                                                  "(a region judged on τc: its τc in s, as ``activity``); None "
+                                                  "before the first")
     time_to_dry_s: float | None = Field(None, ge=0, description="extrapolated seconds until dry; 0 when dry")
     estimator: str | None = Field(None, description="what ``activity`` is when not the report's estimator: "
                                                     "'tau_c' (τc in s: small = wet, large = dry)")
@@ -98,11 +107,14 @@ class RegionState(Message):
                                                              "(above: τc >= activity; below: τc <= activity)")
     signal: SignalName | None = Field(None, description="the region's signal quality (with estimator.noise_floor); "
                                                         "dark, saturated or not_speckle: the state is held")
+    kinetics: RegionKinetics | None = Field(None, description="its decorrelation time and rate ([kinetics] on)")
 
 
 class RegionSignal(Message):
     """A region's light and its activity against the camera's noise (docs/noise.md), from the last
-    N frames of a patch at its centre (``estimator.noise_patch``)."""
+    N frames of the pixels ``view`` names (the daemon: a patch at its centre, ``estimator.noise_patch``)."""
+
+    omitted_when_none: ClassVar[frozenset[str]] = frozenset({"view"})
 
     signal: SignalName = Field(description="ok, low (activity within the noise), dark, saturated, not_speckle")
     mean: float = Field(ge=0, description="mean intensity over the window, grey levels")
@@ -120,6 +132,9 @@ class RegionSignal(Message):
     intensity_change: float | None = Field(None, gt=0, description="mean intensity now / when the window first "
                                                                    "filled")
     reason: str | None = Field(None, description="why the signal is not ok, or why there is no floor yet")
+    view: str | None = Field(None, max_length=80, description="the pixels the light and the noise were judged on: "
+                                                              "'region' (every pixel of it) or 'patch SxS px at "
+                                                              "the region's centre' (estimator.noise_patch = S)")
 
 
 class RegionActivity(Message):
@@ -149,10 +164,23 @@ def judged_activity(report: StateReport, signal: Mapping[str, RegionSignal]) -> 
     activity = {}
     for name, region in report.regions.items():
         estimator = region.estimator or report.estimator
-        floored = estimator != "tau_c" and name in signal and signal[name].noise_floor is not None
+        floored = estimator not in ("tau_c", "kinetics") and name in signal and signal[name].noise_floor is not None
         activity[name] = RegionActivity(value=region.activity, estimator=estimator, unit=unit(estimator),
                                         basis="above_noise" if floored else "plain")
     return activity
+
+
+class RegionKinetics(Message):
+    """A region's drying kinetics (docs/kinetics.md): the age at which its two-time correlation
+    falls to 1/e, in seconds, and its rate; a status, never a number, where there is none."""
+
+    status: KineticsStatus = Field(description="ok; above / below (bound_s); dark, saturated, not_speckle; "
+                                               "warming_up")
+    tau_s: float | None = Field(None, gt=0, description="decorrelation time τ in s (status ok)")
+    rate_hz: float | None = Field(None, gt=0, description="its rate 1/τ in Hz (status ok)")
+    bound_s: float | None = Field(None, gt=0, description="above: τ is longer than this (the oldest reference); "
+                                                          "below: shorter (one frame interval)")
+    frame: int | None = Field(None, ge=0, description="the frame it was read at, counted from the first kept")
 
 
 class RegionTau(Message):
@@ -298,6 +326,9 @@ class Stats(Message):
     tau_c: dict[str, RegionTau] = Field(default_factory=dict, description="region -> τc in seconds and its status "
                                                                           "(when τc is estimated)")
     frame_interval_s: float | None = Field(None, gt=0, description="Δt that puts τc in seconds (when τc is estimated)")
+    kinetics: dict[str, RegionKinetics] = Field(default_factory=dict,
+                                                description="region -> its decorrelation time (s), rate (Hz) and "
+                                                            "status ([kinetics] on)")
     signal: dict[str, RegionSignal] = Field(default_factory=dict,
                                             description="region -> its light and its activity against the noise "
                                                         "(estimator.noise_floor)")

@@ -66,3 +66,24 @@ def test_judged_on_plain_s2_the_same_film_never_reads_dry():
     assert moves == [("warming_up", "wet"), ("wet", "drying")]
     assert sink.stats[-1].regions["film"]["s2"].mean > 0.05  # the noise alone keeps it above dry_below
     assert sink.stats[-1].signal == {} and sink.states[-1].regions["film"].signal is None
+
+
+def test_each_state_names_its_plain_statistic_and_each_signal_the_pixels_it_was_judged_on(judged):
+    stats_at = {round(stats.t, 6): stats for stats in judged.stats}
+    paired = [(state, stats_at[round(state.t, 6)]) for state in judged.states
+              if round(state.t, 6) in stats_at and "film" in stats_at[round(state.t, 6)].regions]
+    assert len(paired) >= 5
+    floored = 0
+    for state, stats in paired:
+        region, signal = state.regions["film"], stats.signal.get("film")
+        # plain: the S2 region mean of that evaluation, from which the judged activity is taken
+        assert region.plain == stats.regions["film"]["s2"].mean
+        if signal is not None and signal.noise_floor is not None and region.activity is not None:
+            assert region.activity == pytest.approx(region.plain - signal.noise_floor, abs=1e-12)
+            assert region.activity < region.plain
+            floored += 1
+    assert floored >= 3
+    views = {signal.view for stats in judged.stats for signal in stats.signal.values()}
+    assert views == {"patch 64x64 px at the region's centre"}  # estimator.noise_patch's default
+    assert "view" in judged.stats[-1].to_json()["signal"]["film"] and "plain" in judged.states[-1].to_json()[
+        "regions"]["film"]

@@ -32,11 +32,12 @@ def test_the_stop_notice_reaches_every_sink_that_takes_it_even_past_a_failing_on
 
 def test_the_last_word_is_offline_with_the_laser_as_confirmed_and_no_time_to_dry() -> None:
     report = StateReport(t=10.0, estimator="s2", laser="on", regions={
-        "plate": RegionState(region="plate", state="drying", since=4.0, activity=0.125, time_to_dry_s=240.0)})
+        "plate": RegionState(region="plate", state="drying", since=4.0, activity=0.125, plain=0.25,
+                             time_to_dry_s=240.0)})
     final = report.stopped(12.5, "off")
     assert final.to_json() == {"t": 12.5, "estimator": "s2", "laser": "off", "availability": "offline",
                                "regions": {"plate": {"region": "plate", "state": "drying", "since": 4.0,
-                                                     "activity": 0.125, "time_to_dry_s": None}}}
+                                                     "activity": 0.125, "plain": 0.25, "time_to_dry_s": None}}}
     assert final.moved_from(report) and report.availability == "online"
 
 
