@@ -43,7 +43,8 @@ DOCS = REPO / "docs"
 CONDITIONAL = re.compile(r"present only|absent|`\{\}`|when τc is estimated|with `\[|once a|when the engine computes")
 #: For each payload, the objects whose keys are names (regions, maps, causes...), not fields.
 DYNAMIC = {"state": {"regions"}, "region": set(), "alert": set(), "reply": {"result"}, "meta": set(),
-           "stats": {"drops", "camera", "activity", "regions", "regions.*", "state", "tau_c", "signal", "mqtt"}}
+           "stats": {"drops", "camera", "activity", "regions", "regions.*", "state", "tau_c", "kinetics", "signal",
+                     "mqtt"}}
 
 
 # -- what the docs say ------------------------------------------------------------------------------
