@@ -6,8 +6,8 @@
 frames and feeds them to its accumulators, one per descriptor family: the S1/S2/S3 sums
 (:mod:`edgedsm.estimators.moment_sums`), τc's lag products (:mod:`edgedsm.estimators.lag_products`)
 and the frequency bands' DFT bins (:mod:`edgedsm.estimators.dft_bins`). This class holds what
-does not depend on the mode: argument checks, frame checks, maps, snapshots, τc results and
-memory accounting. A mode engine
+does not depend on the mode: maps, snapshots, τc results and memory accounting, after the
+checks of its arguments and frames (:mod:`edgedsm.estimators.engine_checks`). A mode engine
 provides ``_layout`` (its arrays), ``_bind`` (its kernels), ``_push`` (one frame) and
 ``_sums`` (the sums ``maps()`` reads). Modes, bounds and memory: docs/engine.md.
 """
@@ -23,14 +23,23 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from edgedsm.errors import EstimatorError, FrameError
+from edgedsm.errors import EstimatorError
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import TauC, _check_mask, tau_lags
 from edgedsm.estimators.dft_bins import BAND_NAMES, DftBins, band_plan
+from edgedsm.estimators.engine_checks import (
+    BANDS,
+    check_estimators,
+    check_frame,
+    check_int,
+    check_maps,
+    check_q,
+    check_shape,
+)
 from edgedsm.estimators.fixed_point import ratio_kind, ratio_scale_bits, s2_error_bound
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import Layout, Moments
-from edgedsm.estimators.registry import PAIR_SUM, KernelSpec, get, names
+from edgedsm.estimators.registry import PAIR_SUM, KernelSpec, get
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, derived_maps
 from edgedsm.estimators.value_set import gd_of_sum
 
@@ -39,8 +48,6 @@ KernelName = Literal["auto", "numba", "numpy"]
 
 MODES: tuple[str, ...] = ("sliding", "exponential", "tumbling")
 KERNELS: tuple[str, ...] = ("auto", "numba", "numpy")
-#: The engine's multi-band map (a (K, H, W) map of the powers in ``bands``; no registry record).
-BANDS = "bands"
 DEFAULT_ESTIMATORS: tuple[str, ...] = ("s1", "s2", "s3")  # τc costs O(lags) per pixel: only when asked
 MAX_WINDOW = 2**31 - 1  # ΣI² of 16-bit data stays below 2^63
 PARALLEL_MIN_PIXELS = 1 << 16  # smaller frames run on the calling thread (numba kernel)
@@ -59,21 +66,6 @@ def load_kernels(kernel: str) -> ModuleType:
                 "kernel='numba' needs numba (install the 'fast' extra: pip install 'edgedsm[fast]')"
                 f"; import failed: {exc}") from exc
         return importlib.import_module(fallback)
-
-
-def estimator_names() -> tuple[str, ...]:
-    """Names of the maps the engine can keep, in the order of its maps: every registry record that
-    streams (edgedsm.estimators.registry: the paper's S1-S3 and τc, the field's descriptors of
-    docs/descriptors.md, the frequency bands), and "bands"."""
-    return (*names(streams=True), BANDS)
-
-
-def check_int(name: str, value: Any, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise EstimatorError(f"{name} must be an integer, got {value!r}")
-    if not low <= value <= high:
-        raise EstimatorError(f"{name} must be in [{low}, {high}], got {value}")
-    return int(value)
 
 
 class SlidingWindow:
@@ -137,25 +129,13 @@ class SlidingWindow:
                  bands: Sequence[tuple[float, float]] | None = None) -> None:
         if mode is not None and mode != self.mode:
             raise EstimatorError(f"mode {mode!r} asked of the {self.mode} engine")
-        self.shape = self._check_shape(shape)
+        self.shape = check_shape(shape)
         self.window = check_int("window N", window, 2, MAX_WINDOW)
         self.lag = check_int("lag m", lag, 1, self.window - 1)
-        if isinstance(q, bool) or not isinstance(q, int | float | np.integer | np.floating):
-            raise EstimatorError(f"q must be a number, got {q!r}")
-        if not (math.isfinite(q) and q >= 0):
-            raise EstimatorError(f"q must be a finite number >= 0, got {q}")
-        self.q = float(q)
-        self.estimators = self._check_estimators(estimators)
-        for name in self.estimators:  # the registry's statements: modes, q
-            record = None if name == BANDS else get(name)
-            if record is not None and (problem := record.mode_problem(self.mode)):
-                raise EstimatorError(f"estimator {name!r}: {problem}")
-            if record is not None and record.needs_q_zero and self.q != 0.0:
-                raise EstimatorError(f"estimator {name!r} is {record.summary} (BSLTL's {record.bsltl}.m): construct "
-                                     f"the engine with q=0, got q={self.q}")
+        self.q = check_q(q)
+        self.estimators = check_estimators(estimators)
+        check_maps(self.estimators, self.mode, self.q, self.window)  # the registry's statements: modes, q
         self._do_gd = any(get(name).source == "pair_sum" for name in self.estimators if name != BANDS)
-        if self._do_gd and self.window * (self.window - 1) // 2 * 65535 > 2**63 - 1:
-            raise EstimatorError(f"estimator {PAIR_SUM!r}: a window of {self.window} frames overflows its int64 sum")
         self._bins = DftBins(self.window, band_plan(self.estimators, self.mode, self.window, dt, band_split, bands))
         if kernel not in KERNELS:
             raise EstimatorError(f"kernel must be one of {', '.join(KERNELS)}; got {kernel!r}")
@@ -223,54 +203,6 @@ class SlidingWindow:
         raise EstimatorError("resync() needs mode='sliding': other modes keep no window")
 
     # ----------------------------------------------------------------- validation
-    @staticmethod
-    def _check_shape(shape: Any) -> tuple[int, int]:
-        try:
-            dims = tuple(shape)
-        except TypeError:
-            raise EstimatorError(f"shape must be (height, width), got {shape!r}") from None
-        if len(dims) != 2:
-            raise EstimatorError(f"shape must be (height, width), got {shape!r}")
-        return (check_int("height", dims[0], 1, 2**31), check_int("width", dims[1], 1, 2**31))
-
-    @staticmethod
-    def _check_estimators(estimators: Iterable[str] | str) -> tuple[str, ...]:
-        asked = (estimators,) if isinstance(estimators, str) else tuple(estimators)
-        known = estimator_names()
-        unknown = [name for name in asked if name not in known]
-        if unknown or not asked:
-            raise EstimatorError(
-                f"estimators must be a non-empty subset of {known}, got {estimators!r}")
-        return tuple(name for name in known if name in asked)
-
-    def _check_frame(self, frame: Any) -> int:
-        """Validate one frame (nothing is changed); returns its bit depth."""
-        if not isinstance(frame, np.ndarray):
-            raise FrameError(f"a frame must be a numpy array, got {type(frame).__name__}")
-        if frame.shape != self.shape:
-            raise FrameError(f"frame shape {frame.shape} does not match the engine's {self.shape}")
-        if self.bits is not None:
-            bits = self.bits
-            expected = np.dtype(np.uint8 if bits <= 8 else np.uint16)
-            if frame.dtype != expected:
-                raise FrameError(f"frame dtype {frame.dtype} is not {expected} "
-                                 f"(the engine takes {bits}-bit data)")
-        elif frame.dtype == np.dtype(np.uint8):
-            bits = 8
-        elif frame.dtype == np.dtype(np.uint16):
-            bits = 16
-        else:
-            raise FrameError(f"frame dtype {frame.dtype} is not uint8 or uint16 "
-                             "(native byte order)")
-        if not frame.flags.c_contiguous:
-            raise FrameError("frame is not C-contiguous (pass np.ascontiguousarray(frame))")
-        if bits < 8 * frame.dtype.itemsize:
-            top = int(frame.max())
-            if top > (1 << bits) - 1:
-                raise FrameError(f"frame value {top} is above the {bits}-bit range "
-                                 f"0..{(1 << bits) - 1}")
-        return bits
-
     def _check_ready(self) -> None:
         if not self.ready:
             raise EstimatorError(f"the window is not full yet: {self.frames_seen} of "
@@ -336,7 +268,7 @@ class SlidingWindow:
     # ----------------------------------------------------------------- streaming
     def push(self, frame: np.ndarray) -> None:
         """Take the next frame (2-D, the engine's shape and dtype); O(1) work per pixel."""
-        bits = self._check_frame(frame)
+        bits = check_frame(frame, self.shape, self.bits)
         if self.bits is None:
             self._allocate(bits)
         if self._parallel:
@@ -447,7 +379,7 @@ class SlidingWindow:
         if estimators is not None and BANDS in estimators:
             raise EstimatorError(f"a snapshot does not carry {BANDS!r} (maps() gives it)")
         wanted = tuple(name for name in self.estimators if name != BANDS) if estimators is None \
-            else self._check_estimators(estimators)
+            else check_estimators(estimators)
         if not set(wanted) <= set(self.estimators):
             raise EstimatorError(f"the engine keeps the sums of {', '.join(self.estimators)} only, not {wanted}")
         spec = KernelSpec.of(wanted)

@@ -17,7 +17,7 @@ from edgedsm.errors import EstimatorError
 from edgedsm.estimators import noise, noise_floor, registry
 from edgedsm.estimators.batch import s1
 from edgedsm.estimators.descriptors import DESCRIPTORS, compute
-from edgedsm.estimators.engine_base import estimator_names
+from edgedsm.estimators.engine_checks import estimator_names
 from edgedsm.estimators.noise_floor import Floor
 from edgedsm.estimators.noise_summary import region_floor, region_noise
 from edgedsm.estimators.region_box import RegionBox
