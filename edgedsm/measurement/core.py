@@ -46,9 +46,10 @@ from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan, r
 from edgedsm.estimators.snapshot import TauSnapshot
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS
 from edgedsm.measurement.judge import SignalJudge, SignalWarning
+from edgedsm.measurement.kinetics import KineticsRegions, judged_seconds
 from edgedsm.measurement.spec import EngineSpec
 from edgedsm.measurement.tau import in_seconds, region_fits
-from edgedsm.messages import RegionSignal
+from edgedsm.messages import RegionKinetics, RegionSignal
 from edgedsm.noise_patches import MAX_PATCH_FRAMES, NoisePatches, PatchWindow, patch_of
 
 #: ``view`` of a reading whose noise is judged on every pixel of the region
@@ -85,6 +86,7 @@ class RegionReading:
     state: str
     tau_c_s: float | None = None
     tau_c_status: str | None = None
+    kinetics: RegionKinetics | None = None  # its decorrelation time (s), rate (Hz), status ([kinetics] on)
 
 
 @dataclass
@@ -155,10 +157,11 @@ class Judgement:
             machine.thresholds = thresholds[name]
 
     def estimator(self, region: str) -> str:
-        return "tau_c" if self.judge.on_tau(region) else self.judge.estimator.activity
+        activity = self.judge.estimator.activity
+        return "tau_c" if self.judge.on_tau(region) and activity != "kinetics" else activity
 
     def reading(self, region: str, plain: float | None, judged: float | None, values: Mapping[str, float],
-                tau: tuple[float, str] | None = None) -> RegionReading:
+                tau: tuple[float, str] | None = None, kinetics: RegionKinetics | None = None) -> RegionReading:
         """The region's reading from its plain and judged value, its map means and τc."""
         above, floors = {}, {}
         if self.on:
@@ -170,18 +173,19 @@ class Judgement:
         return RegionReading(region, self.view, self.estimator(region), plain, judged, dict(values), above, floors,
                              self.judge.signals.get(region) if self.on else None,
                              machine.state.value if machine is not None else "unjudged",
-                             *(tau if tau is not None else (None, None)))
+                             *(tau if tau is not None else (None, None)), kinetics)
 
     def evaluate(self, now: float, plain: Mapping[str, float | None], estimates: Mapping[str, Mapping[str, float]],
                  patches: Mapping[str, PatchWindow] | None = None, ready: bool = True, fault: str | None = None,
-                 taus: Mapping[str, tuple[float, str]] | None = None) -> Evaluation:
+                 taus: Mapping[str, tuple[float, str]] | None = None,
+                 kinetics: Mapping[str, RegionKinetics] | None = None) -> Evaluation:
         """One evaluation in the daemon's order: assess the patches (when given), judge, step."""
         warnings = self.assess(patches or {}, estimates)
         judged = self.judged(plain, estimates)
         transitions = self.step(now, judged, ready, fault)
-        taus = taus or {}
+        taus, kinetics = taus or {}, kinetics or {}
         readings = {name: self.reading(name, plain.get(name), judged.get(name), estimates.get(name, {}),
-                                       taus.get(name)) for name in estimates}
+                                       taus.get(name), kinetics.get(name)) for name in estimates}
         return Evaluation(warnings, transitions, readings)
 
 
@@ -215,6 +219,8 @@ class Core:
         self._tau_sums: TauSnapshot | None = None  # the last τc snapshot, its arrays reused
         #: each region's τc fit (frames, status) at the last :meth:`read` (empty without τc)
         self.fits: dict[str, TauC] = {}
+        #: each region's kinetics (``[kinetics]`` on: :mod:`edgedsm.measurement.kinetics`), fed every frame
+        self.kinetics: KineticsRegions | None = None
 
     def _prepare(self, frame: np.ndarray, bits: int | None) -> None:
         shape = frame.shape
@@ -227,6 +233,10 @@ class Core:
         self._others = [(spec.engine(shape, bits, threads=None), spec.maps) for spec in self.companions]
         self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in boxes.items()})
         self._pixels = {name: np.flatnonzero(mask) for name, mask in self.masks.items()}
+        if self.config.kinetics.enabled:
+            # the datasheet's model ([camera.noise], or the one a caller gave the judge before the first frame)
+            self.kinetics = KineticsRegions(self.config.kinetics, self.masks, self.judgement.judge.keeper.model,
+                                            top=float(2**bits - 1) if bits else None)
         if self.judgement.on:
             side = self.patch if self.patch is not None else max(shape)  # a patch the region's box: all of it
             self.patches = NoisePatches(boxes, min(self.spec.window, MAX_PATCH_FRAMES), side, frame.dtype, bits)
@@ -241,6 +251,8 @@ class Core:
             other.push(frame)
         if self.patches is not None:
             self.patches.push(frame)
+        if self.kinetics is not None:
+            self.kinetics.push(frame, self.dt)
 
     @property
     def ready(self) -> bool:
@@ -277,8 +289,11 @@ class Core:
         activity = self.config.estimator.activity
         plain = {name: (taus[name][0] if self.judgement.judge.on_tau(name) and name in taus
                         else values.get(activity)) for name, values in estimates.items()}
+        kinetics = self.kinetics.read(self.dt) if self.kinetics is not None else {}
+        if activity == "kinetics":  # judged as τc is: τ in s, or its bound (measurement.kinetics)
+            plain = {name: judged_seconds(kinetics.get(name)) for name in plain}
         patches = self.patches.take() if assess and self.patches is not None and self.patches.full else {}
-        return self.judgement.evaluate(now, plain, estimates, patches, ready=True, taus=taus)
+        return self.judgement.evaluate(now, plain, estimates, patches, ready=True, taus=taus, kinetics=kinetics)
 
 
 def judge_window(config: DaemonConfig, frames: np.ndarray, values: Mapping[str, float], *, bits: int | None = None,
