@@ -20,6 +20,7 @@ from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
 from edgedsm.measurement import EngineSpec
 from edgedsm.measurement.judge import warm_up as warm_up_noise
+from edgedsm.measurement.kinetics import warm_up as warm_up_kinetics
 from edgedsm.measurement.tau import map_seconds, region_fits
 
 #: Frames smaller than this are processed by one kernel thread (unless estimator.threads says).
@@ -96,12 +97,14 @@ def queue_bytes(config: DaemonConfig, frame_shape: tuple[int, int], bits: int) -
     return parts
 
 
-def check_memory(config: DaemonConfig, frame_shape: tuple[int, int], bits: int, pixels: int | None = None) -> None:
+def check_memory(config: DaemonConfig, frame_shape: tuple[int, int], bits: int, pixels: int | None = None,
+                 extra: Mapping[str, int] | None = None) -> None:
     """Refuse (ConfigError naming the key to change) an engine and frame queues for frames of
     ``frame_shape`` (rows, columns) and ``bits`` that cannot fit in this machine's memory
-    (``pixels``: what the engine sees, when not the whole frame); nothing large is allocated."""
+    (``pixels``: what the engine sees, when not the whole frame; ``extra``: more bytes by the config
+    key bounding them, e.g. the kinetics' reference frames); nothing large is allocated."""
     per_pixel = engine_bytes_per_pixel(make_engine(config, (1, PROBE_PIXELS), bits, threads=1))
-    check_engine_memory(frame_shape, per_pixel, pixels, queue_bytes(config, frame_shape, bits))
+    check_engine_memory(frame_shape, per_pixel, pixels, {**queue_bytes(config, frame_shape, bits), **(extra or {})})
 
 
 def check_engine_memory(frame_shape: tuple[int, int], bytes_per_pixel: float, pixels: int | None = None,
@@ -149,6 +152,8 @@ def warm_up(config: DaemonConfig, frame_shape: tuple[int, int] | None = None) ->
         _warm_up(config, parallel)
     if config.estimator.noise_floor:
         warm_up_noise()
+    if config.kinetics.enabled:
+        warm_up_kinetics(config.camera.pixel_format not in (None, "Mono8"))
 
 
 def _warm_up(config: DaemonConfig, parallel: bool) -> None:

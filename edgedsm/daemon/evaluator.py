@@ -29,6 +29,7 @@ from edgedsm.daemon.worker import SerialWorker
 from edgedsm.drying import Transition
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
 from edgedsm.measurement import Judgement, view_of
+from edgedsm.measurement.kinetics import judged_seconds
 from edgedsm.measurement.tau import map_block, map_seconds
 from edgedsm.messages import (
     Alert,
@@ -36,6 +37,7 @@ from edgedsm.messages import (
     Clock,
     MapFrame,
     MapStats,
+    RegionKinetics,
     RegionState,
     RegionTau,
     StateReport,
@@ -186,6 +188,8 @@ class Evaluator:
                 activities[name] = per_map[estimator].mean
         taus, interval_s = self._region_taus(snapshot)
         activities.update({name: tau.tau_c_s for name, tau in taus.items() if name in self.tau.judged})
+        if estimator == "kinetics":  # τ in s or its bound, judged as τc is; None (held) without light to time
+            activities.update({name: judged_seconds(snapshot.kinetics.get(name)) for name in snapshot.kinetics})
         # the core's steps in its order (Judgement.evaluate), the state machines' under the lock
         self._judge_signal(snapshot, estimates)
         plain = dict(activities)  # the statistic before the judge takes the noise floor off
@@ -196,7 +200,7 @@ class Evaluator:
                 return
             transitions = self.judgement.step(status.now, activities, ready=snapshot.ready and status.fault is None,
                                               fault=status.fault)
-            report = self._report(status, estimator, plain)
+            report = self._report(status, estimator, plain, snapshot.kinetics)
         for transition in transitions:
             self.sink.publish_alert(self._alert(transition))
         if self.probes.states_evaluated is not None:
@@ -212,7 +216,7 @@ class Evaluator:
                       estimator=estimator, drops=status.drops, camera=status.camera,
                       ambient_level=status.ambient_level, regions=regions,
                       states={name: region.state for name, region in report.regions.items()},
-                      warning=status.warning, tau_c=taus, frame_interval_s=interval_s,
+                      warning=status.warning, tau_c=taus, frame_interval_s=interval_s, kinetics=snapshot.kinetics,
                       recording=status.recording,
                       signal={name: signal.model_copy(update={"view": view})
                               for name, signal in self.signal.signals.items()} if self.signal.on else {},
@@ -269,13 +273,15 @@ class Evaluator:
         names = None if snapshot.publish_stats else self.tau.judged
         return self.tau.regions(snapshot.tau, interval_s, names), interval_s
 
-    def _report(self, status: Status, estimator: str, plain: dict[str, float | None]) -> StateReport:
+    def _report(self, status: Status, estimator: str, plain: dict[str, float | None],
+                kinetics: dict[str, RegionKinetics]) -> StateReport:
         """Every region's state (the lock held); ``plain``: the statistics the judged values came from."""
         judged_on_tau = self.tau.judged
         regions = {name: RegionState(region=name, state=machine.state.value, since=self.clock.to_wall(machine.since),
                                      activity=machine.activity, plain=plain.get(name),
                                      time_to_dry_s=machine.time_to_dry(),
                                      signal=signal.signal if (signal := self.signal.signals.get(name)) else None,
+                                     kinetics=kinetics.get(name),
                                      **({"estimator": "tau_c", "tau_c_status": self.tau.status.get(name)}
                                         if name in judged_on_tau else {}))
                    for name, machine in self.judgement.monitor.regions.items()}

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from edgedsm.estimators.region_stats import Moments
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot
-from edgedsm.messages import LaserState, RecordingStats
+from edgedsm.messages import LaserState, RecordingStats, RegionKinetics
 from edgedsm.noise_patches import PatchWindow
 
 
@@ -49,3 +49,5 @@ class Snapshot:
     origin: tuple[int, int] | None = None
     #: region -> its noise patch over the last frames (estimator.noise_floor, on the stats cadence)
     patches: dict[str, PatchWindow] = field(default_factory=dict)
+    #: region -> its kinetics read on the pipeline thread ([kinetics] on; empty otherwise)
+    kinetics: dict[str, RegionKinetics] = field(default_factory=dict)

@@ -35,9 +35,31 @@ from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan
 from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot
 from edgedsm.frames import Frame
 from edgedsm.measurement.core import reduce
+from edgedsm.measurement.kinetics import KineticsRegions
+from edgedsm.messages import RegionKinetics
 from edgedsm.noise_patches import NoisePatches
 
 log = logging.getLogger(__name__)
+
+#: The frame interval the kinetics' memory is checked at before frames tell it (no
+#: ``camera.frame_interval_s``): 30 frames a second.
+KINETICS_BUDGET_INTERVAL_S = 1.0 / 30.0
+
+
+def full_mask(box: RegionBox, shape: tuple[int, int]) -> np.ndarray:
+    """A region's boolean mask over the whole of ``shape`` (the engine's coordinates)."""
+    mask = np.zeros(shape, bool)
+    mask[box.rows, box.cols] = box.mask
+    return mask
+
+
+def kinetics_bytes(config: DaemonConfig, masks: dict[str, np.ndarray]) -> dict[str, int]:
+    """The kinetics' reference frames for ``masks`` (none without), by the config key bounding
+    them, at the configured frame interval or KINETICS_BUDGET_INTERVAL_S."""
+    if not masks:
+        return {}
+    interval = config.camera.frame_interval_s or KINETICS_BUDGET_INTERVAL_S
+    return {"kinetics.longest_age_s": KineticsRegions.bytes_for(config.kinetics, masks, interval)}
 
 
 class Measurement:
@@ -58,6 +80,9 @@ class Measurement:
         self._map_buffers = map_buffers  # the evaluator's float maps: reserved here with the engine
         self._tau_buffers: TauSnapshot | None = None
         self.noise: NoisePatches | None = None  # estimator.noise_floor: each region's last frames
+        self.kinetics: KineticsRegions | None = None  # [kinetics]: each region's reference frames
+        #: seconds the last kinetics read took (pipeline thread; O(slots × region pixels))
+        self.kinetics_read_s = 0.0
 
     def prepare(self, frame: Frame) -> None:
         """At the first frame (before the laser goes on): the engine and the region masks for its
@@ -82,6 +107,8 @@ class Measurement:
             self.tau.interval.saw(frame)
             if self.noise is not None:
                 self.noise.push(pixels)
+            if self.kinetics is not None:  # the interval fixes the longest age in frames, once
+                self.kinetics.push(pixels, None if self.kinetics.built else self.tau.interval.seconds())
         except FrameError as exc:
             self.counters["dropped_invalid"] += 1
             log.warning("frame %d dropped: %s", frame.seq, exc)
@@ -100,6 +127,8 @@ class Measurement:
             self.engine.reset()
         if self.noise is not None:
             self.noise.reset()
+        if self.kinetics is not None:
+            self.kinetics.reset()
 
     def _make_engine(self, frame: Frame) -> None:
         est = self.config.estimator
@@ -115,7 +144,10 @@ class Measurement:
 
         # the same arrays for a few pixels first: a window (or queues) too big for memory is refused
         # before anything large is allocated (the rule check-config and the start apply: preflight)
-        check_memory(self.config, frame.shape, frame.bits, pixels=shape[0] * shape[1])
+        kinetics_masks = {name: full_mask(box, shape) for name, box in regions.items()} \
+            if self.config.kinetics.enabled else {}
+        check_memory(self.config, frame.shape, frame.bits, pixels=shape[0] * shape[1],
+                     extra=kinetics_bytes(self.config, kinetics_masks))
         self.engine = make_engine(self.config, shape, frame.bits, threads)
         # the arrays of the maps evaluation (a copy of the sums, the float maps) written once now,
         # before frames flow: their fresh pages would otherwise stall both threads at the first maps
@@ -126,6 +158,10 @@ class Measurement:
         self.tau.prepare(regions, shape)
         if est.noise_floor and regions:
             self.noise = NoisePatches(regions, est.window, est.noise_patch, frame.pixels.dtype, frame.bits)
+        if kinetics_masks:
+            noise = self.config.camera.noise
+            self.kinetics = KineticsRegions(self.config.kinetics, kinetics_masks, noise.model() if noise else None,
+                                            top=float(2**frame.bits - 1))
         self.frame_shape = frame.shape
 
     def snapshot(self, status: Status, maps_due: bool, stats_due: bool, generation: int) -> Snapshot:
@@ -152,10 +188,21 @@ class Measurement:
         origin = None if self.crop is None else (self.crop[1].start, self.crop[0].start)
         patches = self.noise.take() if ready and stats_due and self.noise is not None else {}
         snapshot = Snapshot(status, ready, engine, publish_maps=publish_maps, publish_stats=stats_due, tau=tau,
-                            regions=moments, generation=generation, origin=origin, patches=patches)
+                            regions=moments, generation=generation, origin=origin, patches=patches,
+                            kinetics=self._read_kinetics(status.fps))
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
         return snapshot
+
+    def _read_kinetics(self, fps: float) -> dict[str, RegionKinetics]:
+        """Each region's kinetics now, on this thread (the reference frames are the pushes'): at the
+        evaluation cadence only, it costs O(slots × region pixels) (docs/kinetics.md, "In the daemon")."""
+        if self.kinetics is None:
+            return {}
+        started = time.perf_counter()
+        out = self.kinetics.read(self.tau.interval.seconds(fps))
+        self.kinetics_read_s = time.perf_counter() - started
+        return out
 
     def _snapshot_estimators(self, stats_due: bool) -> list[str]:
         """The S maps an evaluation needs: all for the stats; for the states alone, the judged one
@@ -173,5 +220,5 @@ class Measurement:
         """Drop the engine and the copies of its sums: the window's ring is the bulk of the
         daemon's memory (N frames), released now rather than when the garbage collector gets to
         the pipeline (a reload builds a new one at once)."""
-        self.engine = self._buffers = self._tau_buffers = self.noise = None
+        self.engine = self._buffers = self._tau_buffers = self.noise = self.kinetics = None
         self._map_buffers = MapBuffers()  # the evaluator lets go of its pooled maps too

@@ -109,7 +109,10 @@ class TauRegions:
 
     @property
     def judged(self) -> set[str]:
-        """Regions whose drying state is judged on τc."""
+        """Regions whose drying state is judged on τc (seconds thresholds judge the kinetics instead
+        under ``estimator.activity = 'kinetics'``)."""
+        if self.config.estimator.activity == "kinetics":
+            return set()
         return {r.name for r in self.config.regions if r.on_tau}
 
     def prepare(self, regions: dict[str, RegionBox], shape: tuple[int, int]) -> None:

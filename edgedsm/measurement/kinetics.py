@@ -89,13 +89,18 @@ class KineticsRegions:
         pixels = sum(int(np.count_nonzero(np.asarray(mask, bool)[::step, ::step])) for mask in masks.values())
         return (section.slots(interval_s) + 1) * 4 * pixels
 
+    @property
+    def built(self) -> bool:
+        """The regions' reference frames exist (a frame came with a known interval)."""
+        return bool(self.regions)
+
     def push(self, frame: np.ndarray, interval_s: float | None) -> None:
         """One frame (2-D, the masks' shape) into every region; ``interval_s``: the frame interval
-        (s) now, None while unknown (the frame is skipped: the ages are counted from the first
-        frame with a known interval)."""
-        if interval_s is None:
-            return
+        (s), needed until :attr:`built` (the longest age in frames is fixed then; before, a frame
+        without one is skipped: the ages count from the first frame with a known interval)."""
         if not self.regions:
+            if interval_s is None:
+                return
             self.longest_frames = self.section.longest_age(interval_s)
             self.regions = {name: Kinetics(mask, self.noise, self.longest_frames, self.section.per_octave,
                                            top=self.top) for name, mask in self.masks.items()}
@@ -121,3 +126,13 @@ class KineticsRegions:
         self.regions = {}
         self.longest_frames = None
         self.pushed = 0
+
+
+def warm_up(deep: bool = False) -> None:
+    """Compile (or load) the kinetics' fused pass and run a measure on a small region (8-bit, or
+    16-bit frames with ``deep``): its first call would otherwise stall the thread that pushes."""
+    frame = np.random.default_rng(0).integers(1, 200, (16, 16)).astype(np.uint16 if deep else np.uint8)
+    kinetics = Kinetics(np.ones(frame.shape, bool), noise_models.from_datasheet(0.0, 0.0), 4)
+    for _ in range(3):
+        kinetics.push(frame)
+    kinetics.measure()

@@ -1,0 +1,102 @@
+"""The kinetics in the daemon (issue 37, "Done means"): the daemon's pipeline and evaluator
+threads, in-process, on a simulated film whose τc grows exponentially over four decades (2 ->
+20,000 frames, ``[activity.drying]``) in 16,000 frames of 32² (the bounded form of the bench's
+60,000 frames of 48²: the same four decades of τc, ~4x faster, the truth up to the longest age
+1,024 frames). The stats' ``kinetics.<region>.tau_s`` follows the scene's truth (the lag at which
+∫ dt/τc reaches 1) within 25 % (median over the run) wherever the truth is below the longest age;
+beyond it the status is ``above``; the state machine on ``activity = 'kinetics'`` goes wet ->
+drying -> dry."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from edgedsm.config import DaemonConfig
+from edgedsm.daemon.pipeline import Cadence, Pipeline
+from edgedsm.devices.camera import SimulatedCamera
+from edgedsm.messages import Clock
+from edgedsm.publish.sink import RecordingSink
+from edgedsm.sim import scene_from_dict
+from edgedsm.sim.activity import decorrelation_lags
+from edgedsm.sim.detector import DetectorRows
+from edgedsm.validation import validate
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+SIZE, FRAMES, DT, LONGEST = 32, 16_000, 0.05, 1024  # frames; Δt in s
+STATS_S = 2.0  # a stats message (with every region's kinetics) every 40 frames
+
+
+def film() -> tuple[SimulatedCamera, float]:
+    scene = scene_from_dict({"scene": {"size": SIZE, "seed": 11, "dt": DT},
+                             "activity": {"tau_c": 2.0, "drying": {"duration": FRAMES, "final_factor": 1e4}},
+                             "detector": {"n_max": 1000.0, "bits": 8}})
+    return SimulatedCamera(scene, time_scale=0), DetectorRows(scene).scale
+
+
+def config(gain: float) -> DaemonConfig:
+    return validate(DaemonConfig, {
+        "camera": {"uri": "sim:default", "frame_interval_s": DT, "noise": {"gain": gain}},
+        "acquisition": {"dark_frames": 0, "dark_every_min": 0, "queue_frames": 64},
+        "estimator": {"activity": "kinetics", "window": 64, "lag": 1, "noise_floor": False},
+        "kinetics": {"enabled": True, "longest_age_s": LONGEST * DT, "per_octave": 4},
+        # wet while τ <= 10 frames, dry from 500 frames on (within the longest age, 1,024)
+        "regions": [{"name": "film", "wet_below_s": 10 * DT, "dry_above_s": 500 * DT, "min_dwell_s": 5.0}],
+    }, "<kinetics daemon>")
+
+
+@pytest.mark.timeout(240)
+def test_the_daemon_follows_a_film_drying_over_four_decades() -> None:
+    camera, gain = film()
+    settings = config(gain)
+    sink = RecordingSink()
+    box: dict[str, Pipeline] = {}
+
+    def frame_clock() -> float:  # the daemon's clock is the frames': samples every STATS_S of film time
+        return box["p"].counters["frames"] * DT if "p" in box else 0.0
+
+    pipeline = Pipeline(settings, camera, sink, cadence=Cadence(STATS_S, 1e6),
+                        clock=Clock(monotonic=frame_clock, wall=lambda: 1.7e9 + frame_clock()))
+    box["p"] = pipeline
+    grab = camera._do_grab
+
+    def waiting_grab(timeout_s: float):  # every frame pushed, whatever the machine's load
+        deadline = time.monotonic() + 10.0
+        while not pipeline.capture.stopping and time.monotonic() < deadline and (
+                pipeline.capture.frames.qsize() >= 8 or pipeline.evaluator.busy):
+            time.sleep(0.0005)
+        return grab(timeout_s)
+
+    camera._do_grab = waiting_grab
+    started = time.perf_counter()
+    pipeline.run(lambda: False, max_frames=FRAMES)
+    elapsed = time.perf_counter() - started
+    assert pipeline.counters["dropped_queue"] == 0 and pipeline.counters["frames"] == FRAMES
+
+    readings = [(s.kinetics["film"]) for s in sink.stats if "film" in s.kinetics]
+    frames = np.array([r.frame for r in readings if r.frame is not None])
+    assert frames.size > 300, frames.size  # a stats message every 40 frames
+    seconds = {r.frame: r for r in readings if r.frame is not None}
+    truth = decorrelation_lags(camera.scene, frames)  # frames, the simulator's own
+    tau = np.array([seconds[f].tau_s / DT if seconds[f].tau_s is not None else np.nan for f in frames])
+    inside = (truth >= 1.0) & (truth <= LONGEST)
+    assert truth[inside].min() < 3.0 and truth[inside].max() > 0.9 * LONGEST  # the run spans the decades
+    error = np.where(np.isfinite(tau[inside]), np.abs(tau[inside] / truth[inside] - 1.0), np.inf)
+    assert np.median(error) < 0.25, np.median(error)
+    for low in (1.0, 10.0, 100.0):  # every decade, not just the run's median
+        decade = inside & (truth >= low) & (truth < 10.0 * low)
+        assert abs(np.nanmedian(tau[decade] / truth[decade]) - 1.0) < 0.25, low
+    rates = [(r.rate_hz, r.tau_s) for r in readings if r.status == "ok"]
+    assert all(rate == pytest.approx(1.0 / tau_s) for rate, tau_s in rates)
+    beyond = truth > 1.2 * LONGEST
+    assert beyond.sum() > 20 and np.mean([seconds[f].status == "above" for f in frames[beyond]]) > 0.95
+    # the state machine on the kinetics: wet -> drying -> dry, as the truth crosses 10 and 500 frames
+    moves = [(a.from_state, a.to_state) for a in sink.alerts if a.to_state is not None]
+    assert ("wet", "drying") in moves and ("drying", "dry") in moves, moves
+    assert sink.states[-1].regions["film"].state == "dry" and sink.states[-1].estimator == "kinetics"
+    assert sink.states[-1].regions["film"].kinetics is not None
+    print(f"{FRAMES} frames of {SIZE}² in {elapsed:.1f} s; median |τ/truth - 1| = {np.median(error):.3f} "
+          f"over {inside.sum()} samples; read {pipeline.measurement.kinetics_read_s * 1e3:.2f} ms")
