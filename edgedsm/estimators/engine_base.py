@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import importlib
+import inspect
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from types import ModuleType
@@ -419,6 +420,12 @@ class SlidingWindow:
         return (f"SlidingWindow(shape={self.shape}, window={self.window}, lag={self.lag}, "
                 f"q={self.q}, bits={self.bits}, estimators={self.estimators}, "
                 f"mode={self.mode!r}, kernel={self.kernel!r}, frames_seen={self.frames_seen})")
+
+
+# help() and notebooks show the constructor's parameters, not __new__'s (*args, **kwargs), which
+# only picks the engine of the mode asked for
+SlidingWindow.__signature__ = inspect.Signature(  # type: ignore[attr-defined]
+    list(inspect.signature(SlidingWindow.__init__).parameters.values())[1:])
 
 
 def _copy(source: np.ndarray, target: np.ndarray | None) -> np.ndarray:

@@ -560,3 +560,11 @@ def test_the_engine_reads_exact_terms_from_the_table_with_the_formulas_sums(kern
         formula.push(frame)
     np.testing.assert_array_equal(tabled._arrays["ratio"], formula._arrays["ratio"])
     np.testing.assert_array_equal(tabled.maps()["s2"], formula.maps()["s2"])
+
+
+def test_the_engine_shows_its_constructors_signature():
+    import inspect
+
+    parameters = list(inspect.signature(SlidingWindow).parameters)
+    assert parameters[:5] == ["shape", "window", "lag", "q", "bits"] and "mode" in parameters
+    assert "args" not in parameters and "kwargs" not in parameters
