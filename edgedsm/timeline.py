@@ -29,12 +29,14 @@ import numpy as np
 
 from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import EstimatorSection
+from edgedsm.config.kinetics import KineticsSection
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import registry
 from edgedsm.estimators.correlation_time import TauC
 from edgedsm.estimators.noise import NoiseModel
 from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
+from edgedsm.measurement import kinetics as region_kinetics
 from edgedsm.measurement.tau import STATUS_NAMES
 from edgedsm.noise_patches import MAX_PATCH_FRAMES
 from edgedsm.validation import validate
@@ -104,11 +106,12 @@ class Timeline:
     sample_frames: list[int] = field(default_factory=list)
     sample_times: list[float] = field(default_factory=list)  # seconds, one per sample
     descriptors: tuple[str, ...] = ()  # the descriptors' columns after COLUMNS
+    kinetics: bool = False  # the kinetics' columns last (measurement.kinetics.COLUMNS)
 
     @property
     def columns(self) -> tuple[str, ...]:
-        """The rows' columns: COLUMNS, then one per descriptor."""
-        return COLUMNS + self.descriptors
+        """The rows' columns: COLUMNS, then one per descriptor, then the kinetics' (when on)."""
+        return COLUMNS + self.descriptors + (region_kinetics.COLUMNS if self.kinetics else ())
 
     def series(self, region: str, column: str) -> np.ndarray:
         """One column of one region against the samples, as float64."""
@@ -126,7 +129,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
              times_s: Sequence[float] | None = None, mode: str | None = None, with_tau: bool = True,
              with_noise: bool = True, noise_model: NoiseModel | None = None,
              descriptors: Sequence[str] = (), band_split: float | None = None, q: float = 0.0,
-             activity: str = "s2", noise_patch: int | None = None, config: DaemonConfig | None = None) -> Timeline:
+             activity: str = "s2", noise_patch: int | None = None, config: DaemonConfig | None = None,
+             kinetics: KineticsSection | None = None) -> Timeline:
     """Stream ``frames`` and sample the activity of each boolean (H, W) region every ``every`` frames.
 
     The first sample is at the frame that fills the window (index window-1), time = frame · dt,
@@ -150,7 +154,9 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     camera and regions' thresholds the judge takes (window, lag, ``q``, mode and ``activity`` as
     given here). ``descriptors``: some of :data:`DESCRIPTORS`, whose region means follow as columns
     (the histogram may be of one of them); ``band_split``: the bands' split in Hz (of ``dt``),
-    default half the Nyquist frequency.
+    default half the Nyquist frequency. ``kinetics``: each region's decorrelation time over decades
+    (docs/kinetics.md), pushed every frame and read at each sample, as the last columns
+    (``kinetics_tau_s``, ``kinetics_rate_hz``, ``kinetics_status``, ``kinetics_bound_s``).
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
@@ -162,11 +168,14 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     if histogram_estimator not in (*PAPER, *extra):
         raise EstimatorError(f"histogram estimator must be one of {', '.join((*PAPER, *extra))}, "
                              f"got {histogram_estimator!r}")
-    result = Timeline(dt=dt, max_lag=max_lag, histogram_estimator=histogram_estimator, descriptors=extra)
+    result = Timeline(dt=dt, max_lag=max_lag, histogram_estimator=histogram_estimator, descriptors=extra,
+                      kinetics=kinetics is not None)
     if mode is None:
         mode = "tumbling" if every % window == 0 else "sliding"
     settings = analysis_config(window, lag, q, mode, activity if activity != "tau_c" else "s3",
                                max_lag=max_lag if with_tau else None, noise_floor=with_noise, base=config)
+    if kinetics is not None:
+        settings = settings.model_copy(update={"kinetics": kinetics.model_copy(update={"enabled": True})})
     core: Core | None = None
     pooled: TumblingRegionTau | None = None  # tumbling: the regions' τc without per-pixel lag products
     count = 0
@@ -200,7 +209,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
             else:
                 taus = (NAN, NAN, "off")
             result.rows.append((index, time, name, *(values.get(key, NAN) for key in PAPER), *taus,
-                                *_noise_cells(reading), *(values.get(key, NAN) for key in extra)))
+                                *_noise_cells(reading), *(values.get(key, NAN) for key in extra),
+                                *(region_kinetics.cells(reading.kinetics if reading else None) if kinetics else ())))
         values = core.engine.maps((histogram_estimator,))[histogram_estimator]
         if histogram_range is None:
             top = 1.25 * float(np.percentile(values, 99.5))

@@ -18,10 +18,12 @@ import numpy as np
 
 from edgedsm.commands.common import progress
 from edgedsm.config import DaemonConfig
+from edgedsm.config.kinetics import KineticsSection
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import registry
 from edgedsm.frameio import FrameReader, open_frames
 from edgedsm.timeline import DESCRIPTORS, PAPER, Timeline, timeline
+from edgedsm.validation import validate
 
 SCENE_SUFFIXES = (".toml",)
 
@@ -48,6 +50,13 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
                        help="frame interval (default: the scene's, the config's camera.frame_interval_s, else 1)")
     group.add_argument("--frames", dest="frame_count", type=int, metavar="COUNT",
                        help="frames to simulate when FRAMES is a scene (default: the scene's)")
+    group.add_argument("--kinetics", action="store_true",
+                       help="each region's decorrelation time over decades (docs/kinetics.md): the columns "
+                            "kinetics_tau_s, kinetics_rate_hz, kinetics_status, kinetics_bound_s; settings from "
+                            "the config's [kinetics] (on or not), else its defaults")
+    group.add_argument("--kinetics-longest-s", type=float, metavar="SECONDS",
+                       help="the oldest reference frame in seconds (default: the config's "
+                            "kinetics.longest_age_s, else 3600)")
     group.add_argument("--histogram", choices=("s1", "s2", "s3", *DESCRIPTORS), default="s2",
                        help="estimator whose map histogram is drawn against time (default s2; a descriptor "
                             "needs its column: --estimator or the config's estimator.activity)")
@@ -114,6 +123,19 @@ def _activity(args: argparse.Namespace, config: DaemonConfig | None) -> str:
     return config.estimator.activity if config is not None else "s2"
 
 
+def _kinetics(args: argparse.Namespace, config: DaemonConfig | None) -> KineticsSection | None:
+    """The kinetics' settings of --kinetics (or of a config judging on it): the config's
+    ``[kinetics]``, else its defaults, the longest age from --kinetics-longest-s (validated as in
+    a config); None: no kinetics columns."""
+    judged = config is not None and config.estimator.activity == "kinetics"
+    if not getattr(args, "kinetics", False) and not judged:
+        return None
+    section = config.kinetics if config is not None else KineticsSection()
+    longest = getattr(args, "kinetics_longest_s", None)
+    data = {**section.model_dump(), "enabled": True, **({"longest_age_s": longest} if longest is not None else {})}
+    return validate(KineticsSection, data, "--kinetics")
+
+
 def _datasheet(args: argparse.Namespace):
     """The camera's noise from analyze's --noise-gain (docs/noise.md), or None: from the frames."""
     gain = getattr(args, "noise_gain", None)
@@ -155,7 +177,8 @@ def _run_timeline(args: argparse.Namespace, stack: contextlib.ExitStack) -> int:
                       max_lag=args.max_lag, histogram_estimator=args.histogram, bits=bits, times_s=times,
                       with_tau=args.with_tau, with_noise=args.with_noise, noise_model=_datasheet(args),
                       descriptors=descriptors, band_split=split, q=getattr(args, "q", 0.0),
-                      activity=_activity(args, config), noise_patch=args.noise_patch, config=config)
+                      activity=_activity(args, config), noise_patch=args.noise_patch, config=config,
+                      kinetics=_kinetics(args, config))
     out = Path(args.timeline)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "timeline.csv", result)

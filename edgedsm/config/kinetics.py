@@ -73,8 +73,11 @@ def kinetics_problem(section: KineticsSection, activity: str, regions: Sequence[
         if region.wet_below_s is None or region.dry_above_s is None:
             return (f"regions.{index}.wet_above: estimator.activity = 'kinetics' judges every region on its "
                     "decorrelation time in seconds: give wet_below_s and dry_above_s")
-        if region.dry_above_s * (1.0 + region.hysteresis) >= section.longest_age_s:
+        # the oldest reference's age cycles within a factor 2^(1/per_octave) below the longest age
+        oldest = section.longest_age_s / 2.0 ** (1.0 / section.per_octave)
+        if region.dry_above_s * (1.0 + region.hysteresis) >= oldest:
             return (f"regions.{index}.dry_above_s: {region.dry_above_s:g} s (with its hysteresis "
-                    f"{region.hysteresis:g}) is not below kinetics.longest_age_s = {section.longest_age_s:g} s: "
-                    "τ is measured up to the longest age only, the region could never read dry")
+                    f"{region.hysteresis:g}) is not below the oldest reference's age, kinetics.longest_age_s / "
+                    f"2^(1/per_octave) = {oldest:.4g} s: τ is measured up to it only, the region could "
+                    "never read dry")
     return None

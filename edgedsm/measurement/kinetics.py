@@ -136,3 +136,16 @@ def warm_up(deep: bool = False) -> None:
     for _ in range(3):
         kinetics.push(frame)
     kinetics.measure()
+
+
+#: ``analyze --timeline --kinetics``' columns (after the others): τ (s), its rate (Hz), the
+#: status, the bound (s) of ``above`` / ``below``.
+COLUMNS = ("kinetics_tau_s", "kinetics_rate_hz", "kinetics_status", "kinetics_bound_s")
+
+
+def cells(reading: RegionKinetics | None) -> tuple[float, float, str, float]:
+    """A reading's :data:`COLUMNS` (NaN where it has no number; status "off" without one)."""
+    if reading is None:
+        return (math.nan, math.nan, "off", math.nan)
+    return tuple(math.nan if value is None else value  # type: ignore[return-value]
+                 for value in (reading.tau_s, reading.rate_hz, reading.status, reading.bound_s))
