@@ -128,6 +128,15 @@ class Discovery:
             "device_class": "duration", **_unit(unit_of("tau_c")), "value_template": template,
             "icon": "mdi:timer-sand"}, region)
 
+    def kinetics_entity(self, region: str) -> Entity:
+        """The region's decorrelation time over decades (``[kinetics]``) in the registry's unit,
+        from the stats; unknown where there is no number (its status says why)."""
+        template = f"{{{{ value_json.get('kinetics', {{}}).get('{region}', {{}}).get('tau_s') }}}}"
+        return self._entity("sensor", f"{region}_kinetics", {
+            "name": f"{region} {label_of('kinetics')}", "state_topic": self.topics.stats,
+            "state_class": "measurement", "device_class": "duration", **_unit(unit_of("kinetics")),
+            "value_template": template, "icon": "mdi:timer-sand"}, region)
+
     def signal_entities(self, region: str) -> list[Entity]:
         """The region's signal quality (with every number of its signal as attributes) and its
         activity above the camera's noise floor, from the stats (docs/noise.md)."""

@@ -169,6 +169,7 @@ class HomeAssistantSink:
                   for region, maps in stats.regions.items() if region in self.regions for name in maps
                   if name != "tau_c")
         self._add(self.discovery.tau_entity(region) for region in stats.tau_c if region in self.regions)
+        self._add(self.discovery.kinetics_entity(region) for region in stats.kinetics if region in self.regions)
         self._add(entity for region in stats.signal if region in self.regions
                   for entity in self.discovery.signal_entities(region))
 

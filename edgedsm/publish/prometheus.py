@@ -228,6 +228,7 @@ def _stats_families(stats: Stats | None) -> Iterator[GaugeMetricFamily | Counter
                 means.add_metric([region, name, unit_of(name)], map_stats.mean)
     yield means
     yield from _tau_families(stats)
+    yield from _kinetics_families(stats)
     yield from _signal_families(stats)
     states = GaugeMetricFamily("edgedsm_region_state", "1 for the region's current drying state",
                                labels=["region", "state"])
@@ -264,6 +265,22 @@ def _tau_families(stats: Stats) -> Iterator[GaugeMetricFamily]:
         interval = GaugeMetricFamily("edgedsm_frame_interval_seconds", "frame interval Δt that puts τc in seconds")
         interval.add_metric([], stats.frame_interval_s)
         yield interval
+
+
+def _kinetics_families(stats: Stats) -> Iterator[GaugeMetricFamily]:
+    """Each region's decorrelation time over decades (``[kinetics]``; docs/kinetics.md) in the
+    registry's unit, its status as a label: τ when ``ok``, the bound when ``above`` / ``below``, no
+    sample where there is no number (dark, saturated, not speckle, warming up)."""
+    if not stats.kinetics:
+        return
+    unit = unit_of("kinetics")
+    tau = GaugeMetricFamily("edgedsm_region_kinetics_seconds", f"region decorrelation time τ over decades, {unit} "
+                            "(a bound when its status is above or below)", labels=["region", "status"])
+    for region, reading in sorted(stats.kinetics.items()):
+        value = reading.tau_s if reading.tau_s is not None else reading.bound_s
+        if value is not None:
+            tau.add_metric([region, reading.status], value)
+    yield tau
 
 
 #: The numbers of a region's signal (``RegionSignal``) as gauges: name, help text, field; a field

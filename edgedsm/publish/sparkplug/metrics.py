@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
-from edgedsm.messages import DROP_CAUSES, Alert, RegionSignal, StateReport, Stats
+from edgedsm.messages import DROP_CAUSES, Alert, RegionKinetics, RegionSignal, StateReport, Stats
 from edgedsm.publish import units
 from edgedsm.publish.sparkplug.payload import DataType, Value
 
@@ -97,6 +97,14 @@ def tau_readings(region: str, tau_c_s: float | None = None, status: str | None =
     return {f"regions/{region}/tau_c_s": _double(tau_c_s, "s"), f"regions/{region}/tau_c_status": _text(status)}
 
 
+def kinetics_readings(region: str, reading: RegionKinetics) -> dict[str, Reading]:
+    """A region's decorrelation time over decades (``[kinetics]``) in the registry's unit (τ, or
+    its bound when above / below; null where there is none) and its status."""
+    value = reading.tau_s if reading.tau_s is not None else reading.bound_s
+    return {f"regions/{region}/kinetics": _double(value, map_unit("kinetics")),
+            f"regions/{region}/kinetics_status": _text(reading.status)}
+
+
 #: A region's signal metrics: name under ``regions/<region>/``, the ``RegionSignal`` field, its
 #: datatype and unit. The floor and the activity above it are in the judged estimator's units (a
 #: region judged on τc: the signal's share of the variance), so they carry none.
@@ -135,6 +143,8 @@ def stats_readings(stats: Stats) -> dict[str, Reading]:
         readings.update(tau_readings(region, tau.tau_c_s, tau.status))
     for region, signal in stats.signal.items():
         readings.update(signal_readings(region, signal))
+    for region, kinetics in stats.kinetics.items():
+        readings.update(kinetics_readings(region, kinetics))
     if stats.frame_interval_s is not None:
         readings["frame_interval_s"] = _double(stats.frame_interval_s, "s")
     return readings
