@@ -19,7 +19,7 @@ from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.messages import Clock
 from edgedsm.publish.sink import RecordingSink
-from edgedsm.sim import scene_from_dict
+from edgedsm.sim import Simulator, scene_from_dict
 from edgedsm.sim.activity import decorrelation_lags
 from edgedsm.sim.detector import DetectorRows
 from edgedsm.validation import validate
@@ -100,3 +100,48 @@ def test_the_daemon_follows_a_film_drying_over_four_decades() -> None:
     assert sink.states[-1].regions["film"].kinetics is not None
     print(f"{FRAMES} frames of {SIZE}² in {elapsed:.1f} s; median |τ/truth - 1| = {np.median(error):.3f} "
           f"over {inside.sum()} samples; read {pipeline.measurement.kinetics_read_s * 1e3:.2f} ms")
+
+
+@pytest.mark.timeout(120)
+def test_the_daemon_process_publishes_each_region_s_kinetics(
+        tmp_path, make_broker, subscribers, daemons) -> None:
+    """The real daemon (check, warm-up, threads, MQTT) on a replayed film of constant τc = 6
+    frames: the stats' kinetics is τ·Δt in s with its rate, the state report carries it, a dark
+    region reads ``dark``, never a number."""
+    from helpers_daemon import base_config, last_stats, write_config
+    from helpers_mqtt import wait_until
+
+    from edgedsm.publish import Topics
+
+    scene = scene_from_dict({"scene": {"size": SIZE, "seed": 2, "dt": DT}, "activity": {"tau_c": 6.0},
+                             "detector": {"n_max": 1000.0, "bits": 8}})
+    simulator = Simulator(scene)
+    frames = np.stack([simulator.next_frame() for _ in range(400)])
+    frames[:, :, SIZE // 2:] = 0  # the right half unlit
+    np.save(tmp_path / "frames.npy", frames)
+    broker = make_broker()
+    topics = Topics.of("edgedsm", "e2e")
+    settings = base_config(tmp_path, port=broker.port, camera=f"replay:{tmp_path / 'frames.npy'}?rate=200&dt={DT}")
+    settings["camera"]["frame_interval_s"] = DT
+    settings["camera.noise"] = {"gain": DetectorRows(scene).scale}  # the [camera.noise] table
+    settings["acquisition"].update(queue_frames=10_000)
+    settings["estimator"] = {"activity": "kinetics", "window": 50, "lag": 2, "noise_floor": False}
+    settings["kinetics"] = {"enabled": True, "longest_age_s": 10.0}
+    half = {"shape": "rect", "y": 0, "height": SIZE, "width": SIZE // 2, "wet_below_s": 1.0, "dry_above_s": 5.0,
+            "min_dwell_s": 0.0}
+    settings["regions"] = [{"name": "plate", "x": 0, **half}, {"name": "shadow", "x": SIZE // 2, **half}]
+    subscriber = subscribers(broker.port, [topics.stats, topics.state])
+    daemon = daemons(write_config(tmp_path / "daemon.toml", settings))
+    assert daemon.wait(60) == 0, daemon.log
+    wait_until(lambda: (last_stats(subscriber, topics) or {}).get("frames") == 400, 5, "the final stats")
+    stats = last_stats(subscriber, topics)
+    assert stats is not None and stats["estimator"] == "kinetics"
+    plate, shadow = stats["kinetics"]["plate"], stats["kinetics"]["shadow"]
+    assert plate["status"] == "ok" and plate["tau_s"] == pytest.approx(6 * DT, rel=0.25)
+    assert plate["rate_hz"] == pytest.approx(1.0 / plate["tau_s"])
+    assert shadow["status"] == "dark" and shadow.get("tau_s") is None and shadow.get("rate_hz") is None
+    assert stats["activity"]["plate"]["unit"] == "s" and stats["activity"]["plate"]["basis"] == "plain"
+    states = [m.json() for m in subscriber.on(topics.state)]
+    last = states[-1]["regions"]
+    assert last["plate"]["state"] == "wet" and last["plate"]["kinetics"]["status"] == "ok"
+    assert "estimator" not in last["plate"]  # the report's own estimator: kinetics, not τc
