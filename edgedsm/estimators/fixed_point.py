@@ -10,10 +10,14 @@ S2, sliding and tumbling: each term |a-b|/(a+b+q) enters an int64 sum as a fixed
     / (a+b+q) rounded half up, *exactly*: the float64 estimate fl(fl(|a-b|/d)·2^K) is within
     2^(K-53) <= 1/4 of the true value, so its rounding is off by at most one, and one
     integer test of the remainder, 0 <= 2(|a-b|·2^K - T·d) + d < 2d, corrects it. Branch-
-    free and vectorised, and equal entry by entry to the table below (tested).
+    free and vectorised, and equal entry by entry to the table below (tested). The compiled
+    kernels read these same values from the table (``TABLED_KINDS``): one gather from a 512 KiB
+    table costs less than the division and its correction (docs/engine.md, "S2's term"); the
+    formula stays for the NumPy twin and callers without a table, and the sums are the same
+    integers either way (tested, sliding and tumbling).
   * ``lut`` (<= 8-bit data, fractional q; K = min(62, 63 - bit_length(N-m))): a 256 x 256
     table of the same exactly rounded values, computed once with rational arithmetic (a
-    float q is an exact binary fraction). Exact too, but a gather per term: ~2x slower.
+    float q is an exact binary fraction).
   * ``float`` (9 to 16-bit data): T = ⌊fl(|a-b| / fl(a+b+q))·2^K + 0.5⌋ with
     |T·2^-K - term| <= 2^-K + 2u·term, K = min(62, 63 - bit_length(N-m)).
 
