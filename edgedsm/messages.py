@@ -181,6 +181,12 @@ class RegionKinetics(Message):
     bound_s: float | None = Field(None, gt=0, description="above: τ is longer than this (the oldest reference); "
                                                           "below: shorter (one frame interval)")
     frame: int | None = Field(None, ge=0, description="the frame it was read at, counted from the first kept")
+    stages: dict[str, float] = Field(default_factory=dict, description="[kinetics] stages reached -> when, UTC "
+                                                                       "epoch s (the rate's first reading at or "
+                                                                       "below the stage's, held stage_dwell_s)")
+    next_stage: str | None = Field(None, description="the next stage not yet reached (None: all, or none set)")
+    time_to_next_stage_s: float | None = Field(None, ge=0, description="time to it from the rate's trend, s "
+                                                                       "(None: no trend toward it yet)")
 
 
 class RegionTau(Message):
@@ -244,6 +250,7 @@ class AlertKind(StrEnum):
     RESET = "reset"            # measurement restarted (reload, rebaseline): states start again
     FAULT = "fault"            # no trustworthy data (camera lost, laser unknown, storage)
     WARNING = "warning"        # measuring goes on, but something needs attention
+    STAGE = "stage"            # a region reached a drying stage of [kinetics] (its rate fell to the stage's)
 
 
 class Alert(Message):
@@ -251,7 +258,7 @@ class Alert(Message):
 
     omitted_when_none: ClassVar[frozenset[str]] = frozenset({"from_state", "to_state", "activity"})
 
-    kind: AlertKind = Field(alias="type", description="transition, reset, fault or warning")
+    kind: AlertKind = Field(alias="type", description="transition, reset, fault, warning or stage")
     t: float = Field(description="UTC epoch s")
     reason: str = Field("", description="why, in words")
     region: str | None = Field(None, description="region concerned (None: the whole device)")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from edgedsm.config.regions import RegionSettings
 from edgedsm.estimators.kinetics import DEFAULT_PER_OCTAVE, MAX_LONGEST_AGE, slot_schedule
@@ -26,6 +26,20 @@ MAX_STEP = 16
 #: Refs per octave a config may ask for (the estimator takes up to 64; beyond 16 the slots cost
 #: memory without telling τ apart better than its frame-by-frame scatter).
 MAX_PER_OCTAVE = 16
+
+
+#: Drying stages a config may name (ASTM D5895's set-to-touch, tack-free, dry-hard, dry-through...).
+MAX_STAGES = 8
+
+
+class StageSection(StrictModel):
+    """A drying stage of the plant's own: reached when a region's speckle rate 1/τ falls to
+    ``rate_below_hz`` and stays there ``[kinetics] stage_dwell_s``."""
+
+    name: str = Field(min_length=1, max_length=32, pattern=r"^[A-Za-z0-9_.-]+$",
+                      description="the stage's name in alerts and stats, e.g. set_to_touch, tack_free, dry_hard")
+    rate_below_hz: float = Field(gt=0, le=1e6, description="the speckle rate 1/τ in Hz at or below which the "
+                                                           "stage is reached (τ at or above 1/rate_below_hz s)")
 
 
 class KineticsSection(StrictModel):
@@ -45,9 +59,36 @@ class KineticsSection(StrictModel):
                       description="keep every step-th pixel each way of each region (frame[::step, ::step]): "
                                   "memory and cost fall by step²; pixels further apart than a speckle keep "
                                   "the measure (docs/kinetics.md: 1.02 τ/τc at step 4)")
+    stages: list[StageSection] = Field(default_factory=list, max_length=MAX_STAGES,
+                                       description="drying stages in the order they are reached, each at a "
+                                                   "lower rate: per region the time each is reached (an alert, "
+                                                   "the stats) and the time to the next from the rate's trend")
+    stage_dwell_s: float = Field(10.0, ge=0, le=86_400, description="the rate must stay at or below a stage's "
+                                                                    "threshold this long for it to be reached "
+                                                                    "(τ scatters about 10 % frame to frame)")
+    trend_window_s: float = Field(300.0, gt=0, le=30 * 86_400.0,
+                                  description="the rate's trend (a line through ln rate against time) over this "
+                                              "window gives the time to the next stage")
     white: bool = Field(False, description="take a white step (phase noise, vibration: outdoor or vibrating "
                                            "set-ups) out of the correlation before reading τ; off: a stretched "
                                            "decay would be read long (docs/kinetics.md)")
+
+    @model_validator(mode="after")
+    def _stages_in_order(self) -> KineticsSection:
+        names = [stage.name for stage in self.stages]
+        if len(set(names)) != len(names):
+            raise ValueError(f"stages: names must be unique, got {names}")
+        for index, (earlier, later) in enumerate(zip(self.stages, self.stages[1:], strict=False), start=1):
+            if later.rate_below_hz >= earlier.rate_below_hz:
+                raise ValueError(f"stages.{index}.rate_below_hz: {later.rate_below_hz:g} Hz is not below the "
+                                 f"stage before's {earlier.rate_below_hz:g} Hz (a film's rate falls as it dries)")
+        oldest = self.longest_age_s / 2.0 ** (1.0 / self.per_octave)
+        for index, stage in enumerate(self.stages):
+            if 1.0 / stage.rate_below_hz >= oldest:
+                raise ValueError(f"stages.{index}.rate_below_hz: τ = 1/{stage.rate_below_hz:g} Hz = "
+                                 f"{1.0 / stage.rate_below_hz:.4g} s is not below the oldest reference's age, "
+                                 f"longest_age_s / 2^(1/per_octave) = {oldest:.4g} s: never reached")
+        return self
 
     def longest_age(self, interval_s: float) -> int:
         """The longest age in frames at frame interval ``interval_s`` (s): ceil(longest_age_s/Δt),

@@ -30,6 +30,7 @@ from edgedsm.drying import Transition
 from edgedsm.estimators.snapshot import MapBuffers, maps_from
 from edgedsm.measurement import Judgement, view_of
 from edgedsm.measurement.kinetics import judged_seconds
+from edgedsm.measurement.stages import KineticsStages, StageReached
 from edgedsm.measurement.tau import map_block, map_seconds
 from edgedsm.messages import (
     Alert,
@@ -79,6 +80,7 @@ class Evaluator:
         self.judgement = Judgement(config.estimator, config.regions, config.camera.noise, t0=clock.monotonic(),
                                    view=view_of(config.estimator.noise_patch))
         self.signal = self.judgement.judge
+        self.stages = KineticsStages(config.kinetics, [r.name for r in config.regions])  # evaluator thread
         self._lock = threading.Lock()  # guards the state machines and the generation
         self._generation = 0  # counts measurement restarts
         self._last_report: StateReport | None = None  # the last one published
@@ -124,6 +126,7 @@ class Evaluator:
             self.judgement.reset(now, why)
             self._generation += 1
         self._last = self._executor.submit(self.signal.restart)  # on the thread that uses it, in order
+        self._last = self._executor.submit(self.stages.reset)
         self.publish_alert(Alert(kind=AlertKind.RESET, t=self.clock.to_wall(now),
                                  reason=f"measurement restarted: {why}; every region warms up again"))
         log.warning("measurement restarted (%s); every region warms up again", why)
@@ -200,9 +203,12 @@ class Evaluator:
                 return
             transitions = self.judgement.step(status.now, activities, ready=snapshot.ready and status.fault is None,
                                               fault=status.fault)
-            report = self._report(status, estimator, plain, snapshot.kinetics)
+            kinetics, stages = self.stages.step(status.now, snapshot.kinetics, self.clock.to_wall)
+            report = self._report(status, estimator, plain, kinetics)
         for transition in transitions:
             self.sink.publish_alert(self._alert(transition))
+        for stage in stages:
+            self.sink.publish_alert(self._stage_alert(stage))
         if self.probes.states_evaluated is not None:
             self.probes.states_evaluated(status.frames, time.monotonic())
         if not snapshot.publish_stats:
@@ -216,7 +222,7 @@ class Evaluator:
                       estimator=estimator, drops=status.drops, camera=status.camera,
                       ambient_level=status.ambient_level, regions=regions,
                       states={name: region.state for name, region in report.regions.items()},
-                      warning=status.warning, tau_c=taus, frame_interval_s=interval_s, kinetics=snapshot.kinetics,
+                      warning=status.warning, tau_c=taus, frame_interval_s=interval_s, kinetics=kinetics,
                       recording=status.recording,
                       signal={name: signal.model_copy(update={"view": view})
                               for name, signal in self.signal.signals.items()} if self.signal.on else {},
@@ -286,6 +292,10 @@ class Evaluator:
                                         if name in judged_on_tau else {}))
                    for name, machine in self.judgement.monitor.regions.items()}
         return StateReport(t=self.clock.to_wall(status.now), estimator=estimator, laser=status.laser, regions=regions)
+
+    def _stage_alert(self, stage: StageReached) -> Alert:
+        log.info("region %s: %s", stage.region, stage.reason(), extra={"region": stage.region})
+        return Alert(kind=AlertKind.STAGE, t=self.clock.to_wall(stage.t), reason=stage.reason(), region=stage.region)
 
     def _alert(self, transition: Transition) -> Alert:
         # a normal transition is news (INFO); into fault it is an alert (WARNING)

@@ -42,7 +42,9 @@ def config(gain: float) -> DaemonConfig:
         "camera": {"uri": "sim:default", "frame_interval_s": DT, "noise": {"gain": gain}},
         "acquisition": {"dark_frames": 0, "dark_every_min": 0, "queue_frames": 64},
         "estimator": {"activity": "kinetics", "window": 64, "lag": 1, "noise_floor": False},
-        "kinetics": {"enabled": True, "longest_age_s": LONGEST * DT, "per_octave": 4},
+        "kinetics": {"enabled": True, "longest_age_s": LONGEST * DT, "per_octave": 4, "stage_dwell_s": 5.0,
+                     "trend_window_s": 60.0, "stages": [{"name": "touch", "rate_below_hz": 1.0 / (20 * DT)},
+                                                        {"name": "tack_free", "rate_below_hz": 1.0 / (200 * DT)}]},
         # wet while τ <= 10 frames, dry from 500 frames on (within the longest age, 1,024)
         "regions": [{"name": "film", "wet_below_s": 10 * DT, "dry_above_s": 500 * DT, "min_dwell_s": 5.0}],
     }, "<kinetics daemon>")
@@ -98,8 +100,26 @@ def test_the_daemon_follows_a_film_drying_over_four_decades() -> None:
     assert ("wet", "drying") in moves and ("drying", "dry") in moves, moves
     assert sink.states[-1].regions["film"].state == "dry" and sink.states[-1].estimator == "kinetics"
     assert sink.states[-1].regions["film"].kinetics is not None
+    # the stages: reached in order where the truth crosses 20 and 200 frames, within the 25 % of τ
+    # (a τ 1.25x the threshold is 0.4 decade-fifths of this film: ~390 frames), and the trend's time
+    # to tack-free, read midway, within 30 % of the actual
+    stages = [a for a in sink.alerts if a.kind == "stage"]
+    assert [a.reason.split()[2] for a in stages] == ["touch", "tack_free"], [a.reason for a in stages]
+    for alert, lag in zip(stages, (20, 200), strict=True):
+        at = round((alert.t - 1.7e9) / DT)
+        assert 0.8 < decorrelation_lags(camera.scene, np.array([at]))[0] / lag < 1.25, (alert.reason, at)
+    last = sink.stats[-1].kinetics["film"]
+    assert set(last.stages) == {"touch", "tack_free"} and last.next_stage is None
+    touch, tack = (alert.t - 1.7e9 for alert in stages)
+    midway = next(s for s in sink.stats if "film" in s.kinetics and s.t - 1.7e9 >= (touch + tack) / 2)
+    remaining = midway.kinetics["film"].time_to_next_stage_s
+    assert remaining is not None and remaining == pytest.approx(tack - (midway.t - 1.7e9), rel=0.3)
+    at_stages = [decorrelation_lags(camera.scene, np.array([round((a.t - 1.7e9) / DT)]))[0] / lag
+                 for a, lag in zip(stages, (20, 200), strict=True)]
     print(f"{FRAMES} frames of {SIZE}² in {elapsed:.1f} s; median |τ/truth - 1| = {np.median(error):.3f} "
-          f"over {inside.sum()} samples; read {pipeline.measurement.kinetics_read_s * 1e3:.2f} ms")
+          f"over {inside.sum()} samples; read {pipeline.measurement.kinetics_read_s * 1e3:.2f} ms; truth/stage τ "
+          f"at the stages {at_stages[0]:.3f}, {at_stages[1]:.3f}; time to tack-free midway {remaining:.1f} s "
+          f"against {tack - (midway.t - 1.7e9):.1f} s")
 
 
 @pytest.mark.timeout(120)
