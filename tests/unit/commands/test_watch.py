@@ -115,7 +115,7 @@ def test_malformed_payloads_are_shown_as_such_never_raised():
     assert len(body) == 5 and all(line.startswith("unreadable    edgedsm/line3/") for line in body)
     assert body[0].startswith("unreadable    edgedsm/line3/state: not a valid StateReport: t: Field required: "
                               "'{\"phase\": 2}'")
-    assert "not a valid Alert: type: Input should be 'transition', 'reset', 'fault' or 'warning'" in body[1]
+    assert "not a valid Alert: type: Input should be 'transition', 'reset', 'fault', 'warning' or 'stage'" in body[1]
     assert "recursion limit" in body[2] and body[2].endswith("...")
     assert "not a valid CommandReply" in body[3]
     assert "alerts: not a valid Alert" in body[4]
