@@ -65,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
             "homeassistant": config.homeassistant.discovery_prefix if config.homeassistant else None,
             "http": config.http.listen if config.http else None,
             "recording": recording_budget(config, frame_shape), "noise_floor": noise_floor_setup(config),
+            "kinetics": config.kinetics.model_dump() if config.kinetics.enabled else None,
             "notes": config.notes}))
         return 0
     mqtt = f"{config.mqtt.host}:{config.mqtt.port}, topics {base}/..." if config.mqtt else "none (log only)"
@@ -81,7 +82,23 @@ def run(args: argparse.Namespace) -> int:
     if budget is not None:
         print(budget_line(budget))
     print(noise_line(noise_floor_setup(config)))
+    if config.kinetics.enabled:
+        print(kinetics_line(config))
     return 0
+
+
+def kinetics_line(config: DaemonConfig) -> str:
+    """``[kinetics]`` in one line: its ages and what they keep per pixel (docs/kinetics.md)."""
+    section, dt = config.kinetics, config.camera.frame_interval_s
+    kept = "every pixel" if section.step == 1 else f"every {section.step}th pixel each way"
+    if dt is None:
+        size = "frames kept known once the frame interval is (camera.frame_interval_s unset)"
+    else:
+        slots = section.slots(dt)
+        size = f"{slots} reference frames ({(slots + 1) * 4} bytes per kept pixel) at Δt = {dt:g} s"
+    stages = ", ".join(f"{stage.name} at {stage.rate_below_hz:g} Hz" for stage in section.stages) or "none"
+    return (f"kinetics: on, τ up to {section.longest_age_s:g} s, {section.per_octave} per octave, {kept}; {size}; "
+            f"stages: {stages}")
 
 
 def noise_floor_setup(config: DaemonConfig) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from edgedsm.config.kinetics import KineticsSection
 from edgedsm.daemon.reload import restart_reasons
 from edgedsm.errors import ConfigError
 from edgedsm.estimators import registry
+from edgedsm.estimators.kinetics import slot_schedule
 from edgedsm.validation import validate
 
 CAMERA = "[camera]\nuri = 'sim:default'\n"
@@ -76,3 +77,17 @@ def test_schema_describes_every_field_and_a_change_restarts(capsys, tmp_path):
     running = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<a>")
     new = validate(DaemonConfig, {"camera": {"uri": "sim:default"}, "kinetics": {"enabled": True}}, "<b>")
     assert restart_reasons(new, running) == ["kinetics"]
+
+
+def test_check_config_says_what_the_kinetics_keep(tmp_path, capsys):
+    path = tmp_path / "k.toml"
+    path.write_text(CAMERA + "frame_interval_s = 0.1\n[estimator]\nactivity = 'kinetics'\n" + ON + "step = 4\n"
+                    "[[kinetics.stages]]\nname = 'tack_free'\nrate_below_hz = 0.05\n" + SECONDS)
+    assert main(["check-config", str(path)]) == 0
+    line = capsys.readouterr().out.splitlines()[-1]
+    slots = slot_schedule(6000, 4)[0].size  # 600 s at 0.1 s: 6,000 frames; slots + 1 buffers of 4 bytes
+    assert slots > 50
+    assert line == (f"kinetics: on, τ up to 600 s, 4 per octave, every 4th pixel each way; {slots} reference "
+                    f"frames ({(slots + 1) * 4} bytes per kept pixel) at Δt = 0.1 s; stages: tack_free at 0.05 Hz")
+    assert main(["check-config", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["kinetics"]["step"] == 4
