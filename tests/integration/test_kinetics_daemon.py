@@ -10,6 +10,7 @@ drying -> dry."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,12 +20,14 @@ from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.devices.camera import SimulatedCamera
 from edgedsm.messages import Clock
 from edgedsm.publish.sink import RecordingSink
-from edgedsm.sim import Simulator, scene_from_dict
+from edgedsm.sim import Simulator, load_scene, scene_from_dict
 from edgedsm.sim.activity import decorrelation_lags
 from edgedsm.sim.detector import DetectorRows
 from edgedsm.validation import validate
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+DEMO_SCENE = Path(__file__).resolve().parents[2] / "config" / "scenes" / "drying_demo.toml"
 
 SIZE, FRAMES, DT, LONGEST = 32, 16_000, 0.05, 1024  # frames; Δt in s
 STATS_S = 2.0  # a stats message (with every region's kinetics) every 40 frames
@@ -120,10 +123,56 @@ def test_the_daemon_follows_a_film_drying_over_four_decades(size: int, frames: i
     assert remaining is not None and remaining == pytest.approx(tack - (midway.t - 1.7e9), rel=0.5)
     at_stages = [decorrelation_lags(camera.scene, np.array([round((a.t - 1.7e9) / DT)]))[0] / lag
                  for a, lag in zip(stages, (20, 200), strict=True)]
-    print(f"{pipeline.counters['frames']} frames of {size}² in {elapsed:.1f} s; median |τ/truth - 1| = {np.median(error):.3f} "
-          f"over {inside.sum()} samples; read {pipeline.measurement.kinetics_read_s * 1e3:.2f} ms; truth/stage τ "
-          f"at the stages {at_stages[0]:.3f}, {at_stages[1]:.3f}; time to tack-free midway {remaining:.1f} s "
-          f"against {tack - (midway.t - 1.7e9):.1f} s")
+    read_ms = pipeline.measurement.kinetics_read_s * 1e3
+    print(f"{pipeline.counters['frames']} frames of {size}² in {elapsed:.1f} s; median |τ/truth - 1| = "
+          f"{np.median(error):.3f} over {inside.sum()} samples; read {read_ms:.2f} ms; truth/stage τ at the "
+          f"stages {at_stages[0]:.3f}, {at_stages[1]:.3f}; time to tack-free midway {remaining:.1f} s against "
+          f"{tack - (midway.t - 1.7e9):.1f} s")
+
+
+@pytest.mark.timeout(120)
+def test_the_demo_plate_goes_wet_drying_dry_on_the_kinetics() -> None:
+    """config/scenes/drying_demo.toml (τc 3 -> 300 frames between frames 200 and 1,000; 64² here)
+    judged on the kinetics: wet while τ <= 0.5 s (10 frames), dry from 5 s (100 frames) on."""
+    scene = load_scene(DEMO_SCENE)
+    scene.scene.size = 64
+    camera = SimulatedCamera(scene, time_scale=0)
+    settings = validate(DaemonConfig, {
+        "camera": {"uri": "sim:default", "frame_interval_s": scene.scene.dt,
+                   "noise": {"gain": DetectorRows(scene).scale}},
+        "acquisition": {"dark_frames": 0, "dark_every_min": 0, "queue_frames": 64},
+        "estimator": {"activity": "kinetics", "window": 50, "lag": 2},
+        "kinetics": {"enabled": True, "longest_age_s": 30.0},
+        "regions": [{"name": "plate", "wet_below_s": 0.5, "dry_above_s": 5.0, "min_dwell_s": 2.0}]}, "<demo>")
+    sink = RecordingSink()
+    box: dict[str, Pipeline] = {}
+
+    def frame_clock() -> float:
+        return box["p"].counters["frames"] * scene.scene.dt if "p" in box else 0.0
+
+    pipeline = Pipeline(settings, camera, sink, cadence=Cadence(1.0, 1e6),
+                        clock=Clock(monotonic=frame_clock, wall=lambda: 1.7e9 + frame_clock()))
+    box["p"] = pipeline
+    grab = camera._do_grab
+
+    def waiting_grab(timeout_s: float):
+        deadline = time.monotonic() + 10.0
+        while not pipeline.capture.stopping and time.monotonic() < deadline and (
+                pipeline.capture.frames.qsize() >= 8 or pipeline.evaluator.busy):
+            time.sleep(0.0005)
+        return grab(timeout_s)
+
+    camera._do_grab = waiting_grab
+    pipeline.run(lambda: False, max_frames=2000)
+    moves = [(a.from_state, a.to_state) for a in sink.alerts if a.to_state is not None]
+    assert moves == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")], moves
+    wet_at, dry_at = ((a.t - 1.7e9) / scene.scene.dt for a in sink.alerts if a.to_state in ("drying", "dry"))
+    truth = decorrelation_lags(scene, np.array([round(wet_at), round(dry_at)]))
+    assert 0.75 < truth[0] / 10.0 < 1.5 and 0.75 < truth[1] / 100.0 < 1.5, truth  # the thresholds' τ, in frames
+    print(f"demo plate: drying at frame {wet_at:.0f} (truth {truth[0]:.1f} frames), dry at {dry_at:.0f} "
+          f"(truth {truth[1]:.1f})")
+    last = sink.stats[-1]
+    assert last.kinetics["plate"].status == "ok" and last.activity["plate"].estimator == "kinetics"
 
 
 @pytest.mark.timeout(120)
