@@ -3,9 +3,9 @@
 Per region the daemon keeps past frames at ages spread evenly in log age up to ``longest_age_s``
 and reads, at the states cadence, the age at which the region's normalised two-time correlation
 falls to 1/e (:class:`edgedsm.estimators.kinetics.Kinetics`). Off by default: it costs memory
-((slots + 1) × 4 bytes per kept pixel) and a push per frame about 1.7× the default S1+S2+S3 push
-at full resolution (docs/kinetics.md, "Cost and memory"); ``step`` keeps every step-th pixel each
-way and divides both by step².
+((slots + 1) × 4 bytes per kept pixel) and a push per frame of the order of the default S1+S2+S3
+push at full resolution (docs/kinetics.md, "Cost in the daemon at 2048²"); ``step`` keeps every
+step-th pixel each way and divides both by step².
 """
 
 from __future__ import annotations
@@ -46,9 +46,9 @@ class KineticsSection(StrictModel):
     """``[kinetics]``: the per-region decorrelation time τ(t) in s and its rate 1/τ in Hz."""
 
     enabled: bool = Field(False, description="measure each region's decorrelation time over decades "
-                                             "(docs/kinetics.md); off by default: a push costs about 1.7x the "
-                                             "default S1+S2+S3 push at full resolution (step = 1), about 0.17x at "
-                                             "step = 4")
+                                             "(docs/kinetics.md); off by default: at 2048² a push of two regions "
+                                             "covering the frame costs 2-7x the default S1+S2+S3 push at full "
+                                             "resolution (step = 1), 0.5x at step = 4, 0.06x at step = 12")
     per_octave: int = Field(DEFAULT_PER_OCTAVE, ge=1, le=MAX_PER_OCTAVE,
                             description="reference frames per octave of age (4: 57 kept frames up to 4,096 frames, "
                                         "each age within 19 % of its nominal one)")

@@ -2,12 +2,12 @@
 :class:`~edgedsm.estimators.kinetics.Kinetics` per region fed with every frame, read when a value
 is wanted, its decorrelation time τ·Δt in s and its rate 1/(τ·Δt) in Hz, or the status that says
 why there is none. The daemon's pipeline thread, ``analyze --timeline --kinetics`` and the
-measurement core read it through :class:`RegionKinetics`: the same numbers for the same frames.
+measurement core read it through :class:`KineticsRegions`: the same numbers for the same frames.
 
-Where the work runs: :meth:`RegionKinetics.push` is O(region pixels) per frame (the fused numba
-pass: 1.7× the default S1+S2+S3 push per pixel of a region at full resolution, step 1; about a
-16th at step 4); :meth:`RegionKinetics.read` is O(slots × region pixels) (3.2× a default push at
-step 1) and is called at the evaluation cadence, not every frame. Both touch the reference frames,
+Where the work runs: :meth:`KineticsRegions.push` is O(region pixels) per frame (the fused numba
+pass; ``step`` divides it by step²); :meth:`KineticsRegions.read` is O(slots × region pixels) and is
+called at the evaluation cadence, not every frame (their cost against the default push:
+docs/kinetics.md, "Cost in the daemon at 2048²"). Both touch the reference frames,
 so both run on the thread that pushes (the daemon's pipeline thread): the evaluator gets the
 readings, never the frames.
 
