@@ -118,6 +118,8 @@ def _activity(args: argparse.Namespace, config: DaemonConfig | None) -> str:
     """What the timeline's ``activity`` column judges: --estimator when the daemon can judge on it,
     else the config's estimator.activity, else S2."""
     estimator = getattr(args, "estimator", None)
+    if config is not None and config.estimator.activity == "kinetics":
+        return "kinetics"  # its regions' seconds thresholds are the kinetics': judged on nothing else
     if estimator in registry.activities():
         return estimator
     return config.estimator.activity if config is not None else "s2"

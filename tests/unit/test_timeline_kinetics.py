@@ -87,3 +87,21 @@ def test_analyze_writes_the_kinetics_columns(tmp_path: Path) -> None:
     assert "kinetics_tau_s" not in (plain / "timeline.csv").read_text().splitlines()[0]
     assert main(["analyze", str(scene), "--frames", "100", "--timeline", str(plain), "--window", "50",
                  "--kinetics", "--kinetics-longest-s", "0"]) == 78
+
+
+def test_a_config_judging_on_the_kinetics_gives_the_timeline_its_activity(tmp_path: Path) -> None:
+    scene = tmp_path / "film.toml"
+    scene.write_text("[scene]\nsize = 32\nseed = 4\ndt = 0.05\n[activity]\ntau_c = 6.0\n"
+                     "[detector]\nn_max = 1000.0\nbits = 8\n")
+    config = tmp_path / "daemon.toml"
+    config.write_text("[camera]\nuri = 'sim:default'\n[camera.noise]\ngain = 0.247\n[estimator]\n"
+                      "activity = 'kinetics'\n[kinetics]\nenabled = true\nlongest_age_s = 10\n"
+                      "[[regions]]\nname = 'plate'\nwet_below_s = 0.5\ndry_above_s = 5\n")
+    out = tmp_path / "out"
+    assert main(["analyze", str(scene), "--frames", "300", "--timeline", str(out), "--window", "50", "--lag", "2",
+                 "--every", "50", "-c", str(config)]) == 0  # no --kinetics: the config judges on it
+    with (out / "timeline.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    for row in rows:
+        assert row["estimator"] == "kinetics" and row["kinetics_status"] == "ok"
+        assert float(row["activity"]) == float(row["kinetics_tau_s"]) == pytest.approx(0.3, rel=0.3)
