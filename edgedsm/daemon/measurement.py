@@ -44,6 +44,9 @@ log = logging.getLogger(__name__)
 #: The frame interval the kinetics' memory is checked at before frames tell it (no
 #: ``camera.frame_interval_s``): 30 frames a second.
 KINETICS_BUDGET_INTERVAL_S = 1.0 / 30.0
+#: Frames whose timestamps give the interval that fixes the kinetics' longest age in frames
+#: (without ``camera.frame_interval_s``): the median of this many steps, not one step's jitter.
+KINETICS_INTERVAL_FRAMES = 16
 
 
 def full_mask(box: RegionBox, shape: tuple[int, int]) -> np.ndarray:
@@ -83,6 +86,7 @@ class Measurement:
         self.kinetics: KineticsRegions | None = None  # [kinetics]: each region's reference frames
         #: seconds the last kinetics read took (pipeline thread; O(slots × region pixels))
         self.kinetics_read_s = 0.0
+        self._interval_frames = 0  # frames seen while the kinetics waited for the interval
 
     def prepare(self, frame: Frame) -> None:
         """At the first frame (before the laser goes on): the engine and the region masks for its
@@ -108,7 +112,7 @@ class Measurement:
             if self.noise is not None:
                 self.noise.push(pixels)
             if self.kinetics is not None:  # the interval fixes the longest age in frames, once
-                self.kinetics.push(pixels, None if self.kinetics.built else self.tau.interval.seconds())
+                self.kinetics.push(pixels, None if self.kinetics.built else self._kinetics_interval())
         except FrameError as exc:
             self.counters["dropped_invalid"] += 1
             log.warning("frame %d dropped: %s", frame.seq, exc)
@@ -193,6 +197,14 @@ class Measurement:
         if self.probes.snapshot_taken is not None:
             self.probes.snapshot_taken(snapshot, time.perf_counter() - started)
         return snapshot
+
+    def _kinetics_interval(self) -> float | None:
+        """The interval to build the kinetics with: the configured one, else the frames' once
+        KINETICS_INTERVAL_FRAMES of them were seen (None until then: the frames wait)."""
+        self._interval_frames += 1
+        if self.config.camera.frame_interval_s is None and self._interval_frames < KINETICS_INTERVAL_FRAMES:
+            return None
+        return self.tau.interval.seconds()
 
     def _read_kinetics(self, fps: float) -> dict[str, RegionKinetics]:
         """Each region's kinetics now, on this thread (the reference frames are the pushes'): at the
