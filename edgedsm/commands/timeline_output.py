@@ -273,6 +273,11 @@ def activity_figure(result: Timeline, title: str):
             ax.plot(result.series(name, "time_s"), result.series(name, column), label=name)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
+    if result.kinetics:  # beside the window's τc, which saturates at K·Δt: the kinetics' τ over decades
+        for name in names:
+            axes[-1].plot(result.series(name, "time_s"), result.series(name, "kinetics_tau_s"), ls="--",
+                          label=f"{name} {registry.get('kinetics').label}")
+        axes[-1].set_ylabel(f"{registry.get('tau_c').label}, {_label('kinetics')}")
     axes[-1].axhline(result.max_lag * result.dt, color="grey", ls="--", lw=0.8,
                      label=f"K·Δt = {seconds_label(result.max_lag * result.dt)}: longer τc reads as this")
     axes[-1].legend(fontsize=8)

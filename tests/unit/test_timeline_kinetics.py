@@ -105,3 +105,20 @@ def test_a_config_judging_on_the_kinetics_gives_the_timeline_its_activity(tmp_pa
     for row in rows:
         assert row["estimator"] == "kinetics" and row["kinetics_status"] == "ok"
         assert float(row["activity"]) == float(row["kinetics_tau_s"]) == pytest.approx(0.3, rel=0.3)
+
+
+def test_timeline_png_draws_the_kinetics_beside_tau_c() -> None:
+    from edgedsm.commands.timeline_output import activity_figure
+
+    film = scene_from_dict({"scene": {"size": SIZE, "seed": 4, "dt": DT}, "activity": {"tau_c": 6.0},
+                            "detector": {"n_max": 1000.0, "bits": 8}})
+    simulator = Simulator(film)
+    result = timeline((simulator.next_frame() for _ in range(200)), {"film": np.ones((SIZE, SIZE), bool)},
+                      window=50, lag=2, every=50, dt=DT, bits=8, with_noise=False,
+                      kinetics=KineticsSection(longest_age_s=10.0))
+    figure = activity_figure(result, "film")
+    tau_axis = figure.axes[-1]
+    lines = {line.get_label(): line for line in tau_axis.get_lines()}
+    assert "film τ (kinetics)" in lines and tau_axis.get_yscale() == "log"
+    np.testing.assert_allclose(lines["film τ (kinetics)"].get_ydata(), result.series("film", "kinetics_tau_s"))
+    assert tau_axis.get_ylabel() == "τc, τ (kinetics) (s)"
