@@ -1,7 +1,6 @@
 """Each region's drying kinetics in seconds (issue 37; docs/kinetics.md, "In the daemon and the
-timeline"): one
-:class:`~edgedsm.estimators.kinetics.Kinetics` per region fed with every frame, read when a value
-is wanted, its decorrelation time τ·Δt in s and its rate 1/(τ·Δt) in Hz, or the status that says
+timeline"): one :class:`~edgedsm.estimators.kinetics.Kinetics` per region fed with every frame,
+read when a value is wanted, its decorrelation time τ·Δt in s and its rate 1/(τ·Δt) in Hz, or the status that says
 why there is none. The daemon's pipeline thread, ``analyze --timeline --kinetics`` and the
 measurement core read it through :class:`KineticsRegions`: the same numbers for the same frames.
 
