@@ -1,7 +1,7 @@
 """Each region's drying kinetics in seconds (issue 37; docs/kinetics.md, "In the daemon and the
 timeline"): one :class:`~edgedsm.estimators.kinetics.Kinetics` per region fed with every frame,
-read when a value is wanted, its decorrelation time τ·Δt in s and its rate 1/(τ·Δt) in Hz, or the status that says
-why there is none. The daemon's pipeline thread, ``analyze --timeline --kinetics`` and the
+read when a value is wanted, its decorrelation time τ·Δt in s and its rate 1/(τ·Δt) in Hz, or the
+status that says why there is none. The daemon's pipeline thread, ``analyze --timeline --kinetics`` and the
 measurement core read it through :class:`KineticsRegions`: the same numbers for the same frames.
 
 Where the work runs: :meth:`KineticsRegions.push` is O(region pixels) per frame (the fused numba
