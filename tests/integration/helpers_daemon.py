@@ -5,6 +5,7 @@ log collected line by line (used by test_aravis.py and tests/faults).
 from __future__ import annotations
 
 import contextlib
+import http.client
 import itertools
 import json
 import re
@@ -236,3 +237,14 @@ def wait_frames_beyond(subscriber: Subscriber, topics: Topics, count: int, timeo
     """Wait until a stats message reports more than ``count`` frames; returns its count."""
     wait_until(lambda: frames_published(subscriber, topics) > count, timeout, f"stats with more than {count} frames")
     return frames_published(subscriber, topics)
+
+
+def http_get(port: int, path: str) -> tuple[int, bytes]:
+    """GET ``path`` from a daemon's HTTP server on 127.0.0.1: (status, body)."""
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    try:
+        connection.request("GET", path)
+        response = connection.getresponse()
+        return response.status, response.read()
+    finally:
+        connection.close()

@@ -16,7 +16,6 @@ docs/sparkplug.md say:
 
 from __future__ import annotations
 
-import http.client
 import json
 import re
 import time
@@ -26,7 +25,7 @@ from typing import Any
 
 import jinja2
 import pytest
-from helpers_daemon import Daemon, base_config, write_config
+from helpers_daemon import Daemon, base_config, http_get, write_config
 from helpers_dashboard import DashboardProcess
 from helpers_mqtt import REPO, WAIT_S, Broker, Subscriber, free_port, wait_until
 from prometheus_client.parser import text_string_to_metric_families
@@ -122,16 +121,6 @@ def _check(kind: str, published: set[str], documented: tuple[set[str], set[str],
 
 # -- the run ----------------------------------------------------------------------------------------
 
-def _get(port: int, path: str) -> tuple[int, bytes]:
-    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
-    try:
-        connection.request("GET", path)
-        response = connection.getresponse()
-        return response.status, response.read()
-    finally:
-        connection.close()
-
-
 def _json(subscriber: Subscriber, topic: str) -> list[dict[str, Any]]:
     return [m.json() for m in subscriber.on(topic) if m.payload]
 
@@ -164,8 +153,8 @@ def _run_and_check(daemon: Daemon, live: Subscriber, dashboard: DashboardProcess
     request = {"request_id": "docs-1"}
     live.client.publish(TOPICS.command("publish_maps"), json.dumps(request), qos=1)
     daemon.wait_until(lambda: _json(live, TOPICS.reply("publish_maps")), WAIT_S, "the command's reply")
-    daemon.wait_until(lambda: _get(http_port, "/healthz")[0] == 200, WAIT_S, "/healthz 200")
-    scraped = [_get(http_port, "/metrics")[1].decode()]
+    daemon.wait_until(lambda: http_get(http_port, "/healthz")[0] == 200, WAIT_S, "/healthz 200")
+    scraped = [http_get(http_port, "/metrics")[1].decode()]
     time.sleep(1.0)  # the dashboard writes its history every 0.5 s
     start = min(m.json()["t"] for m in live.on(TOPICS.stats))
     history = json.loads(dashboard.get(f"/api/history?device=e2e&region=plate&from={start - 1}&to={time.time() + 5}"))

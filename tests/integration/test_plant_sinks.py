@@ -5,7 +5,6 @@ does), `/metrics` scraped with a real HTTP client and parsed with `prometheus_cl
 
 from __future__ import annotations
 
-import http.client
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -15,7 +14,7 @@ import cv2
 import jinja2
 import numpy as np
 import pytest
-from helpers_daemon import Daemon, base_config, write_config
+from helpers_daemon import Daemon, base_config, http_get, write_config
 from helpers_mqtt import WAIT_S, Broker, Received, Subscriber, free_port, wait_until
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -34,16 +33,6 @@ def _config(tmp_path: Path, port: int, http_port: int, region: str = "plate") ->
     config["homeassistant"] = {"discovery_prefix": PREFIX}
     config["http"] = {"listen": f"127.0.0.1:{http_port}", "stale_after_s": 3.0}
     return config
-
-
-def _get(port: int, path: str) -> tuple[int, bytes]:
-    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
-    try:
-        connection.request("GET", path)
-        response = connection.getresponse()
-        return response.status, response.read()
-    finally:
-        connection.close()
 
 
 def _render(template: str, payload: bytes) -> str:
@@ -128,8 +117,8 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     assert _render(state_entity["value_template"], state.payload) == state.json()["regions"]["plate"]["state"]
 
     # Prometheus: scraped and parsed
-    wait_until(lambda: _get(http_port, "/healthz")[0] == 200, WAIT_S, "/healthz 200")
-    status, body = _get(http_port, "/metrics")
+    wait_until(lambda: http_get(http_port, "/healthz")[0] == 200, WAIT_S, "/healthz 200")
+    status, body = http_get(http_port, "/metrics")
     assert status == 200
     samples = {(s.name, tuple(sorted(s.labels.items()))): s.value
                for family in text_string_to_metric_families(body.decode()) for s in family.samples}
@@ -144,8 +133,8 @@ def test_home_assistant_entities_and_metrics_of_a_running_daemon(
     verdicts = {labels: v for (name, labels), v in samples.items() if name == "edgedsm_region_signal"}
     assert len(verdicts) == 5 and sum(verdicts.values()) == 1, verdicts
     assert samples[("edgedsm_region_mean_intensity", (("region", "plate"),))] > 0
-    assert _get(http_port, "/nothing")[0] == 404
-    assert _get(http_port, "/healthz")[0] == 200  # still measuring
+    assert http_get(http_port, "/nothing")[0] == 404
+    assert http_get(http_port, "/healthz")[0] == 200  # still measuring
 
     # the JSON log names the region and the state entered on every transition
     daemon.wait_log(r'"region": "plate", "state": "', WAIT_S)
