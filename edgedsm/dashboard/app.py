@@ -44,15 +44,27 @@ def regions_from_configs(paths: list[Path]) -> dict[str, dict[str, RegionInfo]]:
         data = read_toml(path)
         device = data.get("device", {}).get("name", "camera1") if isinstance(data.get("device"), dict) else "camera1"
         regions: dict[str, RegionInfo] = {}
+        stages = _stages(data.get("kinetics"))
         for entry in data.get("regions", []) if isinstance(data.get("regions"), list) else []:
             if not isinstance(entry, dict) or not isinstance(entry.get("name"), str):
                 continue
             shape: dict[str, Any] = {key: value for key, value in entry.items() if key in SHAPE_KEYS}
             shape.setdefault("shape", "full")
             regions[entry["name"]] = RegionInfo(entry["name"], shape, _float(entry.get("wet_above")),
-                                                _float(entry.get("dry_below")))
+                                                _float(entry.get("dry_below")), stages)
         found[str(device)] = regions
     return found
+
+
+def _stages(kinetics: Any) -> list[dict[str, Any]]:
+    """The device's drying stages ([[kinetics.stages]], with [kinetics] enabled): each a name and a
+    rate in Hz; an entry the page could not draw is left out (the daemon's own check refuses it)."""
+    if not isinstance(kinetics, dict) or kinetics.get("enabled") is not True:
+        return []
+    stages = kinetics.get("stages") if isinstance(kinetics.get("stages"), list) else []
+    return [{"name": stage["name"], "rate_below_hz": rate} for stage in stages
+            if isinstance(stage, dict) and isinstance(stage.get("name"), str)
+            and (rate := _float(stage.get("rate_below_hz"))) is not None and rate > 0]
 
 
 def _float(value: Any) -> float | None:

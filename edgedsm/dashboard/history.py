@@ -1,4 +1,4 @@
-"""Per-region activity, states and alerts in SQLite, so curves survive a dashboard restart.
+"""Per-region activity, states, kinetics and alerts in SQLite, so curves survive a dashboard restart.
 
 One writer thread owns the writing connection (WAL: readers never block it) and commits in
 batches, at most every ``COMMIT_EVERY_S``; readers open their own short-lived connections.
@@ -26,7 +26,8 @@ MAX_POINTS = 5000  # a history answer holds at most this many points (averaged i
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS samples (
-    device TEXT NOT NULL, region TEXT NOT NULL, t REAL NOT NULL, activity REAL, state TEXT);
+    device TEXT NOT NULL, region TEXT NOT NULL, t REAL NOT NULL, activity REAL, state TEXT,
+    kinetics_tau_s REAL, kinetics_status TEXT, kinetics_bound_s REAL);
 CREATE INDEX IF NOT EXISTS samples_by_region ON samples (device, region, t);
 CREATE TABLE IF NOT EXISTS alerts (
     device TEXT NOT NULL, t REAL NOT NULL, kind TEXT NOT NULL, region TEXT, from_state TEXT, to_state TEXT,
@@ -34,6 +35,8 @@ CREATE TABLE IF NOT EXISTS alerts (
 CREATE INDEX IF NOT EXISTS alerts_by_device ON alerts (device, t);
 CREATE UNIQUE INDEX IF NOT EXISTS alerts_identity ON alerts (device, stream, seq) WHERE seq IS NOT NULL;
 """
+#: Columns a database written before the kinetics lacks (added in place: its history is kept).
+KINETICS_COLUMNS = {"kinetics_tau_s": "REAL", "kinetics_status": "TEXT", "kinetics_bound_s": "REAL"}
 
 
 @dataclass(frozen=True)
@@ -43,6 +46,11 @@ class Sample:
     t: float
     activity: float | None
     state: str | None
+    # the region's kinetics ([kinetics] on): τ in s (status ok), its status, the bound of above/below;
+    # the rate is 1/τ, not stored twice
+    kinetics_tau_s: float | None = None
+    kinetics_status: str | None = None
+    kinetics_bound_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,11 @@ class History:
         self._accepted = 0
         connection = self._connect()
         connection.executescript(SCHEMA)
+        have = {row[1] for row in connection.execute("PRAGMA table_info(samples)")}
+        for name, kind in KINETICS_COLUMNS.items():
+            if name not in have:
+                connection.execute(f"ALTER TABLE samples ADD COLUMN {name} {kind}")
+        connection.commit()
         connection.close()
         self._thread = threading.Thread(target=self._write_loop, name="dashboard-history", daemon=True)
         self._thread.start()
@@ -125,12 +138,14 @@ class History:
         connection.close()
 
     def _write(self, connection: sqlite3.Connection, batch: list[Sample | AlertRow]) -> None:
-        samples = [(r.device, r.region, r.t, r.activity, r.state) for r in batch if isinstance(r, Sample)]
+        samples = [(r.device, r.region, r.t, r.activity, r.state, r.kinetics_tau_s, r.kinetics_status,
+                    r.kinetics_bound_s) for r in batch if isinstance(r, Sample)]
         alerts = [(r.device, r.t, r.kind, r.region, r.from_state, r.to_state, r.reason, r.activity, r.stream, r.seq)
                   for r in batch if isinstance(r, AlertRow)]
         try:
             with connection:
-                connection.executemany("INSERT INTO samples VALUES (?, ?, ?, ?, ?)", samples)
+                connection.executemany("INSERT INTO samples (device, region, t, activity, state, kinetics_tau_s, "
+                                       "kinetics_status, kinetics_bound_s) VALUES (?, ?, ?, ?, ?, ?, ?, ?)", samples)
                 connection.executemany("INSERT OR IGNORE INTO alerts VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", alerts)
         except sqlite3.Error as exc:  # a full disk must not stop the live view
             self.dropped += len(batch)
@@ -174,6 +189,30 @@ class History:
         finally:
             connection.close()
         return [(float(t), None if a is None else float(a), s or "") for t, a, s in rows]
+
+    def kinetics(self, device: str, region: str, start: float,
+                 end: float) -> list[tuple[float, float | None, str, float | None]]:
+        """(t, τ in s, status, bound in s) of one region's kinetics in [start, end] (samples without
+        any: none), at most ``MAX_POINTS``; when there are more, each time bucket's last reading (a
+        mean of τ with a status that has none would be a number where there is none)."""
+        connection = self._connect()
+        try:
+            where = ("FROM samples WHERE device = ? AND region = ? AND t BETWEEN ? AND ? "
+                     "AND kinetics_status IS NOT NULL")
+            args = (device, region, start, end)
+            columns = "kinetics_tau_s, kinetics_status, kinetics_bound_s"
+            (count,) = connection.execute(f"SELECT COUNT(*) {where}", args).fetchone()
+            if count <= MAX_POINTS:
+                rows = connection.execute(f"SELECT t, {columns} {where} ORDER BY t", args).fetchall()
+            else:  # SQLite takes the bare columns from the row of MAX(t): the bucket's last reading
+                bucket = (end - start) / MAX_POINTS
+                rows = connection.execute(
+                    f"SELECT MAX(t), {columns} {where} GROUP BY CAST((t - ?) / ? AS INTEGER) ORDER BY 1",
+                    (*args, start, bucket)).fetchall()
+        finally:
+            connection.close()
+        return [(float(t), None if tau is None else float(tau), str(status), None if bound is None else float(bound))
+                for t, tau, status, bound in rows]
 
     def alerts(self, device: str, region: str | None, start: float, end: float,
                limit: int = 1000) -> list[dict[str, Any]]:

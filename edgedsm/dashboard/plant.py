@@ -52,6 +52,8 @@ class RegionInfo:
     shape: dict[str, Any]
     wet_above: float | None = None
     dry_below: float | None = None
+    # the device's [[kinetics.stages]] ([kinetics] on): {"name", "rate_below_hz"}, drawn on the kinetics curve
+    stages: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -181,7 +183,7 @@ class Plant:
         return "device", device.summary()
 
     def _stats(self, device: Device, stats: Stats) -> None:
-        if max(len(stats.regions), len(stats.states), len(stats.signal)) > MAX_REGIONS:
+        if max(len(stats.regions), len(stats.states), len(stats.signal), len(stats.kinetics)) > MAX_REGIONS:
             raise Rejected(f"more than {MAX_REGIONS} regions")
         # the plain region mean of the judged map, shown beside the judged value under its own name
         plain = {name: per_map[stats.estimator].mean if stats.estimator in per_map else None
@@ -194,11 +196,16 @@ class Plant:
                         "activity": activity, "judged": judged, "plain": plain,
                         "plain_label": f"{units.label_of(stats.estimator)} mean",
                         "states": dict(stats.states),
+                        # each region's decorrelation time, rate and status ([kinetics] on; a status, never a
+                        # number, where there is none) and the drying stages it reached
+                        "kinetics": {name: reading.to_json() for name, reading in stats.kinetics.items()},
                         # each region's signal quality and activity above the noise (estimator.noise_floor)
                         "signal": {name: signal.to_json() for name, signal in stats.signal.items()}}
         if self.history is not None:
-            for region in set(activity) | set(stats.states):
-                self.history.add(Sample(device.name, region, stats.t, activity.get(region), stats.states.get(region)))
+            for region in set(activity) | set(stats.states) | set(stats.kinetics):
+                reading = stats.kinetics.get(region)
+                self.history.add(Sample(device.name, region, stats.t, activity.get(region), stats.states.get(region),
+                                        *(() if reading is None else (reading.tau_s, reading.status, reading.bound_s))))
 
     def _alert(self, device: Device, alert: Alert) -> tuple[str, dict[str, Any]] | None:
         if alert.seq is not None:

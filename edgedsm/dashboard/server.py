@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 STATIC = {  # file -> content type; nothing else is served
     "index.html": "text/html; charset=utf-8",
     "app.js": "text/javascript; charset=utf-8",
+    "kinetics.js": "text/javascript; charset=utf-8",
     "app.css": "text/css; charset=utf-8",
     "vendor/uPlot.iife.min.js": "text/javascript; charset=utf-8",
     "vendor/uPlot.min.css": "text/css; charset=utf-8",
@@ -280,19 +281,31 @@ class Handler(GuardedHandler):
         if not start <= end or end - start > 31 * DAY_S:
             raise BadRequest("from must be before to, at most 31 days apart")
         points = self.server.history.samples(device, region, start, end)
+        kinetics = self.server.history.kinetics(device, region, start, end)
         alerts = self.server.history.alerts(device, region, start, end)
         if query.get("format", "json") == "csv":
             out = io.StringIO()
             writer = csv.writer(out, lineterminator="\n")
-            writer.writerow(["t", "device", "region", "activity", "state"])
-            writer.writerows([t, device, region, "" if a is None else a, s] for t, a, s in points)
+            header = ["t", "device", "region", "activity", "state"]
+            rows = {t: [t, device, region, "" if a is None else a, s] for t, a, s in points}
+            if kinetics:  # the kinetics' columns on the same rows (a sample carries both); its rate is 1/τ
+                header += ["kinetics_tau_s", "kinetics_rate_hz", "kinetics_status", "kinetics_bound_s"]
+                for row in rows.values():
+                    row += ["", "", "", ""]
+                for t, tau, status, bound in kinetics:
+                    row = rows.setdefault(t, [t, device, region, "", "", "", "", "", ""])
+                    row[5:] = ["" if tau is None else tau, "" if tau is None else 1.0 / tau, status,
+                               "" if bound is None else bound]
+            writer.writerow(header)
+            writer.writerows(rows[t] for t in sorted(rows))
             self._send(HTTPStatus.OK, out.getvalue().encode(), "text/csv; charset=utf-8",
                        extra={"Content-Disposition": 'attachment; filename="history.csv"'})
             return
         info = self.server.plant.region_info(device, region)
         thresholds = None if info is None else {"wet_above": info.wet_above, "dry_below": info.dry_below}
         self._json({"device": device, "region": region, "from": start, "to": end, "points": points,
-                    "alerts": alerts, "thresholds": thresholds})
+                    "alerts": alerts, "thresholds": thresholds, "kinetics": kinetics,
+                    "stages": [] if info is None else info.stages})
 
     def _region_stats(self, body: dict[str, Any]) -> None:
         device, name = str(body.get("device", "")), str(body.get("map", ""))

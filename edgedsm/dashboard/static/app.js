@@ -6,7 +6,7 @@ const SVG = "http://www.w3.org/2000/svg";
 const devices = new Map(); // name -> summary from the server
 let selected = null;
 let plot = null;
-let history = { device: null, region: null, points: [], alerts: [], thresholds: null };
+let history = { device: null, region: null, points: [], alerts: [], thresholds: null, kinetics: [], stages: [] };
 let tool = null;
 let drawing = null;
 let lastShape = null;
@@ -289,16 +289,21 @@ function renderAlerts(device) {
 
 async function loadHistory() {
   const region = $("region-select").value;
-  if (!selected || !region) { history.points = []; drawPlot(); return 0; }
+  if (!selected || !region) {
+    history = { ...history, points: [], kinetics: [], stages: [] };
+    drawPlot(); edgedsmKinetics.show(history); return 0;
+  }
   const span = Number($("range-select").value);
   const to = Date.now() / 1000 + 5;
   const query = `device=${encodeURIComponent(selected)}&region=${encodeURIComponent(region)}&from=${to - span}&to=${to}`;
   $("csv-link").setAttribute("href", `/api/history?${query}&format=csv`);
   const answer = await fetch(`/api/history?${query}`).then((r) => r.json());
   if (answer.device !== selected || answer.region !== $("region-select").value) return 0;
-  history = { device: selected, region, points: answer.points, alerts: answer.alerts, thresholds: answer.thresholds };
+  history = { device: selected, region, points: answer.points, alerts: answer.alerts, thresholds: answer.thresholds,
+    kinetics: answer.kinetics || [], stages: answer.stages || [] };
   plotCaption();
   drawPlot();
+  edgedsmKinetics.show(history); // [kinetics] on: τ or the rate on a log axis, with the drying stages
   return history.points.length;
 }
 
@@ -375,6 +380,7 @@ function appendLive(device) {
   const stats = device.stats;
   if (!plot || !stats || history.device !== device.device || history.region !== region) return;
   plotCaption();
+  edgedsmKinetics.append(stats.t, (stats.kinetics || {})[region]);
   const last = history.points.length ? history.points[history.points.length - 1][0] : -Infinity;
   if (!(stats.t > last) || !(region in (stats.activity || {}) || region in (stats.states || {}))) return;
   const activity = (stats.activity || {})[region];
@@ -579,7 +585,11 @@ function connect() {
     known.alerts = [...(known.alerts || []), alert].slice(-50);
     if (device === selected) {
       renderAlerts(known);
-      if (history.device === device && (alert.region === history.region || !alert.region)) { history.alerts.push(alert); if (plot) plot.redraw(); }
+      if (history.device === device && (alert.region === history.region || !alert.region)) {
+        history.alerts.push(alert);
+        if (plot) plot.redraw();
+        edgedsmKinetics.redraw(); // a stage reached: its mark
+      }
     }
   });
   source.addEventListener("map", (event) => {
@@ -601,7 +611,8 @@ async function main() {
   $("region-select").addEventListener("change", loadHistory);
   $("range-select").addEventListener("change", loadHistory);
   $("map-select").addEventListener("change", () => { $("map-select").dataset.chosen = $("map-select").value; renderMap(); });
-  window.addEventListener("resize", () => plot && plot.setSize({ width: plotWidth(), height: 260 }));
+  $("kinetics-view").addEventListener("change", () => edgedsmKinetics.setView($("kinetics-view").value));
+  window.addEventListener("resize", () => { if (plot) plot.setSize({ width: plotWidth(), height: 260 }); edgedsmKinetics.resize(); });
   connect();
 }
 
@@ -612,6 +623,9 @@ window.edgedsmDashboard = {
   plotPoints: () => (plot ? plot.data[0].map((t, i) => [t, plot.data[1][i]]) : []),
   plotCaption: () => $("plot-caption").textContent,
   thresholds: () => history.thresholds,
+  kinetics: () => edgedsmKinetics.state(),
+  kineticsPos: (values) => edgedsmKinetics.pos(values),
+  kineticsView: (name) => edgedsmKinetics.setView(name),
 };
 
 main();
