@@ -76,8 +76,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "a pattern such as frames/%%05d.png")
     parser.add_argument("--channel", metavar="|".join(CHANNELS),
                         help="the channel of a colour input: red, green, blue, or luma (ITU-R BT.601 weights)")
-    parser.add_argument("--estimator", choices=tuple(DESCRIPTORS), default="s1", metavar="NAME",
-                        help="s1: plain; s2: normalised by intensity; s3: normalised by σ (default s1); "
+    parser.add_argument("--estimator", choices=tuple(DESCRIPTORS), default=None, metavar="NAME",
+                        help="s1: plain; s2: normalised by intensity; s3: normalised by σ (a map: default s1; "
+                             "--timeline: default the config's estimator.activity, which the daemon judges, else "
+                             "s2, the daemon's default); "
                              "or one of " + ", ".join(name for name in DESCRIPTORS if name not in ESTIMATORS)
                              + " (docs/descriptors.md)")
     parser.add_argument("--window", type=int, metavar="N", help="frames per map (default: all from --start)")
@@ -108,12 +110,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.timeline is not None:
-        if args.estimator not in (*ESTIMATORS, *TIMELINE_DESCRIPTORS):
+        if args.estimator is not None and args.estimator not in (*ESTIMATORS, *TIMELINE_DESCRIPTORS):
             raise EstimatorError(f"--timeline follows s1, s2, s3, τc and the streaming descriptors "
                                  f"{', '.join(TIMELINE_DESCRIPTORS)}; {args.estimator} is a batch map only")
         return run_timeline(args)
     if args.output is None:
         raise EstimatorError("give -o MAP.npy (or --timeline OUT_DIR)")
+    args.estimator = args.estimator or "s1"
     with open_reader(args) as reader:
         frames = read_window(reader, args)
         bits = reader.bits

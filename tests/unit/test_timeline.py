@@ -199,3 +199,26 @@ def test_a_timeline_judges_every_pixel_of_a_region_unless_its_window_is_large(mo
     # a 64-px patch of a 40-px region is the whole region: the same numbers, named otherwise
     floor = whole.columns.index("noise_floor")
     assert [row[floor] for row in patched.rows] == pytest.approx([row[floor] for row in whole.rows], rel=1e-12)
+
+
+@pytest.mark.parametrize(("activity", "estimator", "judged"), [
+    ("s3", None, "s3"),       # no --estimator: the config's activity, what the daemon judges
+    ("tau_c", None, "tau_c"),
+    ("s3", "s1", "s1"),       # an explicit --estimator wins
+    (None, None, "s2"),       # no config: the daemon's default activity
+])
+def test_the_judged_column_is_the_configs_activity_unless_named(tmp_path: Path, activity, estimator, judged) -> None:
+    np.save(tmp_path / "frames.npy", np.random.default_rng(1).integers(0, 256, (30, 16, 16), dtype=np.uint8))
+    args = ["analyze", str(tmp_path / "frames.npy"), "--timeline", str(tmp_path / "out"), "--window", "20",
+            "--lag", "1", "--every", "10", "--max-lag", "5", "--no-progress"]
+    if activity is not None:
+        thresholds = "wet_below_s = 0.2\ndry_above_s = 1.0\n" if activity == "tau_c" else \
+            "wet_above = 0.3\ndry_below = 0.1\n"
+        config = tmp_path / "edgedsm.toml"
+        config.write_text(f'[camera]\nuri = "sim:default"\nframe_interval_s = 0.1\n\n[estimator]\n'
+                          f'activity = "{activity}"\n\n[[regions]]\nname = "all"\nshape = "full"\n{thresholds}')
+        args += ["-c", str(config)]
+    if estimator is not None:
+        args += ["--estimator", estimator]
+    assert main(args) == 0
+    assert {row["estimator"] for row in read_rows(tmp_path / "out" / "timeline.csv")} == {judged}
