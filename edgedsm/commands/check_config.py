@@ -89,8 +89,11 @@ def run(args: argparse.Namespace) -> int:
 
 def kinetics_line(config: DaemonConfig) -> str:
     """``[kinetics]`` in one line: its ages and what they keep per pixel (docs/kinetics.md)."""
+    from edgedsm.config.kinetics import AUTO_PIXELS
+
     section, dt = config.kinetics, config.camera.frame_interval_s
-    kept = "every pixel" if section.step == 1 else f"every {section.step}th pixel each way"
+    kept = ("every pixel" if section.step == 1 else f"every {section.step}th pixel each way" if section.step
+            else f"at most {AUTO_PIXELS:,} pixels a region (the step each way it takes)")
     if dt is None:
         size = "frames kept known once the frame interval is (camera.frame_interval_s unset)"
     else:

@@ -23,6 +23,9 @@ from edgedsm.validation import StrictModel
 MAX_LONGEST_AGE_S = 30 * 86_400.0
 #: Coarsest subsampling: every 16th pixel each way (a 2048² frame keeps 128²).
 MAX_STEP = 16
+#: The default step keeps a region at most this many pixels: enough speckles for τ within a few % (a
+#: 48² film reads it within 7 %), at a cost within 10 % of the default push at 2048² (docs/kinetics.md).
+AUTO_PIXELS = 16_384
 #: Refs per octave a config may ask for (the estimator takes up to 64; beyond 16 the slots cost
 #: memory without telling τ apart better than its frame-by-frame scatter).
 MAX_PER_OCTAVE = 16
@@ -55,10 +58,13 @@ class KineticsSection(StrictModel):
     longest_age_s: float = Field(3600.0, gt=0, le=MAX_LONGEST_AGE_S,
                                  description="the oldest reference frame in seconds: τ longer than this reads "
                                              "'above' it (memory: 4 bytes per kept pixel per age kept)")
-    step: int = Field(1, ge=1, le=MAX_STEP,
-                      description="keep every step-th pixel each way of each region (frame[::step, ::step]): "
-                                  "memory and cost fall by step²; pixels further apart than a speckle keep "
-                                  "the measure (docs/kinetics.md: 1.02 τ/τc at step 4)")
+    step: int | None = Field(None, ge=1, le=MAX_STEP,
+                             description="keep every step-th pixel each way of each region (frame[::step, ::step]): "
+                                         "memory and cost fall by step²; pixels further apart than a speckle keep "
+                                         "the measure (docs/kinetics.md: 1.02 τ/τc at step 4); default: the "
+                                         f"smallest step that keeps the largest region at most {AUTO_PIXELS:,} "
+                                         "pixels (a region of 128² or less: every pixel; two regions covering a "
+                                         "2048² frame: step 12, about 0.06x the default push)")
     stages: list[StageSection] = Field(default_factory=list, max_length=MAX_STAGES,
                                        description="drying stages in the order they are reached, each at a "
                                                    "lower rate: per region the time each is reached (an alert, "
@@ -89,6 +95,13 @@ class KineticsSection(StrictModel):
                                  f"{1.0 / stage.rate_below_hz:.4g} s is not below the oldest reference's age, "
                                  f"longest_age_s / 2^(1/per_octave) = {oldest:.4g} s: never reached")
         return self
+
+    def step_for(self, region_pixels: int) -> int:
+        """The step each way for regions whose largest has ``region_pixels`` pixels: ``step``, or
+        the smallest that keeps it at most ``AUTO_PIXELS`` (at most ``MAX_STEP``)."""
+        if self.step is not None:
+            return self.step
+        return min(max(1, math.ceil(math.sqrt(region_pixels / AUTO_PIXELS) - 1e-12)), MAX_STEP)
 
     def longest_age(self, interval_s: float) -> int:
         """The longest age in frames at frame interval ``interval_s`` (s): ceil(longest_age_s/Δt),

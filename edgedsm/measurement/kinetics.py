@@ -63,7 +63,8 @@ class KineticsRegions:
                  top: float | None = None) -> None:
         if not masks:
             raise EstimatorError("no region to follow")
-        step = section.step
+        step = section.step_for(max(int(np.count_nonzero(mask)) for mask in masks.values()))
+        self.step = step
         self.section = section
         self.masks = {name: np.ascontiguousarray(np.asarray(mask, bool)[::step, ::step])
                       for name, mask in masks.items()}
@@ -85,7 +86,7 @@ class KineticsRegions:
     def bytes_for(section: KineticsSection, masks: Mapping[str, np.ndarray], interval_s: float) -> int:
         """The reference frames' memory for ``masks`` at ``interval_s``: (slots + 1) × 4 bytes per
         kept pixel (the engine budget checks it before anything is allocated)."""
-        step = section.step
+        step = section.step_for(max(int(np.count_nonzero(mask)) for mask in masks.values()))
         pixels = sum(int(np.count_nonzero(np.asarray(mask, bool)[::step, ::step])) for mask in masks.values())
         return (section.slots(interval_s) + 1) * 4 * pixels
 

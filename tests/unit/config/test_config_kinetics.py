@@ -24,7 +24,7 @@ ON = "[kinetics]\nenabled = true\nlongest_age_s = 600\n"
 
 def test_off_by_default_and_its_frames_follow_the_interval():
     config = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<plain>")
-    assert config.kinetics.enabled is False and config.kinetics.step == 1
+    assert config.kinetics.enabled is False and config.kinetics.step is None  # the step each region's size asks
     section = KineticsSection(enabled=True, longest_age_s=3600.0, per_octave=4)
     assert section.longest_age(0.1) == 36_000 and section.longest_age(7200.0) == 2  # at least one reference
     assert section.slots(0.1) == 75  # docs/kinetics.md's table: 36,000 frames at 4 per octave
@@ -73,7 +73,8 @@ def test_schema_describes_every_field_and_a_change_restarts(capsys, tmp_path):
     section = schema["$defs"]["KineticsSection"]
     assert section["additionalProperties"] is False
     assert all(field.get("description") for field in section["properties"].values())
-    assert section["properties"]["step"]["maximum"] == 16 and section["properties"]["per_octave"]["minimum"] == 1
+    step = next(choice for choice in section["properties"]["step"]["anyOf"] if choice.get("type") == "integer")
+    assert step["maximum"] == 16 and section["properties"]["per_octave"]["minimum"] == 1
     running = validate(DaemonConfig, {"camera": {"uri": "sim:default"}}, "<a>")
     new = validate(DaemonConfig, {"camera": {"uri": "sim:default"}, "kinetics": {"enabled": True}}, "<b>")
     assert restart_reasons(new, running) == ["kinetics"]
@@ -91,3 +92,12 @@ def test_check_config_says_what_the_kinetics_keep(tmp_path, capsys):
                     f"frames ({(slots + 1) * 4} bytes per kept pixel) at Δt = 0.1 s; stages: tack_free at 0.05 Hz")
     assert main(["check-config", str(path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["kinetics"]["step"] == 4
+
+
+def test_the_default_step_keeps_a_region_within_the_cost_budget():
+    section = KineticsSection(enabled=True)
+    assert section.step_for(128 * 128) == 1 and section.step_for(128 * 128 + 1) == 2  # small regions: every pixel
+    assert section.step_for(2048 * 1024) == 12  # half a 2048² frame: 14,564 pixels kept, ~0.06x the default push
+    assert 2048 * 1024 / section.step_for(2048 * 1024) ** 2 <= 16_384
+    assert section.step_for(10 ** 9) == 16  # at most MAX_STEP
+    assert KineticsSection(enabled=True, step=3).step_for(10 ** 6) == 3  # a step given is kept
