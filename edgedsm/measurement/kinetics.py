@@ -105,7 +105,7 @@ class KineticsRegions:
             self.longest_frames = self.section.longest_age(interval_s)
             self.regions = {name: Kinetics(mask, self.noise, self.longest_frames, self.section.per_octave,
                                            top=self.top) for name, mask in self.masks.items()}
-        step = self.section.step
+        step = self.step  # the section's, or the one chosen for these regions (step = None: auto)
         view = frame if step == 1 else frame[::step, ::step]
         for kinetics in self.regions.values():
             kinetics.push(view)

@@ -81,6 +81,24 @@ def test_subsampled_regions_keep_the_measure_and_a_sixteenth_of_the_memory() -> 
         KineticsRegions(KineticsSection(step=4), {"dot": mask})
 
 
+def test_the_automatic_step_subsamples_the_frames_as_it_does_the_masks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """step = None (the default): the step chosen for the regions is the frames' too (a frame pushed
+    whole beside masks subsampled would not match their shape)."""
+    from edgedsm.config import kinetics as kinetics_config
+
+    monkeypatch.setattr(kinetics_config, "AUTO_PIXELS", 64)  # a 32² region: step 4 (at most 64 pixels)
+    frames, model = film(300, seed=5)
+    auto = KineticsRegions(KineticsSection(enabled=True, longest_age_s=5.0), {"all": np.ones((SIZE, SIZE), bool)},
+                           model)
+    given = KineticsRegions(KineticsSection(enabled=True, longest_age_s=5.0, step=4),
+                            {"all": np.ones((SIZE, SIZE), bool)}, model)
+    assert auto.step == 4 and auto.masks["all"].shape == (SIZE // 4, SIZE // 4)
+    for frame in frames:
+        auto.push(frame, DT)
+        given.push(frame, DT)
+    assert auto.read(DT) == given.read(DT) and auto.read(DT)["all"].status == OK
+
+
 def test_the_judged_value_is_tau_or_its_bound_never_a_dark_number() -> None:
     assert judged_seconds(RegionKinetics(status=OK, tau_s=2.0, rate_hz=0.5)) == 2.0
     assert judged_seconds(RegionKinetics(status=ABOVE, bound_s=400.0)) == 400.0
