@@ -80,7 +80,9 @@ const edgedsmKinetics = (() => {
     drawn = { lines: [], marks: [], gaps: [], bounds: [] };
     ctx.save();
     ctx.font = `${12 * px}px system-ui, sans-serif`;
-    // statuses without a number: a grey band with the status in it; bounds as triangles
+    // statuses without a number: a grey band with the status in it (labels of runs too close
+    // for their text stacked), bounds as triangles
+    let labelEnd = -Infinity, row = 0;
     for (const run of runs()) {
       const x0 = Math.max(left, u.valToPos(run.from, "x", true));
       const x1 = Math.min(left + width, u.valToPos(run.to, "x", true));
@@ -90,7 +92,10 @@ const edgedsmKinetics = (() => {
       ctx.fillRect(x0, top, Math.max(x1 - x0, 2 * px), height);
       ctx.fillStyle = "#4b5563";
       ctx.textAlign = "left"; ctx.textBaseline = "top";
-      ctx.fillText(label, x0 + 3 * px, top + 3 * px);
+      row = x0 < labelEnd ? Math.min(row + 1, 3) : 0;
+      ctx.fillText(label, x0 + 3 * px, top + (3 + 14 * row) * px);
+      const end = x0 + 7 * px + ctx.measureText(label).width;
+      labelEnd = row === 0 ? end : Math.max(labelEnd, end);
       drawn.gaps.push({ status: run.status, from: run.from, to: run.to, x0, x1 });
       if (run.status !== "above" && run.status !== "below") continue;
       ctx.fillStyle = "#374151";
