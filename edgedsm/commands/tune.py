@@ -8,8 +8,9 @@ the camera settings come from the daemon config (-c). Before --wet-until the sur
 --dry-from it is dry (seconds from the first frame, on the recording's own clock,
 camera.frame_interval_s, or --dt). Instead of a run and marks, --wet REC and --dry REC take two
 recordings. Every candidate (an activity the daemon judges on: S1, S2, S3, Fujii, IM and the
-temporal contrast plain and above the noise floor, τc; at each window and lag that fits;
---estimators narrows them, or adds GD, left out by default for its O(N) push) is scored on every
+temporal contrast plain and above the noise floor, τc; at each window and lag that fits; the
+kinetics once, where the run is one drying on a steady clock; --estimators narrows them, or adds
+GD, left out by default for its O(N) push) is scored on every
 region: the separation of wet and dry (AUC, d′), when the daemon's state machine with the
 proposed thresholds calls it dry, its false transitions, and its cost per frame, measured by the
 engine on this PC. Exit 65 when the run cannot answer (too short, marks outside it, or no
@@ -33,7 +34,7 @@ from edgedsm.config import check_regions, load_config
 from edgedsm.errors import DataError
 from edgedsm.frameio import open_frames
 from edgedsm.tuning.output import keep_last, report, snippet, summary_json
-from edgedsm.tuning.series import DEFAULT_CANDIDATES, JUDGEABLE
+from edgedsm.tuning.series import DEFAULT_CANDIDATES, TUNABLE
 from edgedsm.tuning.session import LAGS, WINDOWS, Run, settings_for, tune
 
 NAME = "tune"
@@ -53,9 +54,9 @@ def _numbers(text: str) -> tuple[int, ...]:
 
 def _estimators(text: str) -> tuple[str, ...]:
     names = tuple(part.strip() for part in text.split(",") if part.strip())
-    unknown = [name for name in names if name not in JUDGEABLE]
+    unknown = [name for name in names if name not in TUNABLE]
     if not names or unknown:
-        raise argparse.ArgumentTypeError(f"expected some of {','.join(JUDGEABLE)} separated by commas, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected some of {','.join(TUNABLE)} separated by commas, got {text!r}")
     return names
 
 
@@ -78,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lags", type=_numbers, default=LAGS, metavar="M,M,...",
                         help=f"lags to try (default {','.join(map(str, LAGS))})")
     parser.add_argument("--estimators", type=_estimators, default=DEFAULT_CANDIDATES, metavar="NAME,NAME,...",
-                        help=f"activities to try, among {','.join(JUDGEABLE)} (default all but gd, whose O(N) "
+                        help=f"activities to try, among {','.join(TUNABLE)} (default all but gd, whose O(N) "
                              "push makes every pass several times longer: name it to weigh it)")
     parser.add_argument("--dt", type=float, metavar="SECONDS", help="frame interval (default: the recording's "
                         "clock, the scene's, or camera.frame_interval_s)")
@@ -203,7 +204,7 @@ def _two_runs(args: argparse.Namespace, config) -> Run:
         yield from _read(args.dry, args.channel)
 
     return Run(frames, sum(counts), bits, dt, None, (counts[0] - 1) * dt, counts[0] * dt,
-               f"{args.wet} + {args.dry}")
+               f"{args.wet} + {args.dry}", joined=True)
 
 
 def _read(source: str, channel: str | None) -> Iterator[np.ndarray]:

@@ -3,7 +3,9 @@
 
 A candidate is an estimator as the daemon judges it (``estimator.activity``: S1, S2, S3, Fujii,
 IM, the temporal contrast or GD, plain or above the noise floor; or τc in seconds) at one window
-N, lag m and mode. GD is one only when asked for by name (series.DEFAULT_CANDIDATES: its push is
+N, lag m and mode; or the kinetics (τ in seconds over decades, docs/kinetics.md), which depends on
+no window setting: one candidate per run, scored as τc is (its rate, thresholds in seconds). GD is
+one only when asked for by name (series.DEFAULT_CANDIDATES: its push is
 O(N) per pixel) and where the mode keeps a window. Its outcome on every region: the separation
 of wet from dry, the proposed thresholds and what the state machine does with them
 (:mod:`edgedsm.tuning.scoring`), and its cost per frame, measured by the engine at the camera's
@@ -32,7 +34,10 @@ import numpy as np
 from edgedsm.drying import Thresholds
 from edgedsm.estimators import registry
 from edgedsm.tuning.scoring import Replay, Separation, propose, replay, separation
-from edgedsm.tuning.series import DEFAULT_CANDIDATES, JUDGEABLE, WITH_FLOOR, Series, Setting, in_mode
+from edgedsm.tuning.series import DEFAULT_CANDIDATES, JUDGEABLE, KINETICS, WITH_FLOOR, Series, Setting, in_mode
+
+#: the activities judged in seconds, small when wet (scored as their rate 1/τ)
+IN_SECONDS = ("tau_c", KINETICS)
 
 GOOD_AUC = 0.95  # below: wet and dry overlap too much to trust thresholds
 USABLE_AUC = 0.9  # below, for every candidate: the run cannot be tuned (exit 65)
@@ -60,11 +65,13 @@ class Candidate:
     @property
     def variant(self) -> str:
         """The series of :mod:`edgedsm.tuning.series` this candidate is judged on."""
-        if self.estimator == "tau_c":
-            return "tau_c"
+        if self.estimator in IN_SECONDS:
+            return self.estimator
         return f"{self.estimator}@noise" if self.noise_floor else self.estimator
 
     def label(self) -> str:
+        if self.estimator == KINETICS:  # no window setting: its reference frames at geometric ages
+            return registry.get(KINETICS).label
         what = registry.get(self.estimator).label + (" above noise" if self.noise_floor and self.estimator != "tau_c"
                                                       else "")
         return f"{what}, {self.setting.label()}"
@@ -140,7 +147,7 @@ def evaluate(candidate: Candidate, series: Series, wet_until_s: float, dry_from_
     wet or dry sample (the daemon would hold its state throughout one part: dark, saturated, not
     speckle), why it cannot be scored."""
     times = np.asarray(series.times, np.float64)
-    on_tau = candidate.estimator == "tau_c"
+    on_tau = candidate.estimator in IN_SECONDS
     regions = {}
     for name in series.values:
         observed = series.array(name, candidate.variant)
@@ -152,7 +159,10 @@ def evaluate(candidate: Candidate, series: Series, wet_until_s: float, dry_from_
             return (f"region {name}: no {part} sample (the daemon would hold the state: its light is dark, "
                     "saturated or not speckle)" if candidate.noise_floor or on_tau else
                     f"region {name}: no {part} sample")
-        most = 1.0 / (series.max_lag * dt) if on_tau and series.max_lag else None
+        # the longest τ it can show: τc's K·Δt, the kinetics' oldest reference (a dry call needs it reached)
+        longest = series.kinetics_oldest_s if candidate.estimator == KINETICS else (
+            series.max_lag * dt if on_tau and series.max_lag else None)
+        most = 1.0 / longest if longest else None
         thresholds = propose(wet, dry, on_tau=on_tau, min_dwell_s=dwell_s[name], most=most)
         regions[name] = RegionOutcome(separation(wet, dry), thresholds,
                                       replay(times, observed, thresholds, wet_until_s, dry_from_s))

@@ -16,7 +16,8 @@ import numpy as np
 
 from edgedsm.config import DaemonConfig
 from edgedsm.estimators import registry
-from edgedsm.tuning.candidates import ROBUST_D_PRIME, Outcome, pareto
+from edgedsm.tuning.candidates import IN_SECONDS, ROBUST_D_PRIME, Outcome, pareto
+from edgedsm.tuning.series import KINETICS
 from edgedsm.tuning.session import Result, skipped_states
 
 #: the last report's files in device.commissioning_dir (the dashboard reads them: edgedsm.dashboard.commissioning)
@@ -61,12 +62,14 @@ def snippet(result: Result, config: DaemonConfig, command: str) -> str:
              f"activity = {_toml_value(candidate.estimator)}",
              f"window = {candidate.setting.window}", f"lag = {candidate.setting.lag}",
              f"mode = {_toml_value(candidate.setting.mode)}",
-             f"noise_floor = {_toml_value(candidate.noise_floor or candidate.estimator == 'tau_c')}"]
+             f"noise_floor = {_toml_value(candidate.noise_floor or candidate.estimator in IN_SECONDS)}"]
     if registry.get(candidate.estimator).needs_q_zero:  # Fujii, 200·S2 at q = 0: the config refuses another q
         lines.append("q = 0.0")
     series = next(s for s in result.series if s.setting == candidate.setting)
     if candidate.estimator == "tau_c" and series.max_lag is not None:
         lines.append(f"max_lag = {series.max_lag}")
+    if candidate.estimator == KINETICS:
+        lines += kinetics_tables(config)
     for region in config.regions:
         lines += ["", "[[regions]]"]
         fields = region.model_dump(mode="json", exclude_none=True)
@@ -75,6 +78,18 @@ def snippet(result: Result, config: DaemonConfig, command: str) -> str:
         lines += [f"{key} = {_toml_value(value)}" for key, value in geometry.items()]
         lines += [f"{key} = {_toml_value(value)}" for key, value in region_thresholds(chosen, region.name).items()]
     return "\n".join(lines) + "\n"
+
+
+def kinetics_tables(config: DaemonConfig) -> list[str]:
+    """``[kinetics]`` on with the settings tune measured it with (the config's, else the daemon's
+    defaults), and the config's ``[[kinetics.stages]]`` (the table replaces the config's whole)."""
+    section = config.kinetics
+    fields = section.model_dump(mode="json", exclude={"enabled", "stages"}, exclude_none=True)
+    lines = ["", "[kinetics]", "enabled = true", *(f"{key} = {_toml_value(value)}" for key, value in fields.items())]
+    for stage in section.stages:
+        lines += ["", "[[kinetics.stages]]", f"name = {_toml_value(stage.name)}",
+                  f"rate_below_hz = {_toml_value(stage.rate_below_hz)}"]
+    return lines
 
 
 def outcome_json(outcome: Outcome) -> dict[str, Any]:

@@ -11,6 +11,13 @@ engine on frames of the run at the camera's size (the whole frame, or the region
 with ``estimator.area = "regions"``), as the daemon would push them; Fujii's at q = 0, the q its
 daemon runs at. A candidate whose replay of the run skips a state of wet -> drying -> dry (its
 drying band crossed within the dwell) is not recommended, only listed, marked (:func:`choose`).
+
+The kinetics (asked for, as by default) are measured in the first pass, with the config's
+``[kinetics]`` when it has one on, else the daemon's defaults; its cost per frame is its push
+measured on the same frames (every region) plus its read, timed on the references the run left,
+at the daemon's states cadence. A run that does not allow it (two recordings joined: references
+across the join compare two surfaces; frame times that do not follow one interval: the ages are
+counted in frames) lists it as not scored, with the reason.
 """
 
 from __future__ import annotations
@@ -23,18 +30,28 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edgedsm.config import DaemonConfig
+from edgedsm.config.kinetics import KineticsSection
 from edgedsm.errors import DataError
 from edgedsm.estimators import registry
 from edgedsm.estimators.region_box import bounding_box
 from edgedsm.tuning.candidates import USABLE_AUC, Candidate, Outcome, candidates, evaluate, pareto, recommend
 from edgedsm.tuning.scoring import ORDER
-from edgedsm.tuning.series import DEFAULT_CANDIDATES, Series, Setting, push_cost, run_pass
+from edgedsm.tuning.series import (
+    DEFAULT_CANDIDATES,
+    KINETICS,
+    Series,
+    Setting,
+    kinetics_cost,
+    push_cost,
+    run_pass,
+)
 
 WINDOWS = (100, 200, 50, 400)
 LAGS = (5, 10, 2, 1, 20)
 COST_FRAMES = 16  # frames of the run each cost is timed over (repeated)
 MAX_SAMPLES = 400  # samples per pass at most (the step grows on long runs: the states are judged every step)
 STATE_STEP_S = 0.5  # the daemon judges the states twice a second
+JITTER = 0.1  # frame times further than this share of the interval from a steady clock: no kinetics
 
 
 @dataclass(frozen=True)
@@ -50,6 +67,18 @@ class Run:
     wet_until_s: float
     dry_from_s: float
     name: str
+    joined: bool = False  # two recordings (--wet, --dry) one after the other, not one drying
+
+    def kinetics_problem(self) -> str | None:
+        """Why the kinetics cannot be scored on this run (None: they can)."""
+        if self.joined:
+            return "two recordings joined: the reference frames across the join compare two surfaces"
+        if self.times_s is not None and self.times_s.size > 2:
+            steps = np.diff(self.times_s)
+            if float(np.max(np.abs(steps - self.dt))) > JITTER * self.dt:
+                return (f"the frame times do not follow one interval (a step of {float(np.max(steps)):.3g} s at "
+                        f"Δt {self.dt:.3g} s: dropped frames or bursts): the kinetics count ages in frames")
+        return None
 
     @property
     def duration_s(self) -> float:
@@ -107,6 +136,11 @@ def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s:
     step = max(1, round(STATE_STEP_S / run.dt), math.ceil(run.count / MAX_SAMPLES))
     dwell = {region.name: region.min_dwell_s for region in config.regions}
     sample = _cost_frames(run, config, masks)
+    section = config.kinetics.model_copy(update={"enabled": True})  # the config's, or the daemon's defaults
+    kinetics = KINETICS in estimators and bool(settings)
+    if kinetics and (why := run.kinetics_problem()) is not None:
+        result.excluded.append((Candidate(KINETICS, False, settings[0]), why))
+        kinetics = False
     last_s = 0.0  # the last setting's time: pass, costs and scoring
     for index, setting in enumerate(settings):
         setting_started = time.perf_counter()
@@ -116,26 +150,34 @@ def tune(run: Run, config: DaemonConfig, masks: dict[str, np.ndarray], budget_s:
         if on_pass is not None:
             on_pass(setting, index, len(settings))
         series = run_pass(run.frames(), setting, config, masks, run.dt, step, bits=run.bits, times_s=run.times_s,
-                          on_frame=on_frame, estimators=estimators)
+                          on_frame=on_frame, estimators=estimators,
+                          kinetics=section if kinetics and index == 0 else None)
         result.series.append(series)
+        if series.kinetics_read_s is not None:
+            cost = _kinetics_cost(sample, section, config, masks, run.dt, series.kinetics_read_s)
+            _score(result, Candidate(KINETICS, False, setting), series, run, dwell, cost)
         costs: dict[str, float] = {}
         for candidate in candidates(settings[:index + 1], estimators):
             if candidate.setting != setting:  # scored at an earlier setting
                 continue
             if candidate.estimator not in costs:
                 costs[candidate.estimator] = _cost(sample, candidate, series, run.bits, config.estimator.q)
-            cost = costs[candidate.estimator]
-            outcome = evaluate(candidate, series, run.wet_until_s, run.dry_from_s, dwell, run.dt, cost)
-            if isinstance(outcome, str):
-                result.excluded.append((candidate, outcome))
-            else:
-                result.outcomes.append(outcome)
+            _score(result, candidate, series, run, dwell, costs[candidate.estimator])
         last_s = time.perf_counter() - setting_started
     result.chosen, result.reason = choose(result.outcomes)
     result.seconds = time.perf_counter() - started
     if result.chosen is None and max((o.auc for o in result.outcomes), default=0.0) < USABLE_AUC:
         raise DataError(f"{run.name}: {result.reason}")
     return result
+
+
+def _score(result: Result, candidate: Candidate, series: Series, run: Run, dwell: dict[str, float],
+           cost: float) -> None:
+    outcome = evaluate(candidate, series, run.wet_until_s, run.dry_from_s, dwell, run.dt, cost)
+    if isinstance(outcome, str):
+        result.excluded.append((candidate, outcome))
+    else:
+        result.outcomes.append(outcome)
 
 
 def skipped_states(outcome: Outcome) -> tuple[str, ...]:
@@ -182,3 +224,13 @@ def _cost(frames: list[np.ndarray], candidate: Candidate, series: Series, bits: 
     q = 0, Fujii: 0)."""
     return push_cost(frames, (candidate.estimator,), candidate.setting, bits, max_lag=series.max_lag if
                      candidate.estimator == "tau_c" else None, q=registry.get(candidate.estimator).q_for(q))
+
+
+def _kinetics_cost(frames: list[np.ndarray], section: KineticsSection, config: DaemonConfig,
+                   masks: dict[str, np.ndarray], dt: float, read_s: float) -> float:
+    """The kinetics' push of every region on the frames the daemon's pipeline pushes (cropped with
+    ``area = "regions"``), plus a read at the states cadence shared over the frames between."""
+    if config.estimator.area == "regions":
+        rows, cols = bounding_box(list(masks.values()))
+        masks = {name: mask[rows, cols] for name, mask in masks.items()}
+    return kinetics_cost(frames, section, masks, dt) + read_s * min(1.0, dt / STATE_STEP_S)

@@ -214,7 +214,8 @@ def test_marks_outside_the_run_and_a_run_too_short_are_one_line_exit_65(tmp_path
     with pytest.raises(SystemExit) as refused:  # a batch map is no candidate: the daemon does not judge on it
         _tune(tmp_path, capsys, "--wet-until", "10", "--dry-from", "50", "--estimators", "s2,mhi")
     assert refused.value.code == 2
-    assert "expected some of s1,s2,s3,tau_c,contrast,fujii,im,gd separated by commas" in capsys.readouterr().err
+    expected = "expected some of s1,s2,s3,tau_c,contrast,fujii,im,gd,kinetics separated by commas"
+    assert expected in capsys.readouterr().err
 
 
 def test_a_surface_that_never_dries_is_refused_with_the_best_separation_found(tmp_path, capsys):
