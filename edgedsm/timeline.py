@@ -31,9 +31,10 @@ from edgedsm.config import DaemonConfig
 from edgedsm.config.estimator import EstimatorSection
 from edgedsm.config.kinetics import KineticsSection
 from edgedsm.errors import EstimatorError
-from edgedsm.estimators import registry
+from edgedsm.estimators import SlidingWindow, registry
 from edgedsm.estimators.correlation_time import TauC
 from edgedsm.estimators.noise import NoiseModel
+from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
 from edgedsm.measurement import kinetics as region_kinetics
@@ -80,6 +81,14 @@ def _view_patch(regions: Mapping[str, np.ndarray], window: int, config: DaemonCo
     boxes = sum(int(np.prod([len(np.flatnonzero(mask.any(axis=axis))) for axis in (1, 0)]))
                 for mask in regions.values())
     return None if min(window, MAX_PATCH_FRAMES) * boxes <= REGION_VIEW_SAMPLES else config.estimator.noise_patch
+
+
+def histogram_map(engine: SlidingWindow, name: str) -> np.ndarray:
+    """The one map ``name`` of the engine's window, float64 (H, W): formed from a live view of its
+    sums, alone (``engine.maps`` forms every map of its fused pass: S1, S2, S3 and σ, four
+    whole-frame float64 arrays where the histogram needs one). The same values as
+    ``engine.maps((name,))[name]`` (the same per-pixel formula; tested)."""
+    return maps_from(engine.snapshot((name,), live=True))[name]
 
 
 def _noise_cells(reading: RegionReading | None) -> tuple:
@@ -211,9 +220,9 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
             result.rows.append((index, time, name, *(values.get(key, NAN) for key in PAPER), *taus,
                                 *_noise_cells(reading), *(values.get(key, NAN) for key in extra),
                                 *(region_kinetics.cells(reading.kinetics if reading else None) if kinetics else ())))
-        values = core.engine.maps((histogram_estimator,))[histogram_estimator]
-        if histogram_range is None:
-            top = 1.25 * float(np.percentile(values, 99.5))
+        values = histogram_map(core.engine, histogram_estimator)
+        if histogram_range is None:  # in place: the histogram does not depend on the values' order
+            top = 1.25 * float(np.percentile(values, 99.5, overwrite_input=True))
             histogram_range = (0.0, top if top > 0 else 1.0)
         density, edges = np.histogram(values, bins=bins, range=histogram_range, density=True)
         result.histograms.append(density)
