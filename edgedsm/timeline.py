@@ -38,6 +38,7 @@ from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.tau_regions import TumblingRegionTau, int64_problem
 from edgedsm.measurement import Core, EngineSpec, RegionReading
 from edgedsm.measurement import kinetics as region_kinetics
+from edgedsm.measurement import stages as region_stages
 from edgedsm.measurement.tau import STATUS_NAMES
 from edgedsm.noise_patches import MAX_PATCH_FRAMES
 from edgedsm.validation import validate
@@ -116,11 +117,13 @@ class Timeline:
     sample_times: list[float] = field(default_factory=list)  # seconds, one per sample
     descriptors: tuple[str, ...] = ()  # the descriptors' columns after COLUMNS
     kinetics: bool = False  # the kinetics' columns last (measurement.kinetics.COLUMNS)
+    stages: bool = False  # then the drying stages' (measurement.stages.COLUMNS; [[kinetics.stages]])
 
     @property
     def columns(self) -> tuple[str, ...]:
-        """The rows' columns: COLUMNS, then one per descriptor, then the kinetics' (when on)."""
-        return COLUMNS + self.descriptors + (region_kinetics.COLUMNS if self.kinetics else ())
+        """The rows' columns: COLUMNS, then one per descriptor, then the kinetics' and the stages' (when on)."""
+        return (COLUMNS + self.descriptors + (region_kinetics.COLUMNS if self.kinetics else ())
+                + (region_stages.COLUMNS if self.stages else ()))
 
     def series(self, region: str, column: str) -> np.ndarray:
         """One column of one region against the samples, as float64."""
@@ -165,7 +168,9 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     (the histogram may be of one of them); ``band_split``: the bands' split in Hz (of ``dt``),
     default half the Nyquist frequency. ``kinetics``: each region's decorrelation time over decades
     (docs/kinetics.md), pushed every frame and read at each sample, as the last columns
-    (``kinetics_tau_s``, ``kinetics_rate_hz``, ``kinetics_status``, ``kinetics_bound_s``).
+    (``kinetics_tau_s``, ``kinetics_rate_hz``, ``kinetics_status``, ``kinetics_bound_s``); with its
+    ``stages``, the stage each region reached and the time to the next (measurement.stages, the
+    daemon's code, stepped at each sample on the timeline's clock).
     """
     if every < 1:
         raise EstimatorError(f"the sampling step must be >= 1 frame, got {every}")
@@ -177,8 +182,9 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
     if histogram_estimator not in (*PAPER, *extra):
         raise EstimatorError(f"histogram estimator must be one of {', '.join((*PAPER, *extra))}, "
                              f"got {histogram_estimator!r}")
+    stages = region_stages.KineticsStages(kinetics, list(regions)) if kinetics is not None and kinetics.stages else None
     result = Timeline(dt=dt, max_lag=max_lag, histogram_estimator=histogram_estimator, descriptors=extra,
-                      kinetics=kinetics is not None)
+                      kinetics=kinetics is not None, stages=stages is not None)
     if mode is None:
         mode = "tumbling" if every % window == 0 else "sliding"
     settings = analysis_config(window, lag, q, mode, activity if activity != "tau_c" else "s3",
@@ -208,6 +214,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
             continue
         time = index * dt if times_s is None else float(times_s[index])
         readings = core.read(time).readings
+        staged = {} if stages is None else stages.step(time, {name: r.kinetics for name, r in readings.items()
+                                                               if r.kinetics is not None}, float)[0]
         assert core.engine is not None
         for name in regions:
             reading = readings.get(name)
@@ -219,7 +227,8 @@ def timeline(frames: Iterable[np.ndarray], regions: Mapping[str, np.ndarray], wi
                 taus = (NAN, NAN, "off")
             result.rows.append((index, time, name, *(values.get(key, NAN) for key in PAPER), *taus,
                                 *_noise_cells(reading), *(values.get(key, NAN) for key in extra),
-                                *(region_kinetics.cells(reading.kinetics if reading else None) if kinetics else ())))
+                                *(region_kinetics.cells(reading.kinetics if reading else None) if kinetics else ()),
+                                *(region_stages.cells(staged.get(name)) if stages is not None else ())))
         values = histogram_map(core.engine, histogram_estimator)
         if histogram_range is None:  # in place: the histogram does not depend on the values' order
             top = 1.25 * float(np.percentile(values, 99.5, overwrite_input=True))

@@ -164,3 +164,19 @@ class KineticsStages:
     def reset(self) -> None:
         for tracker in self.trackers.values():
             tracker.reset()
+
+
+#: ``analyze --timeline --kinetics -c CONFIG`` with ``[[kinetics.stages]]``: per region and sample the
+#: last stage reached ("none" before the first), when it was reached (s, the timeline's clock), the
+#: next stage ("none" once all are) and the time to it from the rate's trend (s; NaN: no trend yet).
+COLUMNS = ("kinetics_stage", "kinetics_stage_at_s", "kinetics_next_stage", "kinetics_time_to_next_s")
+
+
+def cells(reading: RegionKinetics | None) -> tuple[str, float, str, float]:
+    """A reading stepped through :class:`KineticsStages` as :data:`COLUMNS`."""
+    if reading is None:
+        return ("none", math.nan, "none", math.nan)
+    last = next(reversed(reading.stages), None)  # stages are reached, and kept, in order
+    return ("none" if last is None else last, math.nan if last is None else reading.stages[last],
+            reading.next_stage or "none",
+            math.nan if reading.time_to_next_stage_s is None else reading.time_to_next_stage_s)
