@@ -53,7 +53,8 @@ def add_timeline_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--kinetics", action="store_true",
                        help="each region's decorrelation time over decades (docs/kinetics.md): the columns "
                             "kinetics_tau_s, kinetics_rate_hz, kinetics_status, kinetics_bound_s; settings from "
-                            "the config's [kinetics] (on or not), else its defaults")
+                            "the config's [kinetics] (on or not), else its defaults; with its [[kinetics.stages]] "
+                            "also kinetics_stage, kinetics_stage_at_s, kinetics_next_stage, kinetics_time_to_next_s")
     group.add_argument("--kinetics-longest-s", type=float, metavar="SECONDS",
                        help="the oldest reference frame in seconds (default: the config's "
                             "kinetics.longest_age_s, else 3600)")
