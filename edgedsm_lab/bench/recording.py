@@ -18,9 +18,14 @@ Measured, in one run, at one frame size (default 2048², Mono8):
 The ratios printed (rates 4 and 5 ÷ rate 3, and the capacities') are measured in this run; with
 the frames written, the MB/s on disk and the frames still queued for the disk when a trial stopped.
 
+With ``--timeline``, what re-analysing an archive costs instead: ``analyze --timeline`` on the
+paper's series, its peak RSS and its time against decoding + the bare engine
+(:mod:`edgedsm_lab.bench.timeline_archive`; docs/recording.md).
+
 Examples:
   edgedsm bench recording --quick                       # 2048² Mono8, a few minutes
   edgedsm bench recording -o docs/bench-recording.md
+  edgedsm bench recording --timeline --timeline-dir /work/scratch/big600   # the paper's series
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from pathlib import Path
 
 from edgedsm.config import RecordingSection
 from edgedsm.daemon.recording import Recorder
+from edgedsm_lab.bench import timeline_archive
 from edgedsm_lab.bench.e2e import PIXEL_FORMATS, best_zero_drop, search_rate
 from edgedsm_lab.bench.e2e_trial import (
     Trial,
@@ -193,6 +199,8 @@ def say(text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "timeline", False):  # an archive through analyze --timeline instead
+        return timeline_archive.run(args)
     from edgedsm.localbroker import LocalBroker
 
     seconds = args.seconds or (12.0 if args.quick else 20.0)
@@ -266,3 +274,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                      "the disk measured")
     parser.add_argument("--max-gb", type=float, default=4.0, metavar="GB", help="retention budget (default 4 GB)")
     add_output_argument(parser, "docs/bench-recording.md")
+    timeline_archive.add_arguments(parser)
