@@ -1,8 +1,9 @@
 """`edgedsm analyze --timeline`: frames from a recording or a scene, regions from a config, and the
 CSV and pictures of :mod:`edgedsm.timeline`.
 
-Frames are pushed one by one into the streaming engine as they are read (``edgedsm.frameio``):
-memory holds the engine's window, never the recording."""
+Frames are pushed one by one into the streaming engine as they are read (``edgedsm.frameio``),
+the next one decoded on a thread meanwhile (``edgedsm.frameio.prefetch``): memory holds the
+engine's window, never the recording."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from edgedsm.config.kinetics import KineticsSection
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators import registry
 from edgedsm.frameio import FrameReader, open_frames
+from edgedsm.frameio.prefetch import Prefetched
 from edgedsm.timeline import DESCRIPTORS, PAPER, Timeline, timeline
 from edgedsm.validation import validate
 
@@ -96,7 +98,9 @@ def _frames(args: argparse.Namespace, stack: contextlib.ExitStack
     if stamps is not None and args.dt is None:  # --dt overrides the recording's clock
         used = stamps.t_ns[args.start:stop]
         times = (used - used[0]) / 1e9
-    return reader.frames(args.start, stop), reader.bits, reader.dt, count, times
+    # decoded a frame ahead on a thread while the engine takes this one (docs/recording.md)
+    frames = stack.enter_context(Prefetched(reader.frames(args.start, stop)))
+    return frames, reader.bits, reader.dt, count, times
 
 
 def _regions(args: argparse.Namespace, shape: tuple[int, int]
