@@ -53,7 +53,8 @@ from edgedsm_lab.bench.e2e_trial import (
 )
 from edgedsm_lab.bench.report import Report, add_output_argument, cpu_sample, load_average, machine_use, others_share
 
-HELP = "what continuous [recording] costs the daemon's zero-drop rate (with ÷ without, one run)"
+HELP = ("what continuous [recording] costs the daemon's zero-drop rate (with ÷ without, one run); "
+        "--timeline: analyze --timeline on an archive, peak RSS and time")
 DESCRIPTION = __doc__
 SEGMENT_S = 10.0
 FLUSH_S = 60.0  # how long the disk may take to catch up after a trial (reported)

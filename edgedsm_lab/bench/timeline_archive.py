@@ -3,10 +3,10 @@ time against decoding the frames and pushing them through the bare engine, in on
 
 The paper's series: 600 frames of 4096×2168 (the paper's camera), an 8-bit PNG folder of complex
 Gaussian speckle (an AR(1) field per pixel, τc = 10 frames in intensity, mean 60 grey levels, PNG
-level 1: :func:`make_series`, 4.9 GB, written once and kept), ``--window 200 --lag 5 --every
-200`` (disjoint sets: the paper's Figs. 10-11 processing). Each part runs in its own process, one
-after the other on the same folder (in the page cache after the first), and its peak RSS is that
-process's own (``ru_maxrss`` of ``os.wait4``):
+level 1: :func:`make_series`, 4.9 GB, written once into ``--timeline-dir`` and kept there),
+``--window 200 --lag 5 --every 200`` (disjoint sets: the paper's Figs. 10-11 processing). Each
+part runs in its own process, one after the other on the same folder (in the page cache after
+the first), and its peak RSS is that process's own (``ru_maxrss`` of ``os.wait4``):
 
 1. **decoding alone**: the folder's frames read through ``edgedsm.frameio`` (analyze's reader);
 2. **decoding + the bare engine**: each frame decoded, then pushed through the engine
