@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -104,30 +105,43 @@ def run_part(part: str, folder: str, window: int, lag: int, every: int) -> None:
         print(f"push_s {pushing:.6f}")
 
 
+#: Runs argv[2:] and writes "<exit code> <peak RSS in KiB>" of it to the file argv[1]. A child's
+#: ru_maxrss includes the RSS of the process it was forked from (the high-water mark survives
+#: exec): the parts are started by this small interpreter, not by the benchmark whose own RSS
+#: (and a test runner's) would be counted in each part's peak.
+_SPAWNER = """
+import os, sys
+pid = os.posix_spawn(sys.argv[2], sys.argv[2:], os.environ)
+_, status, usage = os.wait4(pid, 0)
+with open(sys.argv[1], "w") as out:
+    out.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
+"""
+
+
 def measure(name: str, command: list[str], timeout: float) -> Part:
-    """Run ``command`` in a child process: its wall time and its own peak RSS (wait4's rusage);
-    a line "push_s SECONDS" on its stdout is the time it spent pushing."""
+    """Run ``command`` (its first item an absolute path) as a grandchild of a small interpreter:
+    its wall time and its own peak RSS (wait4's rusage); a line "push_s SECONDS" on its stdout is
+    the time it spent pushing. Killed with its session at the timeout."""
     started = time.perf_counter()
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=out, stderr=err)
-        deadline = started + timeout
-        while True:
-            pid, status, usage = os.wait4(process.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.perf_counter() > deadline:
-                process.kill()
-                _, status, usage = os.wait4(process.pid, 0)
-                break
-            time.sleep(0.05)
-        process.returncode = os.waitstatus_to_exitcode(status)
+    with tempfile.TemporaryDirectory() as folder, tempfile.TemporaryFile() as out, \
+            tempfile.TemporaryFile() as err:
+        report = Path(folder) / "report"
+        process = subprocess.Popen([sys.executable, "-I", "-c", _SPAWNER, str(report), *command],
+                                   stdin=subprocess.DEVNULL, stdout=out, stderr=err, start_new_session=True)
+        try:
+            process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+            raise RuntimeError(f"{name}: did not end within {timeout:.0f} s") from None
         seconds = time.perf_counter() - started
-        if process.returncode != 0:
+        code, rss_kib = (int(value) for value in report.read_text().split())
+        if code != 0:
             err.seek(0)
-            raise RuntimeError(f"{name}: exit {process.returncode}: {err.read().decode(errors='replace')[-2000:]}")
+            raise RuntimeError(f"{name}: exit {code}: {err.read().decode(errors='replace')[-2000:]}")
         out.seek(0)
         pushed = [float(line.split()[1]) for line in out.read().decode().splitlines() if line.startswith("push_s ")]
-    return Part(name, seconds, usage.ru_maxrss * 1024, pushed[-1] if pushed else None)  # Linux: KiB
+    return Part(name, seconds, rss_kib * 1024, pushed[-1] if pushed else None)  # Linux: KiB
 
 
 #: The parts' names, in the order of one round
