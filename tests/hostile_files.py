@@ -12,19 +12,16 @@ mask may name.
 
 from __future__ import annotations
 
-import os
-import signal
 import struct
-import subprocess
-import sys
-import tempfile
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from edgedsm_lab.bench import peak
+from edgedsm_lab.bench.peak import Measured
 
 # -- .npy ------------------------------------------------------------------------------------
 
@@ -350,47 +347,13 @@ def mask_cases(d: Path) -> dict[str, Path]:
 
 # -- measuring a refusal -----------------------------------------------------------------------
 
-#: Runs argv[2:] and writes "<exit code> <peak RSS in KiB>" of it to the file argv[1]. A child's
-#: ru_maxrss includes the RSS of the process it was forked from (the high-water mark survives
-#: exec), so the command is started by this small interpreter, not by the test process whose
-#: RSS grows with every test it ran.
-MEASURE_SCRIPT = """
-import os, sys
-pid = os.posix_spawn(sys.argv[2], sys.argv[2:], os.environ)
-_, status, usage = os.wait4(pid, 0)
-with open(sys.argv[1], "w") as out:
-    out.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
-"""
-
-
-@dataclass
-class Measured:
-    """How a command ended: its exit code (negative for a signal), its output and its own peak RSS."""
-
-    code: int
-    out: str
-    err: str
-    rss: int  # bytes
-
-
 def measure(command: list[str], timeout: float = 60.0, **popen: Any) -> Measured:
-    """Run ``command`` (its first item an absolute path) under MEASURE_SCRIPT; killed, with its
-    session, at the timeout."""
-    with tempfile.TemporaryDirectory() as folder:
-        report, out_path, err_path = Path(folder) / "report", Path(folder) / "stdout", Path(folder) / "stderr"
-        with open(out_path, "wb") as out, open(err_path, "wb") as err:
-            process = subprocess.Popen([sys.executable, "-I", "-c", MEASURE_SCRIPT, str(report), *command],
-                                       stdin=subprocess.DEVNULL, stdout=out, stderr=err,
-                                       start_new_session=True, **popen)
-            try:
-                process.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait()
-                raise AssertionError(f"{command} did not end within {timeout} s") from None
-        code, rss_kib = report.read_text().split()
-        return Measured(int(code), out_path.read_text(errors="replace"), err_path.read_text(errors="replace"),
-                        int(rss_kib) * 1024)
+    """Run ``command`` (its first item an absolute path): its exit, output and its own peak RSS,
+    not the test process's (:func:`edgedsm_lab.bench.peak.measure`); a timeout fails the test."""
+    try:
+        return peak.measure(command, timeout, **popen)
+    except TimeoutError as exc:
+        raise AssertionError(str(exc)) from None
 
 
 def run_measured(command: list[str], timeout: float = 60.0, **popen: Any) -> tuple[int, str, float]:

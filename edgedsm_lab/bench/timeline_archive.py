@@ -30,15 +30,13 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import os
-import signal
-import subprocess
 import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from edgedsm_lab.bench import peak
 from edgedsm_lab.bench.report import Report, cpu_sample, load_average, machine_use, others_share
 
 #: (height, width, frames, window, lag, every) of the paper's series and of the quick one
@@ -105,43 +103,18 @@ def run_part(part: str, folder: str, window: int, lag: int, every: int) -> None:
         print(f"push_s {pushing:.6f}")
 
 
-#: Runs argv[2:] and writes "<exit code> <peak RSS in KiB>" of it to the file argv[1]. A child's
-#: ru_maxrss includes the RSS of the process it was forked from (the high-water mark survives
-#: exec): the parts are started by this small interpreter, not by the benchmark whose own RSS
-#: (and a test runner's) would be counted in each part's peak.
-_SPAWNER = """
-import os, sys
-pid = os.posix_spawn(sys.argv[2], sys.argv[2:], os.environ)
-_, status, usage = os.wait4(pid, 0)
-with open(sys.argv[1], "w") as out:
-    out.write(f"{os.waitstatus_to_exitcode(status)} {usage.ru_maxrss}")
-"""
-
-
 def measure(name: str, command: list[str], timeout: float) -> Part:
-    """Run ``command`` (its first item an absolute path) as a grandchild of a small interpreter:
-    its wall time and its own peak RSS (wait4's rusage); a line "push_s SECONDS" on its stdout is
-    the time it spent pushing. Killed with its session at the timeout."""
-    started = time.perf_counter()
-    with tempfile.TemporaryDirectory() as folder, tempfile.TemporaryFile() as out, \
-            tempfile.TemporaryFile() as err:
-        report = Path(folder) / "report"
-        process = subprocess.Popen([sys.executable, "-I", "-c", _SPAWNER, str(report), *command],
-                                   stdin=subprocess.DEVNULL, stdout=out, stderr=err, start_new_session=True)
-        try:
-            process.wait(timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
-            raise RuntimeError(f"{name}: did not end within {timeout:.0f} s") from None
-        seconds = time.perf_counter() - started
-        code, rss_kib = (int(value) for value in report.read_text().split())
-        if code != 0:
-            err.seek(0)
-            raise RuntimeError(f"{name}: exit {code}: {err.read().decode(errors='replace')[-2000:]}")
-        out.seek(0)
-        pushed = [float(line.split()[1]) for line in out.read().decode().splitlines() if line.startswith("push_s ")]
-    return Part(name, seconds, rss_kib * 1024, pushed[-1] if pushed else None)  # Linux: KiB
+    """Run ``command`` (its first item an absolute path): its wall time and its own peak RSS
+    (:func:`edgedsm_lab.bench.peak.measure`); a line "push_s SECONDS" on its stdout is the time
+    it spent pushing."""
+    try:
+        done = peak.measure(command, timeout)
+    except TimeoutError:
+        raise RuntimeError(f"{name}: did not end within {timeout:.0f} s") from None
+    if done.code != 0:
+        raise RuntimeError(f"{name}: exit {done.code}: {done.err[-2000:]}")
+    pushed = [float(line.split()[1]) for line in done.out.splitlines() if line.startswith("push_s ")]
+    return Part(name, done.seconds, done.rss, pushed[-1] if pushed else None)
 
 
 #: The parts' names, in the order of one round
