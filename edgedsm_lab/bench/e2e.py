@@ -66,6 +66,7 @@ from edgedsm_lab.bench.e2e_trial import (
     daemon_config,
     filled_engine,
     make_recording,
+    open_source,
     run_trial,
     unpack_ms,
 )
@@ -152,7 +153,8 @@ class Alternation:
                 self.result.daemon.append((self.taken - taken) / (time.monotonic() - started))
 
 
-def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs: int) -> Interleaved:
+def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs: int,
+                         source: str = "file") -> Interleaved:
     """The daemon at its capacity and the bare engine in alternating phases of one trial (see the
     module docstring); the bare engine's window is filled before the trial."""
     engine, stack = filled_engine(recording, bits)
@@ -165,7 +167,8 @@ def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs
     # fraction of a second per phase: the trial runs on well past them
     seconds = SETTLE_FIRST_S + pairs * (2 * PHASE_S + SETTLE_S) + 5.0
     try:
-        trial = run_trial("interleaved", config, rate=None, seconds=seconds, wrap=alternation.wrap)
+        trial = run_trial("interleaved", config, rate=None, seconds=seconds, wrap=alternation.wrap,
+                          camera=open_source(config, source, recording, 0.0, bits))
     finally:
         stop.set()
         alternation.running.set()
@@ -219,6 +222,7 @@ class SizeResult:
     paced: list[Trial]
     areas: list[Trial]
     interleaved: Interleaved | None = None
+    source: str = "file"  # where the replay took its frames (e2e_trial.SOURCES)
 
     @property
     def best(self) -> Trial | None:
@@ -231,7 +235,8 @@ class SizeResult:
 
 
 def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port: int, *, seconds: float,
-                 max_trials: int, areas: bool, say: Callable[[str], None], pairs: int = PHASE_PAIRS) -> SizeResult:
+                 max_trials: int, areas: bool, say: Callable[[str], None], pairs: int = PHASE_PAIRS,
+                 source: str = "file") -> SizeResult:
     bits = PIXEL_FORMATS[pixel_format]
     name = f"{shape[1]}x{shape[0]}"
     say(f"{name} {pixel_format}: recording {RECORDED_FRAMES} frames ...")
@@ -246,7 +251,8 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
 
     def trial(label: str, rate: float | None, covered: float | None = None) -> Trial:
         config = daemon_config(recording, port, workdir / f"state-{next(trial_id)}", rate or 0, bits, shape, covered)
-        result = run_trial(label, config, rate=rate, seconds=seconds, covered=covered or 1.0)
+        camera = open_source(config, source, recording, rate or 0.0, bits)
+        result = run_trial(label, config, rate=rate, seconds=seconds, covered=covered or 1.0, camera=camera)
         if covered is not None:  # the area trials compare with each other, not with the bare engine
             return result
         before = bare_runs[-1]
@@ -261,7 +267,7 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     capacity = trial("capacity", None)
     say(f"  capacity interleaved with the bare engine, {pairs} pairs of {PHASE_S:g} s phases ...")
     interleaved = interleaved_capacity(recording, daemon_config(recording, port, workdir / f"state-{next(trial_id)}",
-                                                                0, bits, shape), bits, pairs)
+                                                                0, bits, shape), bits, pairs, source)
     say(f"  interleaved: daemon ÷ bare {', '.join(f'{r:.0%}' for r in interleaved.ratios)}; "
         f"median {interleaved.ratio:.0%}")
     # the first paced trial is at the target, 90 % of the bare engine's latest run rounded up (so
@@ -275,5 +281,5 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     covered = [trial(f"area, {100 * c:g} %", None, c) for c in COVERED] if areas else []
     recording.unlink()
     return SizeResult(shape, pixel_format, bare_runs, unpack_ms(shape, pixel_format), capacity,
-                      sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved)
+                      sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved, source)
 

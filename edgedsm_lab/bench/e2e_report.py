@@ -15,6 +15,7 @@ from edgedsm_lab.bench.e2e_trial import (
     LAG,
     MAPS_S,
     RECORDED_FRAMES,
+    SOURCES,
     STATS_S,
     WINDOW,
     Trial,
@@ -84,10 +85,16 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     (:func:`edgedsm_lab.bench.report.others_share`); without it the load average before the run judges."""
     report = Report("End-to-end daemon benchmark")
     sizes = ",".join(f"{r.shape[1]}x{r.shape[0]}" for r in results)
-    command = f"edgedsm bench e2e --size {sizes} --pixel-format {args.pixel_format}{' --quick' if args.quick else ''}"
+    command = f"edgedsm bench e2e --size {sizes} --pixel-format {args.pixel_format}{' --quick' if args.quick else ''}" \
+              f"{f' --source {args.source}' if args.source != 'file' else ''}"
     report.line(report.machine(command, "numba", load=load, load_after=load_average()) + machine_use(others, load))
     report.line()
-    report.line(f"Replay of {RECORDED_FRAMES} recorded frames (looped) → the daemon's `Pipeline` (N = {WINDOW}, "
+    delivery = ("each frame read from the recording by the replay camera (a copy per frame on the capture thread, "
+                "what every camera's delivery costs)" if args.source == "file" else
+                "frames served from memory, the recording read once at open (no copy per frame: the daemon's own "
+                "cost, the frames reached as the bare engine reaches them)")
+    report.line(f"Replay of {RECORDED_FRAMES} recorded frames (looped; {delivery}) → the daemon's `Pipeline` "
+                f"(N = {WINDOW}, "
                 f"m = {LAG}, S1 + S2 + S3, two regions: the whole sensor and its centre quarter) → `MqttSink` → "
                 f"mosquitto on loopback; stats every {STATS_S:g} s, maps every {MAPS_S:g} s, drying states every "
                 f"0.5 s, the default queue (`acquisition.queue_seconds` = 1 s); {seconds:g} s per trial. "
@@ -190,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
         for shape in args.size:
             results.append(measure_size(shape, args.pixel_format, Path(tmp), broker.port, seconds=seconds,
                                         max_trials=max_trials, areas=not args.no_areas, say=say,
-                                        pairs=PHASE_PAIRS // 2 if args.quick else PHASE_PAIRS))
+                                        pairs=PHASE_PAIRS // 2 if args.quick else PHASE_PAIRS, source=args.source))
     write_report(results, args, seconds=seconds, load=load, others=others_share(start, cpu_sample()))
     return 0
 
@@ -203,5 +210,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="pixel format of the replayed frames (default Mono8)")
     parser.add_argument("--quick", action="store_true", help="shorter trials (12 s), fewer paced rates")
     parser.add_argument("--seconds", type=float, metavar="S", help="seconds per trial (default 20; quick 12)")
+    parser.add_argument("--source", choices=SOURCES, default="file",
+                        help="where the replay takes its frames: 'file' reads each from the recording (the "
+                             "copy every camera's delivery costs, on the capture thread), 'memory' serves them "
+                             "from the recording read once (the daemon's own cost alone); default file")
     parser.add_argument("--no-areas", action="store_true", help="leave out the estimator.area = regions trials")
     add_output_argument(parser, "docs/bench-e2e.md")

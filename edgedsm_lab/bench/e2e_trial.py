@@ -24,7 +24,11 @@ from edgedsm.daemon.handover import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.daemon.recording import Recorder
+from edgedsm.devices.camera import Camera
+from edgedsm.devices.camera.replay import ReplayCamera
 from edgedsm.estimators import SlidingWindow
+from edgedsm.frameio import FrameReader
+from edgedsm.frameio.npy import NpyReader
 from edgedsm.frames import Frame
 from edgedsm.messages import Stats
 from edgedsm.resources import data_file
@@ -35,6 +39,11 @@ STATS_S, MAPS_S = 1.0, 10.0
 RECORDED_FRAMES = 240
 FILL_LIMIT_S = 120.0  # a trial gives up when the window has not filled in this (plus its seconds)
 SCENE = data_file("config/scenes/constant.toml")
+#: Where the replay camera takes its frames: "file" reads each from the recording (one copy per
+#: frame on the capture thread, as every camera's delivery costs), "memory" serves them from the
+#: recording read once at open (no copy per frame: the daemon's own cost alone, the frames
+#: reached as the bare engine reaches them).
+SOURCES = ("file", "memory")
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -72,6 +81,38 @@ def make_recording(path: Path, shape: tuple[int, int], bits: int = 8, frames: in
     stack.flush()
     del stack
     return path
+
+
+class MemoryReader(NpyReader):
+    """A .npy recording read once into memory; each frame then served as it is (read-only)."""
+
+    kind = "memory"
+
+    def __init__(self, path: Path, channel: str | None = None) -> None:
+        super().__init__(path, channel)
+        self.held = self.window(0, self.count or 0)
+        self.held.setflags(write=False)
+
+    def _raw(self, start: int) -> Iterator[tuple[int, np.ndarray]]:
+        for index in range(start, len(self.held)):
+            yield index, self.held[index]
+
+
+class MemoryReplay(ReplayCamera):
+    """The replay camera over a :class:`MemoryReader`: frames delivered without a copy."""
+
+    def _open_reader(self) -> FrameReader:
+        return MemoryReader(self.path)
+
+
+def open_source(config: DaemonConfig, source: str, recording: Path, rate: float, bits: int) -> Camera:
+    """The trial's camera: the daemon's own replay of ``config`` ("file"), or the same recording
+    served from memory ("memory")."""
+    if source == "file":
+        return open_camera_for(config)
+    if source == "memory":
+        return MemoryReplay(recording, rate=rate, loop=True, bits=bits)
+    raise ValueError(f"source must be one of {SOURCES}, not {source!r}")
 
 
 def filled_engine(recording: Path, bits: int) -> tuple[SlidingWindow, np.ndarray]:
@@ -272,10 +313,11 @@ def anon_mib() -> float:
 
 def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: float, covered: float = 1.0,
               wrap: Callable[[PipelineProbes], PipelineProbes] | None = None,
-              recorder: Recorder | None = None) -> Trial:
+              recorder: Recorder | None = None, camera: Camera | None = None) -> Trial:
     """Run the pipeline on ``config`` for ``seconds`` after its window filled and measure over
     those seconds (module docstring). ``wrap``: probes around the instruments' (the interleaved
-    capacity holds the pipeline thread in one); ``recorder``: the pipeline's ``[recording]``."""
+    capacity holds the pipeline thread in one); ``recorder``: the pipeline's ``[recording]``;
+    ``camera``: instead of the config's (:func:`open_source`)."""
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
@@ -284,7 +326,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
     instruments = Instruments()
     try:
         mqtt.wait_connected(10)
-        camera = open_camera_for(config)
+        camera = camera or open_camera_for(config)
         probes = instruments.probes()
         pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S),
                             probes=wrap(probes) if wrap else probes, recorder=recorder)

@@ -57,9 +57,13 @@ class ReplayCamera(Camera):
         self._due = 0.0
         self._timestamp_dt: float | None = None
 
+    def _open_reader(self) -> FrameReader:
+        """The reader of ``path`` (a hook: a subclass may read the recording otherwise)."""
+        return open_frames(self.path, self.channel)
+
     def _do_open(self) -> None:
         try:
-            reader = open_frames(self.path, self.channel)
+            reader = self._open_reader()
         except InputMissing:
             raise DeviceError(f"{self.path}: no such file or directory") from None
         if reader.dtype not in (np.uint8, np.uint16):

@@ -80,6 +80,25 @@ def test_recordings_tile_any_size_in_the_pixel_format(tmp_path: Path, bits: int,
     assert not np.array_equal(stack[0, :256, :256], stack[0, :256, 256:512])
 
 
+def test_the_memory_source_serves_the_recordings_frames_without_a_copy_per_frame(tmp_path: Path) -> None:
+    """``--source memory``: the same frames as the file replay, each pass handing out the same
+    read-only arrays (read once at open), where the file replay reads a new array per frame."""
+    from edgedsm_lab.bench.e2e_trial import daemon_config, open_source
+
+    path = make_recording(tmp_path / "r.npy", (64, 96), 8, frames=3)
+    config = daemon_config(path, 1883, tmp_path / "state", 0.0, 8, (64, 96))
+    grabbed = {}
+    for source in ("file", "memory"):
+        with open_source(config, source, path, 0.0, 8) as camera:
+            grabbed[source] = list(camera.frames(count=6, timeout_s=1.0))  # two passes
+    assert [f.pixels.tobytes() for f in grabbed["memory"]] == [f.pixels.tobytes() for f in grabbed["file"]]
+    memory, file = grabbed["memory"], grabbed["file"]
+    assert np.shares_memory(memory[0].pixels, memory[3].pixels) and not memory[0].pixels.flags.writeable
+    assert not np.shares_memory(file[0].pixels, file[3].pixels)
+    with pytest.raises(ValueError, match="source must be one of"):
+        open_source(config, "camera", path, 0.0, 8)
+
+
 def test_a_daemon_that_falls_behind_is_not_sustained_even_before_its_queue_overflows() -> None:
     trial = _trial(140.0, 0)  # 10 s, nothing dropped yet ...
     trial.processed = 1343  # ... but 134.3 frames/s processed of 140 asked: the queue only fills
@@ -112,7 +131,7 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
     row = summary_row(result)
     assert row[1] == "75 (50–100)" and row[2] == "46 (92%)" and row[3] == "–" and row[4] == "95 (95%)"
     assert row[-3] == "2.00" and row[-2] == "0.75"  # the states and stats of the best zero-drop trial
-    args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None)
+    args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None, source="file")
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
     assert "zero drops up to 95% of the bare engine's rate: meets the target" in text
     assert "| 0.75 (3) |" in text  # its paced row: stats messages per s (times postponed)
@@ -150,7 +169,7 @@ def test_interleaved_capacity_pairs_each_daemon_phase_with_a_bare_one() -> None:
     both.drops = 2  # a source that waits drops nothing: shown if it did
     assert summary_row(result)[3] == "45 ÷ 50: 90% (80%–96%, 3 pairs, 2 dropped)"
     both.drops = 0
-    args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None)
+    args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None, source="file")
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
     assert "the daemon at its capacity ran at 90% of it (median of 3 pairs)" in text
 
