@@ -18,7 +18,12 @@ Measured, in one run, per size:
 
 1. **Bare engine**: ``SlidingWindow.push`` alone on the same frames (the upper bound), before
    the first trial and after each: the machine's speed drifts, so each trial is compared with
-   the faster of the bare runs around it (the mean would flatter the daemon).
+   the faster of the bare runs around it (the mean would flatter the daemon). Then the bare
+   engine **fed by the file replay**: the replay camera reading the recording on a second thread
+   (one copy per frame, the delivery every camera costs) into a short queue, alternating with
+   the bare engine alone in ``DELIVERY_PAIRS`` pairs: the most any daemon fed by that camera can
+   process. ``--source memory`` takes that copy out of the daemon's trials (the frames served
+   from memory, as the bare engine reaches them), so its ratios are the daemon's own cost.
 2. **Capacity**: the replay at rate 0 is a source that can wait; the pipeline holds it back when
    its queue is full, so frames/s is what the daemon processes at most.
 3. **Capacity interleaved with the bare engine**, drift-free: one capacity trial in which the
@@ -52,7 +57,7 @@ import statistics
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from edgedsm.config import DaemonConfig
@@ -64,6 +69,7 @@ from edgedsm_lab.bench.e2e_trial import (
     Trial,
     bare_engine,
     daemon_config,
+    delivered_engine,
     filled_engine,
     make_recording,
     open_source,
@@ -79,6 +85,7 @@ BARE_RUN_S = 6.0  # the bare engine's run after each trial (plus filling its win
 #: flight ends) and the daemon's seconds at capacity before the first phase.
 PHASE_S, SETTLE_S, SETTLE_FIRST_S = 3.0, 0.3, 3.0
 PHASE_PAIRS = 8  # daemon/bare pairs (quick: half)
+DELIVERY_PAIRS = 3  # bare engine alone / fed from the file, BARE_RUN_S each
 PIXEL_FORMATS = {"Mono8": 8, "Mono12p": 12, "Mono16": 16}
 COVERED = (1.0, 0.25, 0.0625, 0.01)  # fractions of the sensor the one region covers (area trials)
 
@@ -223,6 +230,12 @@ class SizeResult:
     areas: list[Trial]
     interleaved: Interleaved | None = None
     source: str = "file"  # where the replay took its frames (e2e_trial.SOURCES)
+    delivery: list[float] = field(default_factory=list)  # bare engine fed from the file ÷ bare, per pair
+
+    @property
+    def delivery_ratio(self) -> float:
+        """The bare engine fed by the file replay on a second thread ÷ the bare engine alone (median)."""
+        return statistics.median(self.delivery) if self.delivery else float("nan")
 
     @property
     def best(self) -> Trial | None:
@@ -264,6 +277,15 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
 
     say(f"  bare engine, {seconds:g} s ...")
     say(f"  bare engine: {bare(seconds):.1f} frames/s")
+    delivery = []  # pairs of bare / fed from the file, alternating which goes first
+    for pair in range(DELIVERY_PAIRS):
+        if pair % 2 == 0:
+            alone, fed = bare_engine(recording, BARE_RUN_S, bits), delivered_engine(recording, BARE_RUN_S, bits)
+        else:
+            fed, alone = delivered_engine(recording, BARE_RUN_S, bits), bare_engine(recording, BARE_RUN_S, bits)
+        delivery.append(fed / alone)
+    say(f"  bare engine fed by the file replay on a second thread ÷ alone: "
+        f"{', '.join(f'{r:.0%}' for r in delivery)}")
     capacity = trial("capacity", None)
     say(f"  capacity interleaved with the bare engine, {pairs} pairs of {PHASE_S:g} s phases ...")
     interleaved = interleaved_capacity(recording, daemon_config(recording, port, workdir / f"state-{next(trial_id)}",
@@ -281,5 +303,5 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     covered = [trial(f"area, {100 * c:g} %", None, c) for c in COVERED] if areas else []
     recording.unlink()
     return SizeResult(shape, pixel_format, bare_runs, unpack_ms(shape, pixel_format), capacity,
-                      sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved, source)
+                      sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved, source, delivery)
 

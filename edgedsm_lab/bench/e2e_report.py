@@ -125,9 +125,15 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
         drift_free = (f"; interleaved with the bare engine in {PHASE_S:g} s phases the daemon at its capacity ran at "
                       f"{both.ratio:.0%} of it (median of {len(both.ratios)} pairs)"
                       if both is not None and both.ratios else "")
+        delivery = (f" The bare engine fed by the file replay on a second thread (one copy per frame, what the "
+                    f"camera's delivery costs) ran at {result.delivery_ratio:.0%} of the bare engine alone "
+                    f"({', '.join(f'{r:.0%}' for r in result.delivery)}, pairs of {e2e.BARE_RUN_S:g} s runs): "
+                    f"the most a daemon fed from the file can reach"
+                    f"{'; this run served the frames from memory instead' if result.source == 'memory' else ''}."
+                    if result.delivery else "")
         report.line(f"- {_size(result)}: zero drops up to {ratio:.0%} of the bare engine's rate: {met} the "
                     f"target of {TARGET_RATIO:.0%}{kept}; capacity {result.capacity.bare_ratio:.0%}{higher}"
-                    f"{drift_free}.")
+                    f"{drift_free}.{delivery}")
     report.line()
     report.line("Each ratio is to the bare engine measured around that trial (the faster of its runs just before "
                 "and just after): the machine's own speed drifts during a run, by up to 2x on a shared virtual "

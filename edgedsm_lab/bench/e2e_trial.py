@@ -10,7 +10,9 @@ import contextlib
 import gc
 import itertools
 import logging
+import queue
 import statistics
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -133,6 +135,39 @@ def bare_engine(recording: Path, seconds: float, bits: int) -> float:
         engine.push(stack[count % len(stack)])
         count += 1
     return count / (time.perf_counter() - started)
+
+
+def delivered_engine(recording: Path, seconds: float, bits: int) -> float:
+    """Frames/s of ``SlidingWindow.push`` on frames the replay camera reads from the recording on a
+    second thread (the daemon's file delivery: one copy per frame beside the pushes), through a
+    short queue: the most any daemon fed by this camera can process."""
+    engine, _ = filled_engine(recording, bits)
+    handed: queue.Queue[np.ndarray] = queue.Queue(maxsize=4)
+    stop = threading.Event()
+
+    def deliver() -> None:
+        with ReplayCamera(recording, rate=0.0, loop=True, bits=bits) as camera:
+            for frame in camera.frames(timeout_s=5.0):
+                while not stop.is_set():
+                    with contextlib.suppress(queue.Full):
+                        handed.put(frame.pixels, timeout=0.1)
+                        break
+                if stop.is_set():
+                    return
+
+    thread = threading.Thread(target=deliver, name="bench-delivery", daemon=True)
+    thread.start()
+    try:
+        for _ in range(8):  # the reader open and its first frames are not measured
+            engine.push(handed.get(timeout=30.0))
+        count, started = 0, time.perf_counter()
+        while time.perf_counter() - started < seconds:
+            engine.push(handed.get(timeout=30.0))
+            count += 1
+        return count / (time.perf_counter() - started)
+    finally:
+        stop.set()
+        thread.join(5.0)
 
 
 def unpack_ms(shape: tuple[int, int], pixel_format: str, repeats: int = 20) -> float:
