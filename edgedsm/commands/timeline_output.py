@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
-import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +23,7 @@ from edgedsm.errors import EstimatorError
 from edgedsm.estimators import registry
 from edgedsm.frameio import FrameReader, open_frames
 from edgedsm.frameio.prefetch import Prefetched
+from edgedsm.plots import pyplot, seconds_axis, seconds_label
 from edgedsm.timeline import DESCRIPTORS, PAPER, Timeline, timeline
 from edgedsm.validation import validate
 
@@ -206,15 +206,6 @@ def write_csv(path: Path, result: Timeline) -> None:
             writer.writerow([f"{cell:.6g}" if isinstance(cell, float) else cell for cell in row])
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
-
-    return plt
-
-
 def _label(name: str) -> str:
     """A map's axis label with its unit (the registry's; none for the dimensionless)."""
     record = registry.get(name)
@@ -227,49 +218,9 @@ def figure_title(source: str, window: int, lag: int) -> str:
     return f"{Path(source).name or source}: N = {window}, m = {lag}"
 
 
-#: SI prefixes of engineering notation (powers of 1000) the tick labels use.
-_PREFIXES = {-9: "n", -6: "µ", -3: "m", 0: ""}
-
-
-def seconds_label(value: float) -> str:
-    """A time as a tick reads it, in engineering notation with its unit: 0.6675 -> "667.5 ms",
-    2 -> "2 s", 1.5e-5 -> "15 µs", 1500 -> "1500 s" (at most 4 significant digits; 0 -> "0 s")."""
-    if value == 0 or not math.isfinite(value):
-        return f"{value:g} s"
-    exponent = min(max(3 * math.floor(math.log10(abs(value)) / 3), -9), 0)
-    scaled = float(f"{value / 10.0 ** exponent:.4g}")
-    if abs(scaled) >= 1000 and exponent < 0:  # 999.96 ms rounds to 1000: write 1 s
-        exponent, scaled = exponent + 3, float(f"{scaled / 1000:.4g}")
-    return f"{scaled:g} {_PREFIXES[exponent]}s"
-
-
-def _seconds_formatter():
-    """Tick labels of a logarithmic axis in seconds: the ticks matplotlib's log formatter would
-    label (so minor ticks do not crowd), each written by :func:`seconds_label` instead of
-    "6.675×10⁻¹"."""
-    from matplotlib.ticker import Formatter, LogFormatterSciNotation
-
-    class SecondsFormatter(Formatter):
-        def __init__(self, minor: bool) -> None:
-            self.chooser = LogFormatterSciNotation(labelOnlyBase=not minor)
-
-        def set_axis(self, axis) -> None:
-            super().set_axis(axis)
-            self.chooser.set_axis(axis)
-
-        def set_locs(self, locs) -> None:
-            super().set_locs(locs)
-            self.chooser.set_locs(locs)
-
-        def __call__(self, x: float, pos: int | None = None) -> str:
-            return seconds_label(x) if self.chooser(x, pos) else ""
-
-    return SecondsFormatter
-
-
 def activity_figure(result: Timeline, title: str):
     """timeline.png's figure: each estimator's region means against time, and τc on a log axis."""
-    plt = _pyplot()
+    plt = pyplot()
     names = list(dict.fromkeys(row[2] for row in result.rows))
     columns = (*((name, _label(name)) for name in (*PAPER, *result.descriptors)), ("tau_c_s", _label("tau_c")))
     fig, axes = plt.subplots(len(columns), 1, figsize=(8, 9 + 2 * len(result.descriptors)), sharex=True)
@@ -287,9 +238,7 @@ def activity_figure(result: Timeline, title: str):
                      label=f"K·Δt = {seconds_label(result.max_lag * result.dt)}: longer τc reads as this")
     axes[-1].legend(fontsize=8)
     axes[-1].set_yscale("log")
-    formatter = _seconds_formatter()
-    axes[-1].yaxis.set_major_formatter(formatter(minor=False))
-    axes[-1].yaxis.set_minor_formatter(formatter(minor=True))
+    seconds_axis(axes[-1].yaxis)
     axes[-1].set_xlabel("time (s)")
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Activity against time — {title}")
@@ -300,11 +249,11 @@ def activity_figure(result: Timeline, title: str):
 def plot_activity(path: Path, result: Timeline, title: str, source: str | None = None) -> None:
     fig = activity_figure(result, title)
     fig.savefig(path, dpi=100, metadata={"Source": source} if source else None)
-    _pyplot().close(fig)
+    pyplot().close(fig)
 
 
 def plot_histograms(path: Path, result: Timeline, title: str, source: str | None = None) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     image = result.histogram_image()
     times = np.asarray(result.sample_times, np.float64)
     edges = result.histogram_edges

@@ -16,6 +16,7 @@ import numpy as np
 
 from edgedsm.config import DaemonConfig
 from edgedsm.estimators import registry
+from edgedsm.plots import pyplot, seconds_axis
 from edgedsm.tuning.candidates import IN_SECONDS, ROBUST_D_PRIME, Outcome, pareto
 from edgedsm.tuning.series import KINETICS
 from edgedsm.tuning.session import Result, skipped_states
@@ -121,20 +122,11 @@ def summary_json(result: Result) -> dict[str, Any]:
             "not_scored": [{"label": c.label(), "why": why} for c, why in result.excluded]}
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_chosen(path: Path, result: Result) -> None:
     """The chosen activity of every region against time, its thresholds and the marks."""
     chosen = result.chosen
     assert chosen is not None
-    plt = _pyplot()
+    plt = pyplot()
     series = next(s for s in result.series if s.setting == chosen.candidate.setting)
     fig, ax = plt.subplots(figsize=(8, 4))
     times = np.asarray(series.times)
@@ -160,20 +152,21 @@ def plot_tradeoff(path: Path, result: Result) -> None:
     """Timing error against cost per frame for every candidate that calls every region dry; the
     sound and robust ones filled, the sound ones of d′ < ROBUST_D_PRIME filled orange, the
     recommended one ringed."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for outcome in result.outcomes:
         if not math.isfinite(outcome.timing_error_s):
             continue
         fill = ("C0" if outcome.robust else "C1") if outcome.sound else "none"
-        ax.scatter(outcome.cost_s * 1e3, outcome.timing_error_s, s=18, facecolors=fill,
+        ax.scatter(outcome.cost_s, outcome.timing_error_s, s=18, facecolors=fill,
                    edgecolors="C0" if fill == "none" else fill)
     if result.chosen is not None:
-        ax.scatter(result.chosen.cost_s * 1e3, result.chosen.timing_error_s, s=120, facecolors="none",
+        ax.scatter(result.chosen.cost_s, result.chosen.timing_error_s, s=120, facecolors="none",
                    edgecolors="C3", label=f"recommended: {result.chosen.candidate.label()}")
         ax.legend(fontsize=8)
     ax.set_xscale("log")
-    ax.set_xlabel("engine push per frame (ms, measured)")
+    seconds_axis(ax.xaxis)  # "6 ms", not "6×10⁻³"
+    ax.set_xlabel("engine push per frame (measured)")
     ax.set_ylabel("worst |dry call - dry mark| (s)")
     ax.set_title(f"filled: separates, calls dry, no false transition; orange: d′ < {ROBUST_D_PRIME:g}", fontsize=10)
     fig.tight_layout()

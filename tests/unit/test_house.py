@@ -105,7 +105,7 @@ def test_modules_stay_short() -> None:
 #: subpackages ("edgedsm" alone is the package's __init__: its __version__), or the lab.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("edgedsm", "errors", "_json", "validation", "resources", "logs", "priority", "signals"),
-    ("frames", "frameio", "imageio"),
+    ("frames", "frameio", "imageio", "plots"),  # plots: matplotlib without a screen, seconds on axes
     ("geometry",),  # region shapes, some drawn from image files (frameio)
     ("sim",),
     ("devices",),

@@ -10,16 +10,8 @@ import numpy as np
 import pytest
 
 from edgedsm.cli import main
-from edgedsm.commands.timeline_output import activity_figure, figure_title, seconds_label
+from edgedsm.commands.timeline_output import activity_figure, figure_title
 from edgedsm.timeline import timeline
-
-
-@pytest.mark.parametrize(("seconds", "label"), [
-    (0.6675, "667.5 ms"), (2.0, "2 s"), (1.5e-5, "15 µs"), (0.99996, "1 s"), (0.0009999, "999.9 µs"),
-    (1234.5, "1234 s"), (0.05, "50 ms"), (3e-8, "30 ns"), (0.0, "0 s"),
-])
-def test_seconds_read_as_engineering_notation_with_their_unit(seconds: float, label: str) -> None:
-    assert seconds_label(seconds) == label
 
 
 def test_the_title_is_the_file_name_not_its_folders() -> None:
