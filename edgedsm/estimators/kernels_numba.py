@@ -30,8 +30,10 @@ from collections.abc import Callable
 
 import numba
 import numpy as np
+from numba.extending import intrinsic
 
 from edgedsm.estimators.activity import pixel_values
+from edgedsm.estimators.fixed_point import ROUNDING, ROUNDING_BITS
 from edgedsm.estimators.jit import kernel_variant
 from edgedsm.estimators.registry import KernelSpec
 from edgedsm.estimators.value_set import maps_kernel_args
@@ -49,6 +51,21 @@ def max_threads() -> int:
     return int(numba.config.NUMBA_NUM_THREADS)
 
 
+@intrinsic
+def _float_bits(typingctx, value):  # pragma: no cover - compiled
+    """The bits of a float64 as an int64 (a bit cast: no conversion instruction)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(numba.types.int64))
+    return numba.types.int64(numba.types.float64), codegen
+
+
+@numba.njit(inline="always", cache=True)
+def _rounded(y):  # pragma: no cover - compiled
+    """y (0 <= y < 2^52) rounded to the nearest integer, ties to even: the bits of y + 2^52 less
+    those of 2^52 (fixed_point.ROUNDING)."""
+    return _float_bits(y + ROUNDING) - ROUNDING_BITS
+
+
 @numba.njit(inline="always", cache=True)
 def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - compiled
     """Eq. 2 term |a-b|/(a+b+q) in fixed point (scale 2^K), int64.
@@ -56,7 +73,10 @@ def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - co
     kind "exact" (integer q, K <= 51): round half up of |a-b|·2^K/(a+b+q), exactly: a float
     estimate within 1/4 of the true value, then one integer correction step.
     kind "lut": the exactly rounded value from the 8-bit table, index (a << 8) | b.
-    kind "float": ⌊fl(|a-b| / fl(a+b+q))·2^K + 0.5⌋.
+    kind "reciprocal": y = fl(|a-b|·R[a+b]), R the table of fl(2^K / max(fl(s+q), 1)); kind
+    "float": y = fl(|a-b| / max(fl(a+b+q), 1))·2^K; both: T = y rounded to an integer, ties
+    to even, read off the bits of y + 2^52 (0 <= y < 2^52 as K <= 51): an add and an integer
+    subtract, cheaper than floor and a float-to-int conversion (docs/engine.md, "S2's term").
     The denominator is raised to at least 1: it is below 1 only when a = b = 0, where the
     term is 0 whatever it is divided by (no branch, no 0/0).
     """
@@ -70,8 +90,9 @@ def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - co
         rest = 2 * (diff * one - t * denominator) + denominator
         # arithmetic, not branches: the correction is data-dependent and must not stall
         return t + np.int64(rest >= 2 * denominator) - np.int64(rest < 0)
-    denominator = max(np.float64(a + b) + q, 1.0)
-    return np.int64(np.floor(diff / denominator * scale + 0.5))
+    if kind == "reciprocal":
+        return _rounded(np.float64(diff) * lut[a + b])
+    return _rounded(diff / max(np.float64(a + b) + q, 1.0) * scale)
 
 
 @functools.cache

@@ -19,6 +19,7 @@ import numpy as np
 
 from edgedsm.estimators.activity import values_numpy
 from edgedsm.estimators.activity import window_sigmas as sigma_from_sums
+from edgedsm.estimators.fixed_point import ROUNDING, ROUNDING_BITS
 from edgedsm.estimators.registry import VALUES, KernelSpec
 from edgedsm.estimators.value_set import maps_kernel_args
 
@@ -53,11 +54,14 @@ def _ratio_terms(kind: str, a: np.ndarray, b: np.ndarray, lut: np.ndarray, scale
         t -= rest < 0
         t += rest >= 2 * denominator
         return t
-    denominator = np.maximum((a + b).astype(np.float64) + q, 1.0)
-    ratio = diff / denominator
-    ratio *= scale
-    ratio += 0.5
-    return np.floor(ratio).astype(np.int64)
+    if kind == "reciprocal":
+        ratio = diff * lut[a + b]
+    else:
+        denominator = np.maximum((a + b).astype(np.float64) + q, 1.0)
+        ratio = diff / denominator
+        ratio *= scale
+    ratio += ROUNDING  # rounds y to an integer T, ties to even: its bits are ROUNDING_BITS + T
+    return ratio.view(np.int64) - ROUNDING_BITS
 
 
 @functools.cache

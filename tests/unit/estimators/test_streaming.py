@@ -173,6 +173,7 @@ def test_s2_against_exact_rationals(kernel, q, bits):
     frames = random_frames(int(q * 100) + bits, 23, (2, 5), bits)
     engine = feed(SlidingWindow((2, 5), window, lag, q=q, kernel=kernel), frames)
     assert engine.s2_bound == s2_error_bound(window - lag, bits, q)
+    # uint16 frames and no ``bits``: the engine takes them as 16-bit data
     assert engine.ratio_kind == ("float" if bits > 8 else "exact" if q.is_integer() else "lut")
     assert engine.s2_bound < 1e-15
     assert_s2_within_bound(engine.maps()["s2"], exact_s2(frames[-window:], lag, q), engine.s2_bound)
@@ -217,8 +218,10 @@ def test_exact_terms_equal_the_rational_table(kernel, q):
 def test_ratio_kinds():
     assert ratio_kind(8, 0.0) == "exact" and ratio_kind(5, 3.0) == "exact"
     assert ratio_kind(8, 0.5) == "lut" and ratio_kind(8, 2.0**41) == "lut"
-    assert ratio_kind(10, 0.0) == "float" and ratio_kind(16, 0.5) == "float"
-    assert ratio_scale_bits(190, "lut") == 55 and ratio_scale_bits(1, "float") == 62
+    assert ratio_kind(10, 0.0) == "reciprocal" and ratio_kind(14, 0.5) == "reciprocal"
+    assert ratio_kind(15, 0.0) == "float" and ratio_kind(16, 0.5) == "float"
+    assert ratio_scale_bits(190, "lut") == 55 and ratio_scale_bits(1, "lut") == 62
+    assert ratio_scale_bits(1, "float") == ratio_scale_bits(190, "reciprocal") == 51  # y < 2^52
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
