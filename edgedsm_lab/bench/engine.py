@@ -48,6 +48,7 @@ import numpy as np
 
 from edgedsm.estimators import SlidingWindow, all_maps
 from edgedsm.estimators.correlation_time import longest_lag
+from edgedsm_lab.bench.engine_bits import bench_bits, bits_table, needed_bytes
 from edgedsm_lab.bench.engine_report import MODES, Row, noise_table, plot, speed_table
 from edgedsm_lab.bench.report import Report, add_output_argument, load_average
 
@@ -316,10 +317,6 @@ def noise_study(size: int, frames: int, windows: list[int], lag: int
 
 
 # -- report --------------------------------------------------------------------------------
-
-
-
-
 def _available_bytes() -> int:
     try:
         for line in Path("/proc/meminfo").read_text().splitlines():
@@ -352,6 +349,7 @@ def run(args: argparse.Namespace) -> int:
     measurements = [measure_bandwidth(128 if quick else 512)]
     rows: list[Row] = []
     tau_rows: list[dict[str, Any]] = []
+    bits_rows: list[dict[str, Any]] = []
     checks: dict[tuple[int, int], dict[str, float]] = {}
     skipped = []
     for shape in sizes:
@@ -365,6 +363,8 @@ def run(args: argparse.Namespace) -> int:
                                               measurements[-1][0], args.threads, log)
         rows += size_rows
         tau_rows += bench_tau(shape, window, lag, kernels[0], args.threads, speckle_pool(shape), log)
+        bits_rows += [row for bits in args.map_bits if needed_bytes(shape, window) < 0.8 * _available_bytes()
+                      for row in bench_bits(shape, window, lag, bits, kernels[0], args.threads, log)]
     bandwidth, how = max(measurements, key=lambda item: item[0])
     for row in rows:
         row.bound_ms = row.traffic_bytes * row.pixels / bandwidth * 1e3
@@ -429,6 +429,11 @@ def run(args: argparse.Namespace) -> int:
         emit()
         for line in tau_table(tau_rows, bandwidth, "maps"):
             emit(line)
+        if bits_rows:
+            emit()
+            emit("The same at the deeper bit depths, q = 1 (the engines take turns push by push; `--map-bits`):")
+            emit()
+            report.extend(bits_table(bits_rows))
         emit()
         emit("## Correlation time τc")
         emit()
@@ -488,4 +493,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="timed pushes of the numpy kernel (default 30; 10 with --quick)")
     parser.add_argument("--noise-frames", type=int, metavar="n",
                         help="simulated frames for the noise study (default 1600; 400 quick)")
+    parser.add_argument("--map-bits", type=int, nargs="*", default=[12, 16], metavar="B",
+                        help="bit depths of the 'Each map alone' rows beyond 8 (default 12 16; none: --map-bits)")
     add_output_argument(parser, "docs/bench-engine.md", extra=", and FILE.png when matplotlib is installed")
