@@ -37,12 +37,12 @@ S2, sliding and tumbling: each term |a-b|/(a+b+q) enters an int64 sum as a fixed
 
   Checked against exact rational arithmetic (``fractions.Fraction``) on adversarial 12- and
   16-bit pairs: every denominator, the extreme differences (tests/unit/estimators).
-  That is below 7e-16 for N = 200, m = 10 (K = 51, 8-bit, q = 0), and 1.0e-15 on 9 to 16-bit
-  data (K = 51; before the 2^52 rounding: K = 55 and a stated 2^-55 + 2^-50 = 9.2e-16): closer to the exact value
-  than the float64 batch sum itself, whose own error is up to ~(N-m)·u. Because nothing
-  drifts, resynchronising from the ring (:meth:`SlidingWindow.resync`, ``resync_every``)
-  reproduces the running sums bit for bit; it is offered as a guard against corrupted
-  memory in month-long runs.
+  That is below 7e-16 for N = 200, m = 10 (K = 51, 8-bit, q = 0), and 1.0e-15 (9·2^-53) on 9
+  to 16-bit data (K = 51; before the 2^52 rounding, K = 55 and a stated 2^-55 + 2^-50 =
+  9.2e-16): closer to the exact value than the float64 batch sum itself, whose own error is
+  up to ~(N-m)·u. Because nothing drifts, resynchronising from the ring
+  (:meth:`SlidingWindow.resync`, ``resync_every``) reproduces the running sums bit for bit;
+  it is offered as a guard against corrupted memory in month-long runs.
 """
 
 from __future__ import annotations
