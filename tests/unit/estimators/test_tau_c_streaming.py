@@ -96,6 +96,23 @@ def test_numba_and_numpy_sums_are_bit_identical():
             np.testing.assert_array_equal(states[0][name], states[1][name])
 
 
+@pytest.mark.parametrize("mode", ["sliding", "tumbling"])
+def test_batched_products_over_many_blocks_are_bit_identical(mode):
+    """Frames of 300 x 300 pixels: the parallel kernels' blocks of pixels (kernels_numba.BATCH_BLOCK,
+    the last one partial) give the NumPy twin's products, batch by batch."""
+    if "numba" not in KERNELS:
+        pytest.fail("numba is a test dependency of the project")
+    rng = np.random.default_rng(5)
+    frames = np.minimum(rng.exponential(60.0, (75, 300, 300)), 255).astype(np.uint8)
+    engines = [SlidingWindow((300, 300), 40, 3, estimators=["tau_c"], kernel=kernel, mode=mode, max_lag=12)
+               for kernel in KERNELS]
+    for frame in frames:
+        for engine in engines:
+            engine.push(frame)
+        np.testing.assert_array_equal(engines[0]._arrays["products"], engines[1]._arrays["products"])
+    assert engines[1]._parallel and frames[0].size % 8192
+
+
 def test_resync_reproduces_the_lag_products():
     frames = _scene_frames(70)
     engine = SlidingWindow((24, 24), 30, 2, estimators=["s2", "tau_c"], kernel="numpy", max_lag=5)
