@@ -7,7 +7,6 @@ import re
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from edgedsm.cli import main
 from edgedsm.commands.timeline_output import activity_figure, figure_title
