@@ -18,26 +18,23 @@ S2, sliding and tumbling: each term |a-b|/(a+b+q) enters an int64 sum as a fixed
   * ``lut`` (<= 8-bit data, fractional q; K = min(62, 63 - bit_length(N-m))): a 256 x 256
     table of the same exactly rounded values, computed once with rational arithmetic (a
     float q is an exact binary fraction).
-  * ``reciprocal`` (9 to 14-bit data) and ``float`` (15 and 16-bit data), K = min(51, 63 -
-    bit_length(N-m)): y = fl(|a-b|·R[a+b]) with R[s] = fl(2^K / max(fl(s+q), 1)) read from a
-    table of the 2^15 - 1 possible sums (:func:`ratio_reciprocals`, 256 KiB: it stays in L2),
-    or y = fl(|a-b| / max(fl(a+b+q), 1))·2^K (``float``: a 1 MiB table for 16-bit data was
-    slower than the division); T is y rounded to the nearest integer (ties to even) by
-    adding 2^52 and reading the integer off the float's bits, exact because 0 <= y < 2^52
-    (so K <= 51), and vectorised (docs/engine.md, "S2's term"). Each rounding is relative
-    (<= u = 2^-53), at most three of them (fl(s+q), the reciprocal or quotient, the
-    product), so |T·2^-K - term| <= 2^-(K+1) + 4u·term. T <= 2^K + 1 (term <= 1), so N-m
-    terms still fit an int64 (N-m < 2^31 <= 2^K).
+  * ``float`` (9 to 16-bit data; K = min(51, 63 - bit_length(N-m))): y = fl(|a-b| /
+    max(fl(a+b+q), 1))·2^K, and T is y rounded to the nearest integer (ties to even) by
+    adding 2^52 and reading the integer off the float's bits: exact because 0 <= y < 2^52 (so
+    K <= 51), cheaper than floor and a float-to-int conversion (docs/engine.md, "S2's term").
+    Two relative roundings (<= u = 2^-53 each: fl(a+b+q), the quotient), so
+    |T·2^-K - term| <= 2^-(K+1) + 3u·term. T <= 2^K + 1 (term <= 1), so N-m terms still fit
+    an int64 (N-m < 2^31 <= 2^K).
 
   With the final conversion to float64 (two roundings, S2 <= 1 because |a-b| <= a+b+q)
   this gives the absolute bound :func:`s2_error_bound`::
 
       |S2_stream - S2_exact| <= 2^-(K+1) + 2^-51   (exact, lut: every term exactly rounded)
-      |S2_stream - S2_exact| <= 2^-(K+1) + 7u      (reciprocal, float: 4u + 2u + O(u²) <= 7u)
+      |S2_stream - S2_exact| <= 2^-(K+1) + 6u      (float: 3u + 2u + O(u²) <= 6u)
 
   Checked against exact rational arithmetic (``fractions.Fraction``) on adversarial 12- and
   16-bit pairs: every denominator, the extreme differences (tests/unit/estimators).
-  That is below 7e-16 for N = 200, m = 10 (K = 51, 8-bit, q = 0), and 1.0e-15 (9·2^-53) on 9
+  That is below 7e-16 for N = 200, m = 10 (K = 51, 8-bit, q = 0), and 8.9e-16 (8·2^-53) on 9
   to 16-bit data (K = 51; before the 2^52 rounding, K = 55 and a stated 2^-55 + 2^-50 =
   9.2e-16): closer to the exact value than the float64 batch sum itself, whose own error is
   up to ~(N-m)·u. Because nothing drifts, resynchronising from the ring
@@ -64,38 +61,34 @@ TABLED_KINDS = ("exact", "lut")
 _NO_LUT = np.zeros(0, np.int64)
 _NO_LUT.setflags(write=False)
 
-#: Data up to this bit depth read their S2 reciprocals from a table (:func:`ratio_reciprocals`).
-RECIPROCAL_MAX_BITS = 14
-#: The kinds whose terms are a rounded float64 y: K <= 51 keeps y < 2^52 for the 2^52 rounding.
-FLOAT_KINDS = ("reciprocal", "float")
 #: y + 2^52 (0 <= y < 2^52) is y rounded to an integer T, and its bits are ROUNDING_BITS + T.
 ROUNDING = 2.0**52
 ROUNDING_BITS = int(np.float64(ROUNDING).view(np.int64))
 
 
 def ratio_kind(bits: int, q: float) -> str:
-    """How S2 terms are formed: "exact", "lut", "reciprocal" or "float" (this module's docstring)."""
+    """How S2 terms are formed: "exact", "lut" or "float" (see this module's docstring)."""
     if bits > 8:
-        return "reciprocal" if bits <= RECIPROCAL_MAX_BITS else "float"
+        return "float"
     return "exact" if float(q).is_integer() and q <= _EXACT_MAX_Q else "lut"
 
 
 def ratio_scale_bits(pairs: int, kind: str = "lut") -> int:
     """K of the S2 fixed point: the largest with pairs·2^K <= 2^63 - 1, and K <= 51 for the
     "exact" terms (their float64 estimate must be within 1/4 of the true value) and the
-    FLOAT_KINDS (their y must stay below 2^52)."""
+    "float" ones (their y must stay below 2^52 for the 2^52 rounding)."""
     if pairs < 1:
         raise EstimatorError(f"need at least one pair, got {pairs}")
     k = min(62, 63 - int(pairs).bit_length())
-    return min(k, 51) if kind == "exact" or kind in FLOAT_KINDS else k
+    return min(k, 51) if kind in ("exact", "float") else k
 
 
 def s2_error_bound(pairs: int, bits: int, q: float = 0.0) -> float:
     """Absolute bound on |S2_stream - S2_exact| for N - m = ``pairs`` (see this module's docstring)."""
     kind = ratio_kind(bits, q)
     k = ratio_scale_bits(pairs, kind)
-    if kind in FLOAT_KINDS:
-        return 2.0 ** -(k + 1) + 7 * 2.0**-53
+    if kind == "float":
+        return 2.0 ** -(k + 1) + 6 * 2.0**-53
     return 2.0 ** -(k + 1) + 2.0**-51
 
 
@@ -121,23 +114,3 @@ def ratio_lut(q: float, scale_bits: int) -> np.ndarray:
             table[(b << 8) | a] = value
     table.setflags(write=False)
     return table
-
-
-@functools.lru_cache(maxsize=16)
-def ratio_reciprocals(q: float, scale_bits: int) -> np.ndarray:
-    """The "reciprocal" kind's table: entry s = fl(2^K / max(fl(s+q), 1)), s = a + b of two
-    values of up to RECIPROCAL_MAX_BITS bits (0 .. 2^15 - 2). Read-only float64 array (256 KiB),
-    cached per (q, K); IEEE operations, so the kernels and their NumPy twin read the same values."""
-    sums = np.arange(2 ** (RECIPROCAL_MAX_BITS + 1) - 1, dtype=np.float64)
-    table = np.float64(2.0**scale_bits) / np.maximum(sums + np.float64(q), 1.0)
-    table.setflags(write=False)
-    return table
-
-
-def ratio_table(kind: str, q: float, scale_bits: int) -> np.ndarray:
-    """The table the kernels read S2's terms (``exact``, ``lut``) or reciprocals (``reciprocal``)
-    from; an empty one for ``float``."""
-    if kind in TABLED_KINDS:
-        return ratio_lut(q, scale_bits)
-    return ratio_reciprocals(q, scale_bits) if kind == "reciprocal" else _NO_LUT
-

@@ -73,8 +73,7 @@ def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - co
     kind "exact" (integer q, K <= 51): round half up of |a-b|·2^K/(a+b+q), exactly: a float
     estimate within 1/4 of the true value, then one integer correction step.
     kind "lut": the exactly rounded value from the 8-bit table, index (a << 8) | b.
-    kind "reciprocal": y = fl(|a-b|·R[a+b]), R the table of fl(2^K / max(fl(s+q), 1)); kind
-    "float": y = fl(|a-b| / max(fl(a+b+q), 1))·2^K; both: T = y rounded to an integer, ties
+    kind "float": y = fl(|a-b| / max(fl(a+b+q), 1))·2^K, and T = y rounded to an integer, ties
     to even, read off the bits of y + 2^52 (0 <= y < 2^52 as K <= 51): an add and an integer
     subtract, cheaper than floor and a float-to-int conversion (docs/engine.md, "S2's term").
     The denominator is raised to at least 1: it is below 1 only when a = b = 0, where the
@@ -90,8 +89,6 @@ def _ratio_term(kind, a, b, lut, scale, q, one, q_int):  # pragma: no cover - co
         rest = 2 * (diff * one - t * denominator) + denominator
         # arithmetic, not branches: the correction is data-dependent and must not stall
         return t + np.int64(rest >= 2 * denominator) - np.int64(rest < 0)
-    if kind == "reciprocal":
-        return _rounded(np.float64(diff) * lut[a + b])
     return _rounded(diff / max(np.float64(a + b) + q, 1.0) * scale)
 
 

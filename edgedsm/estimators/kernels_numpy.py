@@ -54,12 +54,9 @@ def _ratio_terms(kind: str, a: np.ndarray, b: np.ndarray, lut: np.ndarray, scale
         t -= rest < 0
         t += rest >= 2 * denominator
         return t
-    if kind == "reciprocal":
-        ratio = diff * lut[a + b]
-    else:
-        denominator = np.maximum((a + b).astype(np.float64) + q, 1.0)
-        ratio = diff / denominator
-        ratio *= scale
+    denominator = np.maximum((a + b).astype(np.float64) + q, 1.0)
+    ratio = diff / denominator
+    ratio *= scale
     ratio += ROUNDING  # rounds y to an integer T, ties to even: its bits are ROUNDING_BITS + T
     return ratio.view(np.int64) - ROUNDING_BITS
 

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from edgedsm.estimators.fixed_point import _NO_LUT, ratio_table
+from edgedsm.estimators.fixed_point import _NO_LUT, TABLED_KINDS, ratio_lut
 from edgedsm.estimators.registry import KernelSpec
 
 _INT32_MAX = 2**31 - 1
@@ -135,8 +135,8 @@ class WindowMoments(Moments):
         # "exact" terms are read from the same exactly rounded table as "lut" ones (equal entry by
         # entry, tests/unit/estimators): one gather per term costs less than a division and its
         # integer correction (docs/engine.md, "S2's term")
-        # "reciprocal" terms read fl(2^K/(s+q)) from a 256 KiB table instead of dividing (same section)
-        self.lut = ratio_table(kind, self.q, scale_bits) if self.do_ratio else _NO_LUT
+        tabled = kind in TABLED_KINDS and self.do_ratio
+        self.lut = ratio_lut(self.q, scale_bits) if tabled else _NO_LUT
         sums = {"do_abs": self.do_abs, "do_ratio": self.do_ratio, "do_sq": self.do_sq}
         # "grow": add only (tumbling, and sliding until N frames are in); "slide": add and remove
         self._grow = kernels.window_kernel(do_sigma=self.do_totals, ratio_kind=kind, remove=False,

@@ -1,6 +1,6 @@
 """``edgedsm bench engine``'s "Each map alone" at 12 and 16 bits: S1, S2, S3 and S1+S2+S3 pushed
 in turn, frame by frame, so a drift of the machine slows every map alike (issue 38: S2's
-``reciprocal`` and ``float`` terms, docs/engine.md "S2's term").
+``float`` terms, docs/engine.md "S2's term").
 
 Frames are exponential speckle with a mean of a quarter of full scale, clipped at full scale,
 as uint16; q = 1 (Eq. 2's constant, grey levels), sliding window. Times in ms per push.

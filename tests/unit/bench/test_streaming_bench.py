@@ -36,7 +36,7 @@ def test_bench_engine_writes_tables_and_plot(tmp_path, capsys):
     assert alone["s1"][5] == "1.00"  # x S1 of S1 itself
     deep = {(cells[2], cells[3]): cells for cells in ([cell.strip() for cell in line.split("|")]
                                                       for line in text.splitlines() if line.startswith("| 64x64 | 1"))}
-    assert deep[("12", "s2")][4] == "reciprocal" and deep[("16", "s1+s2+s3")][4] == "float"  # S2's term kinds
+    assert deep[("12", "s2")][4] == deep[("16", "s1+s2+s3")][4] == "float"  # S2's term kind
     assert deep[("12", "s1")][6] == deep[("16", "s1")][6] == "1.00" and len(deep) == 8
     assert float(alone["s2"][7]) > float(alone["s1"][7])  # S2 moves its fixed-point sum too
     moved = {}

@@ -218,10 +218,9 @@ def test_exact_terms_equal_the_rational_table(kernel, q):
 def test_ratio_kinds():
     assert ratio_kind(8, 0.0) == "exact" and ratio_kind(5, 3.0) == "exact"
     assert ratio_kind(8, 0.5) == "lut" and ratio_kind(8, 2.0**41) == "lut"
-    assert ratio_kind(10, 0.0) == "reciprocal" and ratio_kind(14, 0.5) == "reciprocal"
-    assert ratio_kind(15, 0.0) == "float" and ratio_kind(16, 0.5) == "float"
+    assert ratio_kind(10, 0.0) == "float" and ratio_kind(16, 0.5) == "float"
     assert ratio_scale_bits(190, "lut") == 55 and ratio_scale_bits(1, "lut") == 62
-    assert ratio_scale_bits(1, "float") == ratio_scale_bits(190, "reciprocal") == 51  # y < 2^52
+    assert ratio_scale_bits(1, "float") == ratio_scale_bits(190, "float") == 51  # y < 2^52
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
