@@ -219,6 +219,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", choices=SOURCES, default="file",
                         help="where the replay takes its frames: 'file' reads each from the recording (the "
                              "copy every camera's delivery costs, on the capture thread), 'memory' serves them "
-                             "from the recording read once (the daemon's own cost alone); default file")
+                             "from the recording read once (the daemon's own cost alone; its windows fill slowly and "
+                             "paced trials may drop frames then: docs/bench-e2e.md, runs 21-24); default file")
     parser.add_argument("--no-areas", action="store_true", help="leave out the estimator.area = regions trials")
     add_output_argument(parser, "docs/bench-e2e.md")
