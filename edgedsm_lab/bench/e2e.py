@@ -71,6 +71,8 @@ from edgedsm_lab.bench.e2e_trial import (
     daemon_config,
     delivered_engine,
     filled_engine,
+    forget_recording,
+    held_recording,
     make_recording,
     open_source,
     run_trial,
@@ -275,6 +277,8 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
             f"bare engine around it {result.bare_fps:.1f} frames/s")
         return result
 
+    if source == "memory":
+        held_recording(recording)  # read once, before the first trial
     say(f"  bare engine, {seconds:g} s ...")
     say(f"  bare engine: {bare(seconds):.1f} frames/s")
     delivery = []  # pairs of bare / fed from the file, alternating which goes first
@@ -301,6 +305,7 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
                         ceiling=max(rate_now, capacity.fps) * 1.05, max_trials=max_trials, resolution=step,
                         step=step)
     covered = [trial(f"area, {100 * c:g} %", None, c) for c in COVERED] if areas else []
+    forget_recording(recording)
     recording.unlink()
     return SizeResult(shape, pixel_format, bare_runs, unpack_ms(shape, pixel_format), capacity,
                       sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved, source, delivery)
