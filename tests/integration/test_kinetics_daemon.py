@@ -55,24 +55,21 @@ def config(gain: float, longest: int = LONGEST) -> DaemonConfig:
     }, "<kinetics daemon>")
 
 
-@pytest.mark.timeout(300)
-@pytest.mark.parametrize(("size", "frames", "longest"), [
-    (SIZE, FRAMES, LONGEST), pytest.param(*FULL, marks=pytest.mark.compute, id="bench")])
-def test_the_daemon_follows_a_film_drying_over_four_decades(size: int, frames: int, longest: int) -> None:
-    camera, gain = film(size, frames)
-    settings = config(gain, longest)
-    sink = RecordingSink()
+def frame_timed_pipeline(settings: DaemonConfig, camera: SimulatedCamera, sink: RecordingSink, dt: float,
+                         stats_s: float) -> Pipeline:
+    """The daemon's pipeline on a clock that is the frames' (frame count × ``dt``: samples every
+    ``stats_s`` of film time), its camera holding each frame back while the queue holds 8 or an
+    evaluation runs, so that every frame is pushed and judged whatever the machine's load."""
     box: dict[str, Pipeline] = {}
 
-    def frame_clock() -> float:  # the daemon's clock is the frames': samples every STATS_S of film time
-        return box["p"].counters["frames"] * DT if "p" in box else 0.0
+    def frame_clock() -> float:
+        return box["p"].counters["frames"] * dt if "p" in box else 0.0
 
-    pipeline = Pipeline(settings, camera, sink, cadence=Cadence(STATS_S, 1e6),
-                        clock=Clock(monotonic=frame_clock, wall=lambda: 1.7e9 + frame_clock()))
-    box["p"] = pipeline
+    pipeline = box["p"] = Pipeline(settings, camera, sink, cadence=Cadence(stats_s, 1e6),
+                                   clock=Clock(monotonic=frame_clock, wall=lambda: 1.7e9 + frame_clock()))
     grab = camera._do_grab
 
-    def waiting_grab(timeout_s: float):  # every frame pushed, whatever the machine's load
+    def waiting_grab(timeout_s: float):
         deadline = time.monotonic() + 10.0
         while not pipeline.capture.stopping and time.monotonic() < deadline and (
                 pipeline.capture.frames.qsize() >= 8 or pipeline.evaluator.busy):
@@ -80,6 +77,17 @@ def test_the_daemon_follows_a_film_drying_over_four_decades(size: int, frames: i
         return grab(timeout_s)
 
     camera._do_grab = waiting_grab
+    return pipeline
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize(("size", "frames", "longest"), [
+    (SIZE, FRAMES, LONGEST), pytest.param(*FULL, marks=pytest.mark.compute, id="bench")])
+def test_the_daemon_follows_a_film_drying_over_four_decades(size: int, frames: int, longest: int) -> None:
+    camera, gain = film(size, frames)
+    settings = config(gain, longest)
+    sink = RecordingSink()
+    pipeline = frame_timed_pipeline(settings, camera, sink, DT, STATS_S)
     started = time.perf_counter()
     pipeline.run(lambda: False, max_frames=frames)
     elapsed = time.perf_counter() - started
@@ -145,24 +153,7 @@ def test_the_demo_plate_goes_wet_drying_dry_on_the_kinetics() -> None:
         "kinetics": {"enabled": True, "longest_age_s": 30.0},
         "regions": [{"name": "plate", "wet_below_s": 0.5, "dry_above_s": 5.0, "min_dwell_s": 2.0}]}, "<demo>")
     sink = RecordingSink()
-    box: dict[str, Pipeline] = {}
-
-    def frame_clock() -> float:
-        return box["p"].counters["frames"] * scene.scene.dt if "p" in box else 0.0
-
-    pipeline = Pipeline(settings, camera, sink, cadence=Cadence(1.0, 1e6),
-                        clock=Clock(monotonic=frame_clock, wall=lambda: 1.7e9 + frame_clock()))
-    box["p"] = pipeline
-    grab = camera._do_grab
-
-    def waiting_grab(timeout_s: float):
-        deadline = time.monotonic() + 10.0
-        while not pipeline.capture.stopping and time.monotonic() < deadline and (
-                pipeline.capture.frames.qsize() >= 8 or pipeline.evaluator.busy):
-            time.sleep(0.0005)
-        return grab(timeout_s)
-
-    camera._do_grab = waiting_grab
+    pipeline = frame_timed_pipeline(settings, camera, sink, scene.scene.dt, 1.0)
     pipeline.run(lambda: False, max_frames=2000)
     moves = [(a.from_state, a.to_state) for a in sink.alerts if a.to_state is not None]
     assert moves == [("warming_up", "wet"), ("wet", "drying"), ("drying", "dry")], moves
