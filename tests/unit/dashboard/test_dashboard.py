@@ -57,13 +57,6 @@ def stats(t: float, activity: float, state: str = "drying") -> bytes:
 
 
 @pytest.fixture
-def history(tmp_path: Path) -> Iterator[History]:
-    store = History(tmp_path / "history.sqlite3", retention_s=86400.0)
-    yield store
-    store.close()
-
-
-@pytest.fixture
 def plant(history: History) -> Plant:
     events: list[tuple[str, dict[str, Any]]] = []
     regions = {"cam1": {"plate": RegionInfo("plate", {"shape": "rect", "x": 0, "y": 0, "width": 8, "height": 8},

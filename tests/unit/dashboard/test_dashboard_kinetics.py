@@ -34,13 +34,6 @@ def stats(t: float, **kinetics: RegionKinetics) -> bytes:
 
 
 @pytest.fixture
-def history(tmp_path: Path) -> Iterator[History]:
-    store = History(tmp_path / "history.sqlite3", retention_s=86400.0)
-    yield store
-    store.close()
-
-
-@pytest.fixture
 def plant(history: History) -> Plant:
     regions = {"cam1": {"plate": RegionInfo("plate", {"shape": "full"}, 0.3, 0.1, STAGES)}}
     return Plant("edgedsm", history, lambda kind, data: None, regions, clock=lambda: NOW)
