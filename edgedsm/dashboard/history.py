@@ -177,15 +177,8 @@ class History:
         connection = self._connect()
         try:
             where = "FROM samples WHERE device = ? AND region = ? AND t BETWEEN ? AND ?"
-            args = (device, region, start, end)
-            (count,) = connection.execute(f"SELECT COUNT(*) {where}", args).fetchone()
-            if count <= MAX_POINTS:
-                rows = connection.execute(f"SELECT t, activity, state {where} ORDER BY t", args).fetchall()
-            else:
-                bucket = (end - start) / MAX_POINTS
-                rows = connection.execute(
-                    f"SELECT MAX(t), AVG(activity), state {where} GROUP BY CAST((t - ?) / ? AS INTEGER) ORDER BY 1",
-                    (*args, start, bucket)).fetchall()
+            rows = _downsampled(connection, where, (device, region, start, end), "activity, state",
+                                "AVG(activity), state")
         finally:
             connection.close()
         return [(float(t), None if a is None else float(a), s or "") for t, a, s in rows]
@@ -199,16 +192,9 @@ class History:
         try:
             where = ("FROM samples WHERE device = ? AND region = ? AND t BETWEEN ? AND ? "
                      "AND kinetics_status IS NOT NULL")
-            args = (device, region, start, end)
             columns = "kinetics_tau_s, kinetics_status, kinetics_bound_s"
-            (count,) = connection.execute(f"SELECT COUNT(*) {where}", args).fetchone()
-            if count <= MAX_POINTS:
-                rows = connection.execute(f"SELECT t, {columns} {where} ORDER BY t", args).fetchall()
-            else:  # SQLite takes the bare columns from the row of MAX(t): the bucket's last reading
-                bucket = (end - start) / MAX_POINTS
-                rows = connection.execute(
-                    f"SELECT MAX(t), {columns} {where} GROUP BY CAST((t - ?) / ? AS INTEGER) ORDER BY 1",
-                    (*args, start, bucket)).fetchall()
+            # bare columns per bucket: SQLite takes them from the row of MAX(t), the bucket's last reading
+            rows = _downsampled(connection, where, (device, region, start, end), columns, columns)
         finally:
             connection.close()
         return [(float(t), None if tau is None else float(tau), str(status), None if bound is None else float(bound))
@@ -230,3 +216,17 @@ class History:
             connection.close()
         keys = ("t", "type", "region", "from", "to", "reason", "activity", "stream", "seq")
         return [dict(zip(keys, row, strict=True)) for row in reversed(rows)]
+
+
+def _downsampled(connection: sqlite3.Connection, where: str, args: tuple[str, str, float, float], columns: str,
+                 bucketed: str) -> list[tuple[Any, ...]]:
+    """``SELECT t, columns where`` in time order (``args``: device, region, start, end), or, when more
+    than ``MAX_POINTS`` rows match, one row per time bucket: ``MAX(t)`` and ``bucketed``."""
+    (count,) = connection.execute(f"SELECT COUNT(*) {where}", args).fetchone()
+    if count <= MAX_POINTS:
+        return connection.execute(f"SELECT t, {columns} {where} ORDER BY t", args).fetchall()
+    start, end = args[2], args[3]
+    bucket = (end - start) / MAX_POINTS
+    return connection.execute(
+        f"SELECT MAX(t), {bucketed} {where} GROUP BY CAST((t - ?) / ? AS INTEGER) ORDER BY 1",
+        (*args, start, bucket)).fetchall()
