@@ -149,9 +149,14 @@ def filled_engine(recording: Path, bits: int) -> tuple[SlidingWindow, np.ndarray
 def bare_engine(recording: Path, seconds: float, bits: int) -> float:
     """Frames/s of ``SlidingWindow.push`` alone on the recording's frames (after the window filled)."""
     engine, stack = filled_engine(recording, bits)
+    return push_rate(lambda i: engine.push(stack[i % len(stack)]), seconds)
+
+
+def push_rate(push: Callable[[int], object], seconds: float) -> float:
+    """Frames/s of ``push(i)`` for i = 0, 1, ... called for ``seconds``."""
     count, started = 0, time.perf_counter()
     while time.perf_counter() - started < seconds:
-        engine.push(stack[count % len(stack)])
+        push(count)
         count += 1
     return count / (time.perf_counter() - started)
 
@@ -179,11 +184,7 @@ def delivered_engine(recording: Path, seconds: float, bits: int) -> float:
     try:
         for _ in range(8):  # the reader open and its first frames are not measured
             engine.push(handed.get(timeout=30.0))
-        count, started = 0, time.perf_counter()
-        while time.perf_counter() - started < seconds:
-            engine.push(handed.get(timeout=30.0))
-            count += 1
-        return count / (time.perf_counter() - started)
+        return push_rate(lambda _: engine.push(handed.get(timeout=30.0)), seconds)
     finally:
         stop.set()
         thread.join(5.0)
