@@ -221,15 +221,31 @@ class SlidingWindow:
         self._bind(bits, parallel)
 
     def reset(self) -> None:
-        """Forget every frame (a bit depth inferred from a frame is forgotten too)."""
+        """Forget every frame (a bit depth inferred from a frame is forgotten too). With the bit
+        depth given, the arrays are kept and zeroed in place (:meth:`fault_in`): fresh arrays
+        would fault their pages in again during the next filling, at the frames' pace."""
         self.frames_seen = 0
         self.blocks_completed = 0  # tumbling mode
         self._moments.reset()
         self._tau.reset()
+        if self._bits_given is not None and self._arrays:
+            self.fault_in()
+            return
         self.bits = None
         self._arrays = {}
         if self._bits_given is not None:
             self._allocate(self._bits_given)
+
+    def fault_in(self) -> None:
+        """Write every page of the engine's arrays now (zeros; the window must be empty). A
+        fresh array's pages fault in at their first write: during the window's filling, one
+        ring slot and all the sums at the first push, paid by the frames' thread; at large
+        frames on a virtual machine whose host backs memory lazily, seconds (docs/bench-e2e.md).
+        The daemon calls this before frames flow."""
+        if self.frames_seen:
+            raise EstimatorError(f"fault_in() would erase the {self.frames_seen} frames pushed: reset() first")
+        for array in self._arrays.values():
+            array.fill(0)
 
     def array_bytes(self) -> dict[str, int]:
         """Bytes of each array the engine keeps (the ring, each sum), as allocated for its frames'

@@ -64,3 +64,22 @@ def test_reset_also_forgets_the_accumulators_progress(mode):
     for name, values in fresh.maps().items():
         np.testing.assert_array_equal(engine.maps()[name], values)
     assert engine._snapshot()["weights"] == fresh._snapshot()["weights"]
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_reset_with_the_bits_given_zeroes_the_same_arrays_and_fault_in_needs_an_empty_window(mode):
+    """The daemon writes its engine's pages before frames flow (``fault_in``) and keeps them
+    across restarts: a reset zeroes the arrays in place instead of allocating fresh ones."""
+    frames = np.random.default_rng(6).integers(0, 256, (9, 3, 3), dtype=np.uint8)
+    engine = SlidingWindow((3, 3), 6, 2, bits=8, mode=mode)
+    engine.fault_in()
+    arrays = dict(engine._arrays)
+    for frame in frames:
+        engine.push(frame)
+    assert any(array.any() for array in arrays.values())
+    with pytest.raises(EstimatorError, match=r"erase the 9 frames pushed: reset\(\) first"):
+        engine.fault_in()
+    engine.reset()
+    # the same array objects (a tumbling engine swaps them between its block's names)
+    assert sorted(map(id, engine._arrays.values())) == sorted(map(id, arrays.values()))
+    assert not any(array.any() for array in engine._arrays.values())
