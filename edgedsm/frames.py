@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,6 +28,26 @@ class Frame:
     @property
     def shape(self) -> tuple[int, int]:
         return self.pixels.shape  # type: ignore[return-value]
+
+    @property
+    def format(self) -> FrameFormat:
+        return FrameFormat(self.shape, self.bits, self.pixels.dtype)
+
+
+@dataclass(frozen=True, slots=True)
+class FrameFormat:
+    """What a camera's frames are: (rows, columns), significant bits per pixel and the array's
+    dtype (uint8 for <= 8 bits, else uint16, unless a recording stores them wider)."""
+
+    shape: tuple[int, int]
+    bits: int
+    dtype: np.dtype
+
+    @classmethod
+    def of(cls, shape: tuple[int, int], bits: int, dtype: DTypeLike | None = None) -> FrameFormat:
+        """The format of ``bits``-bit frames of ``shape``, in ``dtype`` (None: the narrowest)."""
+        chosen = np.dtype(dtype) if dtype is not None else np.dtype(np.uint8 if bits <= 8 else np.uint16)
+        return cls((int(shape[0]), int(shape[1])), int(bits), chosen)
 
 
 class FrameSource(Protocol):

@@ -25,7 +25,7 @@ from edgedsm.config import AcquisitionSection, CameraSection
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.devices.camera.base import Backoff, Camera, ReconnectWatch
 from edgedsm.errors import DeviceError
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 
 log = logging.getLogger(__name__)
 
@@ -90,13 +90,13 @@ class Capture:
         self.camera.open()
         apply_camera_settings(self.camera, self.settings)
 
-    def frame_shape(self) -> tuple[int, int] | None:
-        """The open camera's frame (rows, columns), None where only a frame tells (or the camera
-        could not say: the size is a hint, the first frame decides)."""
+    def frame_format(self) -> FrameFormat | None:
+        """The open camera's frames (shape, bits, dtype), None where only a frame tells (or the
+        camera could not say: the format is a hint, the first frame decides)."""
         try:
-            return self.camera.frame_shape()
+            return self.camera.frame_format()
         except DeviceError as exc:
-            log.debug("%s: frame size unknown until the first frame: %s", self.camera.description, exc)
+            log.debug("%s: frame format unknown until the first frame: %s", self.camera.description, exc)
             return None
 
     def start(self) -> None:

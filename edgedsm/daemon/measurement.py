@@ -33,7 +33,7 @@ from edgedsm.estimators import SlidingWindow
 from edgedsm.estimators.region_box import RegionBox, bounding_box
 from edgedsm.estimators.region_stats import Moments, RegionLayout, RegionPlan
 from edgedsm.estimators.snapshot import EngineSnapshot, MapBuffers, TauSnapshot
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 from edgedsm.measurement.core import reduce
 from edgedsm.measurement.kinetics import KineticsRegions
 from edgedsm.messages import RegionKinetics
@@ -75,7 +75,8 @@ class Measurement:
         self.counters = counters
         self.probes = probes or PipelineProbes()
         self.engine: SlidingWindow | None = None
-        self.frame_shape: tuple[int, int] | None = None  # fixed by the first frame
+        self.format: FrameFormat | None = None  # the camera's word before frames flow; the first frame's
+        self._settled = False  # a frame came: the format is fixed, later misfits are refused
         self.regions: dict[str, RegionBox] = {}  # in the engine's coordinates
         self._layout = RegionLayout.of({})  # the same, prepared for region_moments
         self.crop: tuple[slice, slice] | None = None  # estimator.area = "regions": the box the engine sees
@@ -88,16 +89,26 @@ class Measurement:
         self.kinetics_read_s = 0.0
         self._interval_frames = 0  # frames seen while the kinetics waited for the interval
 
-    def prepare(self, frame: Frame) -> None:
-        """At the first frame (before the laser goes on): the engine and the region masks for its
-        shape. A region outside the frame or a window too big for memory is a ``ConfigError``."""
-        if self.frame_shape is None:
-            self._make_engine(frame)
+    @property
+    def frame_shape(self) -> tuple[int, int] | None:
+        return self.format.shape if self.format is not None else None
+
+    def prepare(self, fmt: FrameFormat, *, frame: bool = True) -> None:
+        """The engine and the region masks for frames of ``fmt``, its arrays written: before frames
+        flow with the camera's word (``frame=False``), then at the first frame (before the laser
+        goes on), which decides: a camera that told another format gets them built again. A region
+        outside the frame or a window too big for memory is a ``ConfigError``."""
+        if self._settled:
+            return
+        if fmt != self.format or self.engine is None:
+            self.engine = self._buffers = self._tau_buffers = self.noise = self.kinetics = None  # memory first
+            self._make_engine(fmt)
+        self._settled = frame
 
     def push(self, frame: Frame, dark: np.ndarray | None) -> bool:
         """Push one frame (ambient-corrected with ``dark`` when configured); False if refused."""
         if self.engine is None:  # the first frame fixes the shape; later misfits are refused
-            self._make_engine(frame)
+            self.prepare(frame.format)
         assert self.engine is not None
         pixels = frame.pixels
         if self.crop is not None and pixels.shape == frame.shape:
@@ -134,13 +145,13 @@ class Measurement:
         if self.kinetics is not None:
             self.kinetics.reset()
 
-    def _make_engine(self, frame: Frame) -> None:
+    def _make_engine(self, fmt: FrameFormat) -> None:
         est = self.config.estimator
-        threads = kernel_threads(self.config, frame.pixels.size)
-        check_regions(self.config, frame.shape)  # the rule check-config applies, before anything is allocated
-        masks = {r.name: r.mask(frame.shape, self.config.base_dir) for r in self.config.regions}
+        threads = kernel_threads(self.config, fmt.shape[0] * fmt.shape[1])
+        check_regions(self.config, fmt.shape)  # the rule check-config applies, before anything is allocated
+        masks = {r.name: r.mask(fmt.shape, self.config.base_dir) for r in self.config.regions}
         regions = {name: RegionBox.of(mask) for name, mask in masks.items()}
-        shape = frame.shape
+        shape = fmt.shape
         if est.area == "regions" and masks:
             rows, cols = self.crop = bounding_box(list(masks.values()))
             regions = {name: box.shifted(rows, cols) for name, box in regions.items()}
@@ -150,9 +161,12 @@ class Measurement:
         # before anything large is allocated (the rule check-config and the start apply: preflight)
         kinetics_masks = {name: full_mask(box, shape) for name, box in regions.items()} \
             if self.config.kinetics.enabled else {}
-        check_memory(self.config, frame.shape, frame.bits, pixels=shape[0] * shape[1],
+        check_memory(self.config, fmt.shape, fmt.bits, pixels=shape[0] * shape[1],
                      extra=kinetics_bytes(self.config, kinetics_masks))
-        self.engine = make_engine(self.config, shape, frame.bits, threads)
+        self.engine = make_engine(self.config, shape, fmt.bits, threads)
+        # its pages written now: faulted in during the window's filling, they would slow the pushes
+        # that fill it (seconds at large frames where a virtual machine's host backs memory lazily)
+        self.engine.fault_in()
         # the arrays of the maps evaluation (a copy of the sums, the float maps) written once now,
         # before frames flow: their fresh pages would otherwise stall both threads at the first maps
         self._buffers = self.engine.snapshot_buffers(est.maps)
@@ -161,12 +175,12 @@ class Measurement:
         self._layout = RegionLayout.of({name: RegionPlan.of(box, shape) for name, box in regions.items()})
         self.tau.prepare(regions, shape)
         if est.noise_floor and regions:
-            self.noise = NoisePatches(regions, est.window, est.noise_patch, frame.pixels.dtype, frame.bits)
+            self.noise = NoisePatches(regions, est.window, est.noise_patch, fmt.dtype, fmt.bits)
         if kinetics_masks:
             noise = self.config.camera.noise
             self.kinetics = KineticsRegions(self.config.kinetics, kinetics_masks, noise.model() if noise else None,
-                                            top=float(2**frame.bits - 1))
-        self.frame_shape = frame.shape
+                                            top=float(2**fmt.bits - 1))
+        self.format = fmt
 
     def snapshot(self, status: Status, maps_due: bool, stats_due: bool, generation: int) -> Snapshot:
         """Region statistics from the live sums now (and a copy of the sums when maps are due).
@@ -233,4 +247,5 @@ class Measurement:
         daemon's memory (N frames), released now rather than when the garbage collector gets to
         the pipeline (a reload builds a new one at once)."""
         self.engine = self._buffers = self._tau_buffers = self.noise = self.kinetics = None
+        self._settled = False  # the format is kept: the shape a reload checks its regions against
         self._map_buffers = MapBuffers()  # the evaluator lets go of its pooled maps too

@@ -203,7 +203,7 @@ class Pipeline:
 
     @property
     def frame_shape(self) -> tuple[int, int] | None:
-        """The camera's frame (rows, columns), once a frame came."""
+        """The camera's frame (rows, columns): its word before frames flow, then the first frame's."""
         return self.measurement.frame_shape
 
     def apply(self, config: DaemonConfig, cadence: Cadence, recorder: Recorder | None) -> None:
@@ -238,7 +238,7 @@ class Pipeline:
         frame = self.capture.take(timeout_s)
         if frame is None:
             return None
-        self.measurement.prepare(frame)  # at the first frame: regions checked before the laser goes on
+        self.measurement.prepare(frame.format)  # at the first frame: regions checked before the laser goes on
         self._last_frame_t = self.clock.monotonic()
         self.counters["frames"] += 1
         self._frames_t.append(self._last_frame_t)
@@ -315,7 +315,10 @@ class Pipeline:
         acq.switch_off("start")
         capture.open()
         try:
-            warm_up(self.config, capture.frame_shape())  # the kernels this size of frame runs, before frames flow
+            hint = capture.frame_format()
+            warm_up(self.config, hint.shape if hint else None)  # the kernels this size of frame runs
+            if hint is not None:  # the engine built and written before frames flow (the first frame checks it)
+                self.measurement.prepare(hint, frame=False)
         except BaseException:
             capture.stop(timeout_s=0.0)  # closes the camera
             raise

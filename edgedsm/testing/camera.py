@@ -79,18 +79,18 @@ def check_frames_after_reopen(make: CameraFactory) -> None:
           f"{camera!r}: 2 frames before and after reopening, got {len(first)} and {len(second)}")
 
 
-def check_frame_shape(make: CameraFactory) -> None:
-    """``frame_shape()`` is refused while closed; once open it is None or the shape of the frames
-    that come."""
+def check_frame_format(make: CameraFactory) -> None:
+    """``frame_format()`` is refused while closed; once open it is None or the shape, bits and
+    dtype of the frames that come."""
     camera = make()
-    with expect_error(DeviceError, "not open", f"{camera!r}: frame_shape() before open()"):
-        camera.frame_shape()
+    with expect_error(DeviceError, "not open", f"{camera!r}: frame_format() before open()"):
+        camera.frame_format()
     with camera:
-        said = camera.frame_shape()
+        said = camera.frame_format()
         frames = list(camera.frames(2))
-    shapes = {frame.pixels.shape for frame in frames}
-    check(said is None or shapes == {tuple(said)},
-          f"{camera!r}: frame_shape() said {said}, the frames came as {sorted(shapes)}")
+    came = sorted({(frame.shape, frame.bits, str(frame.pixels.dtype)) for frame in frames})
+    told = None if said is None else (said.shape, said.bits, str(said.dtype))
+    check(told is None or came == [told], f"{camera!r}: frame_format() said {told}, the frames came as {came}")
 
 
 CAMERA_CHECKS: dict[str, Callable[[CameraFactory], None]] = {
@@ -98,7 +98,7 @@ CAMERA_CHECKS: dict[str, Callable[[CameraFactory], None]] = {
     "frames": check_frames,
     "bad_settings_refused": check_bad_settings_refused,
     "frames_after_reopen": check_frames_after_reopen,
-    "frame_shape": check_frame_shape,
+    "frame_format": check_frame_format,
 }
 """Every camera check by name, in the order :func:`check_camera_contract` runs them."""
 

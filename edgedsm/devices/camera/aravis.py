@@ -57,7 +57,7 @@ from edgedsm.devices.camera.aravis_threads import AliveCheck, release_in_backgro
 from edgedsm.devices.camera.base import Camera, Region
 from edgedsm.devices.camera.pixels import PIXEL_BITS, PIXEL_FORMAT_CODES, decode_image
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -458,9 +458,12 @@ class AravisCamera(Camera):
         self._call("set frame rate", camera.set_frame_rate, rate)
         return 1.0 / float(self._call("frame rate", camera.get_frame_rate))
 
-    def _do_frame_shape(self) -> tuple[int, int]:
+    def _do_frame_format(self) -> FrameFormat | None:
+        bits = PIXEL_BITS.get(self._pixel_format)
+        if bits is None:  # a format edgedsm does not measure with: refused at start
+            return None
         _, _, width, height = self._call("region", self.camera.get_region)  # a buffer's image is the region
-        return height, width
+        return FrameFormat.of((height, width), bits)
 
     def _do_set_region(self, region: Region) -> Region:
         camera = self.camera

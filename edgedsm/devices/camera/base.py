@@ -32,7 +32,7 @@ from types import TracebackType
 from typing import ClassVar, Self, TypeVar
 
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -191,12 +191,12 @@ class Camera(abc.ABC):
             raise DeviceError(f"{self.description}: stop streaming before changing the pixel format")
         return self._remember("pixel_format", self._do_set_pixel_format(pixel_format))
 
-    def frame_shape(self) -> tuple[int, int] | None:
-        """(rows, columns) of the frames the open camera will deliver with its settings now, or
-        None where only a frame tells. The daemon loads the kernels that size of frame runs before
-        frames flow (a small frame runs none of the parallel ones)."""
+    def frame_format(self) -> FrameFormat | None:
+        """Shape, bits and dtype of the frames the open camera will deliver with its settings now,
+        or None where only a frame tells. Before frames flow, the daemon loads the kernels that size
+        of frame runs (a small frame runs none of the parallel ones) and builds its engine."""
         self._check_open()
-        return self._do_frame_shape()
+        return self._do_frame_format()
 
     def _remember(self, name: str, value: T) -> T:
         self._settings[name] = value
@@ -319,7 +319,7 @@ class Camera(abc.ABC):
     @abc.abstractmethod
     def _do_grab(self, timeout_s: float) -> Frame | None: ...
 
-    def _do_frame_shape(self) -> tuple[int, int] | None:
+    def _do_frame_format(self) -> FrameFormat | None:
         return None
 
     def _do_set_exposure(self, microseconds: float) -> float:

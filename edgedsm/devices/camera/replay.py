@@ -24,7 +24,7 @@ import numpy as np
 from edgedsm.devices.camera.base import Camera, EndOfStream, pace
 from edgedsm.errors import DataError, DeviceError, EdgedsmError
 from edgedsm.frameio import FrameReader, InputMissing, Stamps, open_frames
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 
 log = logging.getLogger(__name__)
 
@@ -140,8 +140,7 @@ class ReplayCamera(Camera):
         if self._interval > 0:
             self._due = pace(self._due, self._interval)
         seq, t_ns = self._numbers()
-        bits = self._bits or (self._reader.bits if self._reader is not None else None) or 8 * pixels.itemsize
-        return Frame(np.ascontiguousarray(pixels), seq, t_ns, bits)
+        return Frame(np.ascontiguousarray(pixels), seq, t_ns, self._frame_bits(pixels.dtype))
 
     def _numbers(self) -> tuple[int, int]:
         """(seq, t_ns) of the frame just taken: the recording's own, else counted at dt."""
@@ -158,8 +157,15 @@ class ReplayCamera(Camera):
         t_ns = round(seq * self._timestamp_dt * 1e9) if self._timestamp_dt else time.monotonic_ns()
         return seq, t_ns
 
-    def _do_frame_shape(self) -> tuple[int, int] | None:
-        return self._reader.shape if self._reader is not None else None
+    def _do_frame_format(self) -> FrameFormat | None:
+        reader = self._reader
+        if reader is None:
+            return None
+        return FrameFormat.of(reader.shape, self._frame_bits(reader.dtype), reader.dtype)
+
+    def _frame_bits(self, dtype: np.dtype) -> int:
+        """The frames' significant bits: as told, as the recording says, else its sample size."""
+        return self._bits or (self._reader.bits if self._reader is not None else None) or 8 * dtype.itemsize
 
     def _do_set_frame_interval(self, seconds: float) -> float:
         self._interval = seconds

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 from edgedsm.devices.camera.base import Camera, Region, pace
 from edgedsm.errors import DeviceError, DeviceLost
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 from edgedsm.sim import Scene, Simulator
 
 
@@ -82,8 +82,9 @@ class SimulatedCamera(Camera):
             return None
         return Frame(pixels, seq, round(seq * self._dt * 1e9), self.bits)
 
-    def _do_frame_shape(self) -> tuple[int, int]:
-        return (self.scene.scene.size, self.scene.scene.size)
+    def _do_frame_format(self) -> FrameFormat:
+        size = self.scene.scene.size
+        return FrameFormat.of((size, size), self.bits)
 
     def _do_set_exposure(self, microseconds: float) -> float:
         self._exposure_us = microseconds  # the model has no motion blur: recorded only

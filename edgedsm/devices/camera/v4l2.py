@@ -34,7 +34,7 @@ import numpy as np
 from edgedsm.devices.camera.base import Camera, Region
 from edgedsm.errors import DeviceError, DeviceLost, DeviceTimeout
 from edgedsm.frameio.channels import select_channel
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 
 log = logging.getLogger(__name__)
 
@@ -257,9 +257,9 @@ class V4L2Camera(Camera):
         fps = capture.get(cv2.CAP_PROP_FPS)
         return 1.0 / fps if fps > 0 else seconds
 
-    def _do_frame_shape(self) -> tuple[int, int]:
+    def _do_frame_format(self) -> FrameFormat:
         width, height = self._size  # every frame is cut to the negotiated format (to_mono)
-        return (height, width)
+        return FrameFormat.of((height, width), self._bits)
 
     def _do_set_region(self, region: Region) -> Region:
         if region.x or region.y:

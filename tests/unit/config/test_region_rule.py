@@ -56,7 +56,7 @@ def test_check_config_start_and_reload_agree(tmp_path: Path, region: dict[str, A
 
     checked = _refusal(lambda: check_regions(config, (rows, cols)))
     measurement = Measurement(config, TauRegions(config), MapBuffers(), Counter())
-    started = _refusal(lambda: measurement.prepare(frame))
+    started = _refusal(lambda: measurement.prepare(frame.format))
     reloaded = _refusal(lambda: check_reload(path, config, running_shape=(rows, cols)))
     assert checked == started == reloaded, (region, rows, cols, checked, started, reloaded)
 
@@ -77,4 +77,4 @@ def _toml(data: dict[str, Any]) -> str:
 def test_the_daemon_refuses_what_check_config_refuses(tmp_path: Path, region: dict[str, Any], refused: bool) -> None:
     config = validate(DaemonConfig, _config(region, tmp_path), "<test>")
     measurement = Measurement(config, TauRegions(config), MapBuffers(), Counter())
-    assert _refusal(lambda: measurement.prepare(Frame(np.zeros((32, 32), np.uint8), 0, 0, 8))) is refused
+    assert _refusal(lambda: measurement.prepare(Frame(np.zeros((32, 32), np.uint8), 0, 0, 8).format)) is refused

@@ -40,7 +40,7 @@ def test_without_a_configured_interval_the_frames_timestamps_fix_the_longest_age
     daemon = measurement(None)
     stream = frames(40, 50_000_000)  # 50 ms apart on the camera's clock
     for index, frame in enumerate(stream):
-        daemon.prepare(frame)
+        daemon.prepare(frame.format)
         assert daemon.push(frame, None)
         assert daemon.kinetics is not None
         assert daemon.kinetics.built == (index + 1 >= KINETICS_INTERVAL_FRAMES), index
@@ -60,7 +60,7 @@ def test_without_a_configured_interval_the_frames_timestamps_fix_the_longest_age
 def test_a_configured_interval_builds_at_the_first_frame_and_the_memory_is_budgeted() -> None:
     daemon = measurement(0.1)
     frame = next(frames(1, 1))
-    daemon.prepare(frame)
+    daemon.prepare(frame.format)
     daemon.push(frame, None)
     assert daemon.kinetics is not None and daemon.kinetics.built and daemon.kinetics.longest_frames == 100
     slots = daemon.kinetics.section.slots(0.1)
@@ -77,4 +77,4 @@ def test_a_region_s_kinetics_too_big_for_memory_is_refused_naming_its_key(monkey
     daemon = measurement(0.001)  # 10 s at 1 ms: 10,000 frames of references
     frame = Frame(np.zeros((512, 512), np.uint8), seq=0, t_ns=0, bits=8)
     with pytest.raises(ConfigError, match=r"kinetics\.longest_age_s"):
-        daemon.prepare(frame)
+        daemon.prepare(frame.format)

@@ -92,7 +92,7 @@ def test_a_daemon_warms_up_for_the_frames_its_camera_says_it_delivers(monkeypatc
 class SizeUnknownCamera(SimulatedCamera):
     """A camera that cannot tell its frame size before a frame comes."""
 
-    def _do_frame_shape(self) -> None:
+    def _do_frame_format(self) -> None:
         return None
 
 

@@ -13,7 +13,7 @@ import pytest
 from edgedsm.devices.camera import Camera
 from edgedsm.devices.laser import LaserRelay
 from edgedsm.errors import DeviceTimeout
-from edgedsm.frames import Frame
+from edgedsm.frames import Frame, FrameFormat
 from edgedsm.testing import (
     CAMERA_CHECKS,
     RELAY_CHECKS,
@@ -87,7 +87,7 @@ class WriteOnlyBoardRelay(BoardRelay):
 def test_a_minimal_camera_driver_passes_the_camera_contract() -> None:
     check_camera_contract(CountingCamera)
     assert list(CAMERA_CHECKS) == ["lifecycle", "frames", "bad_settings_refused", "frames_after_reopen",
-                                 "frame_shape"]
+                                 "frame_format"]
 
 
 def test_camera_checks_catch_seq_going_backwards_and_pixels_beyond_their_bits() -> None:
@@ -98,15 +98,26 @@ def test_camera_checks_catch_seq_going_backwards_and_pixels_beyond_their_bits() 
 
 
 class MisleadingCamera(CountingCamera):
-    """Says its frames are 5x5; they come 4x6."""
+    """Says its frames are 5x5 (or 8-bit); they come 4x6, 10-bit."""
 
-    def _do_frame_shape(self) -> tuple[int, int]:
-        return (5, 5)
+    told = FrameFormat.of((5, 5), 10)
+
+    def _do_frame_format(self) -> FrameFormat:
+        return self.told
 
 
-def test_the_camera_contract_catches_a_frame_shape_the_frames_do_not_have() -> None:
-    with pytest.raises(AssertionError, match=r"frame_shape\(\) said \(5, 5\), the frames came as \[\(4, 6\)\]"):
-        CAMERA_CHECKS["frame_shape"](MisleadingCamera)
+class WrongBitsCamera(MisleadingCamera):
+    """Tells the shape right and the bits wrong."""
+
+    told = FrameFormat.of((4, 6), 8)
+
+
+def test_the_camera_contract_catches_a_frame_format_the_frames_do_not_have() -> None:
+    with pytest.raises(AssertionError, match=r"frame_format\(\) said \(\(5, 5\), 10, 'uint16'\), "
+                                             r"the frames came as \[\(\(4, 6\), 10, 'uint16'\)\]"):
+        CAMERA_CHECKS["frame_format"](MisleadingCamera)
+    with pytest.raises(AssertionError, match=r"said \(\(4, 6\), 8, 'uint8'\)"):
+        CAMERA_CHECKS["frame_format"](WrongBitsCamera)
 
 
 def test_a_minimal_relay_driver_passes_the_relay_contract() -> None:
