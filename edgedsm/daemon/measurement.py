@@ -93,6 +93,11 @@ class Measurement:
     def frame_shape(self) -> tuple[int, int] | None:
         return self.format.shape if self.format is not None else None
 
+    @property
+    def settled(self) -> bool:
+        """A frame came: the format is fixed (until :meth:`release`)."""
+        return self._settled
+
     def prepare(self, fmt: FrameFormat, *, frame: bool = True) -> None:
         """The engine and the region masks for frames of ``fmt``, its arrays written: before frames
         flow with the camera's word (``frame=False``), then at the first frame (before the laser

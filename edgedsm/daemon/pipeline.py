@@ -238,7 +238,8 @@ class Pipeline:
         frame = self.capture.take(timeout_s)
         if frame is None:
             return None
-        self.measurement.prepare(frame.format)  # at the first frame: regions checked before the laser goes on
+        if not self.measurement.settled:  # the first frame decides, before the laser goes on
+            self.measurement.prepare(frame.format)
         self._last_frame_t = self.clock.monotonic()
         self.counters["frames"] += 1
         self._frames_t.append(self._last_frame_t)

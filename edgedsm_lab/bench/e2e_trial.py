@@ -392,8 +392,8 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
 
         def should_stop() -> bool:
             now, ready_t = time.monotonic(), instruments.ready_t
-            if ready_t is not None:
-                marks.setdefault("cpu_ready", time.process_time())
+            if ready_t is not None and "cpu_ready" not in marks:  # once: the process's CPU clock costs
+                marks["cpu_ready"] = time.process_time()  # microseconds, and this runs once per loop
             stop = (ready_t is not None and now - ready_t >= seconds) or now - started >= seconds + FILL_LIMIT_S
             if stop and "stop" not in marks:
                 marks.update(stop=now, cpu_stop=time.process_time())
