@@ -26,10 +26,9 @@ How the driver uses Aravis, and why:
   that answered is merely silent (``DeviceTimeout``); one that did not answer, or answered
   without our control bits (it restarted), is gone (``DeviceLost``, also raised as soon as
   the read fails).
-- **Stop.** ``stop_acquisition()`` does not empty the stream's output queue, so stopping
-  drains it back into the pool: a restart never delivers stale frames. The stream (its
-  receive thread and socket) lives from start to stop; its statistics are added up in
-  ``stream_statistics()``.
+- **Stop.** ``stop_acquisition()`` does not empty the stream's output queue, so stopping drains it
+  back into the pool: a restart never delivers stale frames. The stream (its receive thread and
+  socket) lives from start to stop; its statistics are added up in ``stream_statistics()``.
 - **Timestamps.** ``Frame.t_ns`` is the buffer's camera timestamp (Aravis converts GigE
   Vision ticks to ns), else its system (host arrival) timestamp, else the host's monotonic
   clock. A camera that reboots may restart its clock.
@@ -459,11 +458,9 @@ class AravisCamera(Camera):
         return 1.0 / float(self._call("frame rate", camera.get_frame_rate))
 
     def _do_frame_format(self) -> FrameFormat | None:
-        bits = PIXEL_BITS.get(self._pixel_format)
-        if bits is None:  # a format edgedsm does not measure with: refused at start
-            return None
         _, _, width, height = self._call("region", self.camera.get_region)  # a buffer's image is the region
-        return FrameFormat.of((height, width), bits)
+        bits = PIXEL_BITS.get(self._pixel_format)  # None: a format edgedsm does not measure with (refused at start)
+        return FrameFormat.of((height, width), bits) if bits else None
 
     def _do_set_region(self, region: Region) -> Region:
         camera = self.camera
