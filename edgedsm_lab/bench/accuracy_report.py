@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edgedsm.plots import pyplot
 from edgedsm_lab.bench import accuracy
 from edgedsm_lab.bench.accuracy import (
     CASES,
@@ -139,10 +140,7 @@ def _against_window(results: Results, colours: dict[str, str], names: tuple[str,
 
 
 def _figures(results: Results, folder: Path) -> dict[str, Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
+    plt = pyplot()
 
     folder.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {}

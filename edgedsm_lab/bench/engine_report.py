@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from edgedsm.plots import pyplot
 from edgedsm_lab.bench.report import markdown_table
 
 MODES = ("sliding", "tumbling", "exponential")
@@ -68,11 +69,9 @@ def noise_table(noise: list[dict[str, Any]]) -> list[str]:
 def plot(rows: list[Row], noise: list[dict[str, Any]], path: Path) -> bool:
     """Two panels: ms/frame per mode and kernel; map spread against N. False without mpl."""
     try:
-        import matplotlib
         import matplotlib.ticker
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        plt = pyplot()
     except ImportError:
         return False
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
