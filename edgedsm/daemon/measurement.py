@@ -106,7 +106,7 @@ class Measurement:
         if self._settled:
             return
         if fmt != self.format or self.engine is None:
-            self.engine = self._buffers = self._tau_buffers = self.noise = self.kinetics = None  # memory first
+            self._drop_engine()  # its memory first
             self._make_engine(fmt)
         self._settled = frame
 
@@ -251,6 +251,11 @@ class Measurement:
         """Drop the engine and the copies of its sums: the window's ring is the bulk of the
         daemon's memory (N frames), released now rather than when the garbage collector gets to
         the pipeline (a reload builds a new one at once)."""
-        self.engine = self._buffers = self._tau_buffers = self.noise = self.kinetics = None
+        self._drop_engine()
         self._settled = False  # the format is kept: the shape a reload checks its regions against
         self._map_buffers = MapBuffers()  # the evaluator lets go of its pooled maps too
+
+    def _drop_engine(self) -> None:
+        """Let go of the engine and of every array built with it (copies of its sums, the regions'
+        noise patches and kinetics references)."""
+        self.engine = self._buffers = self._tau_buffers = self.noise = self.kinetics = None
