@@ -10,6 +10,12 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 
+def sample_dtype(bits: int) -> np.dtype:
+    """The array type of frames with ``bits`` significant bits: uint8 up to 8, else uint16 (what
+    cameras deliver, the engines' rings hold, and a frame's memory is counted in)."""
+    return np.dtype(np.uint8 if bits <= 8 else np.uint16)
+
+
 @dataclass(frozen=True, slots=True)
 class Frame:
     """One monochrome frame as delivered by a camera.
@@ -46,7 +52,7 @@ class FrameFormat:
     @classmethod
     def of(cls, shape: tuple[int, int], bits: int, dtype: DTypeLike | None = None) -> FrameFormat:
         """The format of ``bits``-bit frames of ``shape``, in ``dtype`` (None: the narrowest)."""
-        chosen = np.dtype(dtype) if dtype is not None else np.dtype(np.uint8 if bits <= 8 else np.uint16)
+        chosen = np.dtype(dtype) if dtype is not None else sample_dtype(bits)
         return cls((int(shape[0]), int(shape[1])), int(bits), chosen)
 
 

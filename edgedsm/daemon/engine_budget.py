@@ -18,6 +18,7 @@ from edgedsm.estimators.region_box import RegionBox
 from edgedsm.estimators.region_stats import RegionLayout, RegionPlan, region_moments
 from edgedsm.estimators.snapshot import maps_from
 from edgedsm.estimators.streaming import PARALLEL_MIN_PIXELS, TAU_BATCH
+from edgedsm.frames import sample_dtype
 from edgedsm.measurement import EngineSpec
 from edgedsm.measurement.judge import warm_up as warm_up_noise
 from edgedsm.measurement.kinetics import warm_up as warm_up_kinetics
@@ -85,7 +86,7 @@ def queue_bytes(config: DaemonConfig, frame_shape: tuple[int, int], bits: int) -
     """The most memory each frame queue of ``config`` holds (by the config key that bounds it):
     the camera's queue (its length before the rate is known, the longest: ``queue_capacity``)
     and ``[recording]``'s disk queue and, in alerts mode, its ring."""
-    frame_bytes = frame_shape[0] * frame_shape[1] * (1 if bits <= 8 else 2)
+    frame_bytes = frame_shape[0] * frame_shape[1] * sample_dtype(bits).itemsize
     acq = config.acquisition
     key = "acquisition.queue_frames" if acq.queue_frames is not None else "acquisition.queue_max_mib"
     parts = {key: queue_capacity(acq, None, frame_bytes) * frame_bytes}

@@ -50,6 +50,7 @@ from edgedsm.errors import EstimatorError
 from edgedsm.estimators import registry
 from edgedsm.estimators.bands import band_members, frequencies, ratio
 from edgedsm.estimators.value_set import window_spreads
+from edgedsm.frames import sample_dtype
 
 Layout = dict[str, tuple[tuple[int, ...], Any]]
 
@@ -175,7 +176,7 @@ class DftBins:
             return {}
         layout: Layout = {"bins": ((2, self.count, pixels), np.float64)}
         if origin:
-            layout["band_origin"] = ((pixels,), np.uint8 if bits <= 8 else np.uint16)
+            layout["band_origin"] = ((pixels,), sample_dtype(bits))
         return layout
 
     def bind(self, kernels: ModuleType, parallel: bool, rotate: bool) -> None:

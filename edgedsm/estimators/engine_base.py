@@ -43,6 +43,7 @@ from edgedsm.estimators.moment_sums import Layout, Moments
 from edgedsm.estimators.registry import PAIR_SUM, KernelSpec, get
 from edgedsm.estimators.snapshot import EngineSnapshot, TauSnapshot, derived_maps
 from edgedsm.estimators.value_set import gd_of_sum
+from edgedsm.frames import sample_dtype
 
 Mode = Literal["sliding", "exponential", "tumbling"]
 KernelName = Literal["auto", "numba", "numpy"]
@@ -274,7 +275,7 @@ class SlidingWindow:
         sums = {**self._moments.layout(n_px, bits), "products": self._tau.layout(n_px, bits)["products"],
                 **{name: value for name, value in self._layout(bits).items() if name in (PAIR_SUM, "bins")}}
         moved = sum(math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in sums.values())
-        return self._frame_reads() * (1 if bits <= 8 else 2) + 2 * moved / n_px
+        return self._frame_reads() * sample_dtype(bits).itemsize + 2 * moved / n_px
 
     @property
     def s2_bound(self) -> float:

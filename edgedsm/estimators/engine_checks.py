@@ -14,6 +14,7 @@ import numpy as np
 
 from edgedsm.errors import EstimatorError, FrameError
 from edgedsm.estimators.registry import PAIR_SUM, get, names
+from edgedsm.frames import sample_dtype
 
 #: The engine's multi-band map (a (K, H, W) map of the powers in ``bands``; no registry record).
 BANDS = "bands"
@@ -87,7 +88,7 @@ def check_frame(frame: Any, shape: tuple[int, int], bits: int | None) -> int:
     if frame.shape != shape:
         raise FrameError(f"frame shape {frame.shape} does not match the engine's {shape}")
     if bits is not None:
-        expected = np.dtype(np.uint8 if bits <= 8 else np.uint16)
+        expected = sample_dtype(bits)
         if frame.dtype != expected:
             raise FrameError(f"frame dtype {frame.dtype} is not {expected} (the engine takes {bits}-bit data)")
     elif frame.dtype == np.dtype(np.uint8):

@@ -14,6 +14,7 @@ import numpy as np
 from edgedsm.estimators.engine_base import SlidingWindow
 from edgedsm.estimators.lag_products import LagProducts
 from edgedsm.estimators.moment_sums import ExponentialMoments, Layout
+from edgedsm.frames import sample_dtype
 
 
 class ExponentialEngine(SlidingWindow, mode="exponential"):
@@ -26,7 +27,7 @@ class ExponentialEngine(SlidingWindow, mode="exponential"):
 
     def _layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
-        return {"ring": ((self.lag, pixels), np.uint8 if bits <= 8 else np.uint16),
+        return {"ring": ((self.lag, pixels), sample_dtype(bits)),
                 **self._moments.layout(pixels, bits)}
 
     def _bind(self, bits: int, parallel: bool) -> None:

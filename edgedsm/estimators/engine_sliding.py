@@ -23,6 +23,7 @@ from edgedsm.estimators.lag_products import SlidingLagProducts
 from edgedsm.estimators.moment_sums import Layout, WindowMoments
 from edgedsm.estimators.registry import PAIR_SUM
 from edgedsm.estimators.snapshot import TauSnapshot
+from edgedsm.frames import sample_dtype
 
 
 class SlidingEngine(SlidingWindow, mode="sliding"):
@@ -38,7 +39,7 @@ class SlidingEngine(SlidingWindow, mode="sliding"):
 
     def _layout(self, bits: int) -> Layout:
         pixels = self.shape[0] * self.shape[1]
-        return {"ring": ((self.window, pixels), np.uint8 if bits <= 8 else np.uint16),
+        return {"ring": ((self.window, pixels), sample_dtype(bits)),
                 **self._moments.layout(pixels, bits), **self._tau.layout(pixels, bits),
                 **({PAIR_SUM: ((pixels,), np.int64)} if self._do_gd else {}), **self._bins.layout(pixels, bits)}
 

@@ -26,6 +26,7 @@ from edgedsm.estimators.lag_products import TumblingLagProducts
 from edgedsm.estimators.moment_sums import Layout, WindowMoments
 from edgedsm.estimators.registry import PAIR_SUM
 from edgedsm.estimators.snapshot import TauSnapshot
+from edgedsm.frames import sample_dtype
 
 #: The arrays of the last completed block carry this prefix.
 DONE = "done_"
@@ -55,7 +56,7 @@ class TumblingEngine(SlidingWindow, mode="tumbling"):
         slots = self._tau.ring_slots(self.lag)
         if self._do_gd:  # whole blocks: block k's frames in rows (kN mod slots) .. + N-1
             slots = -(-slots // self.window) * self.window
-        return {"ring": ((slots, pixels), np.uint8 if bits <= 8 else np.uint16),
+        return {"ring": ((slots, pixels), sample_dtype(bits)),
                 **block, **{DONE + name: spec for name, spec in block.items()},
                 **{name: spec for name, spec in self._bins.layout(pixels, bits, origin=True).items()
                    if name == ORIGIN}}

@@ -28,6 +28,7 @@ import numpy as np
 
 from edgedsm.estimators import tau_stream
 from edgedsm.estimators.correlation_time import TauC, tau_lags
+from edgedsm.frames import sample_dtype
 
 #: Frames whose lag products are added (sliding: and removed) in one pass over the sums.
 TAU_BATCH = 16
@@ -84,7 +85,7 @@ class SlidingLagProducts(LagProducts):
     def layout(self, pixels: int, bits: int) -> Layout:
         layout = super().layout(pixels, bits)
         batch = TAU_BATCH if self.batched else 0  # the last frames that left the ring
-        layout["retired"] = ((batch, pixels if batch else 0), np.uint8 if bits <= 8 else np.uint16)
+        layout["retired"] = ((batch, pixels if batch else 0), sample_dtype(bits))
         return layout
 
     def bind(self, kernels: ModuleType, parallel: bool, bits: int) -> None:

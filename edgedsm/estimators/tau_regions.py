@@ -40,6 +40,7 @@ import numpy as np
 from edgedsm.errors import EstimatorError
 from edgedsm.estimators.correlation_time import TauC, _check_mask, fit_pooled, max_lag_problem, tau_lags
 from edgedsm.estimators.jit import compiled
+from edgedsm.frames import sample_dtype
 
 try:
     import numba
@@ -234,9 +235,8 @@ class TumblingRegionTau:
         self.window, self.max_lag, self.bits = int(window), int(max_lag), int(bits)
         self.lags = tau_lags(self.max_lag)
         pixels = self.shape[0] * self.shape[1]
-        frame_type = np.uint8 if bits <= 8 else np.uint16
-        self._frame_type = np.dtype(frame_type)
-        self._ring = np.zeros((self.max_lag, pixels), frame_type)  # the last K frames, frame j in slot j % K
+        self._frame_type = sample_dtype(bits)
+        self._ring = np.zeros((self.max_lag, pixels), self._frame_type)  # the last K frames, frame j in slot j % K
         self._total = np.zeros(pixels, np.uint16 if window * top <= 0xFFFF else
                                np.uint32 if window * top <= 0xFFFFFFFF else np.int64)
         self._head = np.zeros((self.lags.size, pixels), np.uint16 if self.max_lag * top <= 0xFFFF else np.uint32)

@@ -63,6 +63,7 @@ from typing import Literal
 import numpy as np
 import scipy.fft
 
+from edgedsm.frames import sample_dtype
 from edgedsm.sim.activity import tau_c_map
 from edgedsm.sim.detector import DetectorRows
 from edgedsm.sim.optics import beam_amplitude, pupil_transfer
@@ -491,7 +492,7 @@ class Simulator:
             return np.dtype(self._real)
         if not detector.quantization:
             return np.dtype(np.float32)
-        return np.dtype(np.uint8 if detector.bits <= 8 else np.uint16)
+        return sample_dtype(detector.bits)
 
 
 def simulate(scene: Scene, precision: Precision = "single", workers: int = 1) -> Iterator[np.ndarray]:
