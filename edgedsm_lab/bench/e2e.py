@@ -31,7 +31,9 @@ Measured, in one run, per size:
    engine, a second engine filled beforehand, pushes the same frames; phases of
    ``PHASE_S`` alternate daemon / bare / bare / daemon ..., and each pair's ratio is taken
    (their median is reported): the machine's drift over minutes cancels, which ratios to runs
-   before and after a 20 s trial only bound.
+   before and after a 20 s trial only bound. Then the same with no evaluation in the trial (no
+   drying states, statistics or maps): the daemon's cost per frame alone; the gap between the two
+   is what the evaluation cadence costs.
 4. **Highest paced rate with zero drops** on the default queue: the replay paced into the
    daemon's drop-oldest queue; bisection from 90 % of the bare engine's rate. Capacity and paced
    rates are given as ratios to the bare engine around each trial. The daemon postpones its
@@ -61,9 +63,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from edgedsm.config import DaemonConfig
+from edgedsm.daemon.pipeline import Cadence
 from edgedsm.daemon.probes import PipelineProbes
 from edgedsm.frames import Frame
 from edgedsm_lab.bench.e2e_trial import (
+    QUIET,
     RECORDED_FRAMES,
     WINDOW,
     Trial,
@@ -163,9 +167,10 @@ class Alternation:
 
 
 def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs: int,
-                         source: str = "file") -> Interleaved:
+                         source: str = "file", cadence: Cadence | None = None) -> Interleaved:
     """The daemon at its capacity and the bare engine in alternating phases of one trial (see the
-    module docstring); the bare engine's window is filled before the trial."""
+    module docstring); the bare engine's window is filled before the trial. ``cadence``: the
+    daemon's evaluations (:data:`~edgedsm_lab.bench.e2e_trial.QUIET`: none)."""
     engine, stack = filled_engine(recording, bits)
     frames = itertools.count(WINDOW)  # on from where the filling stopped
     alternation = Alternation(lambda: engine.push(stack[next(frames) % len(stack)]), pairs)
@@ -177,7 +182,7 @@ def interleaved_capacity(recording: Path, config: DaemonConfig, bits: int, pairs
     seconds = SETTLE_FIRST_S + pairs * (2 * PHASE_S + SETTLE_S) + 5.0
     try:
         trial = run_trial("interleaved", config, rate=None, seconds=seconds, wrap=alternation.wrap,
-                          camera=open_source(config, source, recording, 0.0, bits))
+                          camera=open_source(config, source, recording, 0.0, bits), cadence=cadence)
     finally:
         stop.set()
         alternation.running.set()
@@ -233,6 +238,7 @@ class SizeResult:
     interleaved: Interleaved | None = None
     source: str = "file"  # where the replay took its frames (e2e_trial.SOURCES)
     delivery: list[float] = field(default_factory=list)  # bare engine fed from the file ÷ bare, per pair
+    quiet: Interleaved | None = None  # the interleaved capacity without evaluations (e2e_trial.QUIET)
 
     @property
     def delivery_ratio(self) -> float:
@@ -296,6 +302,11 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
                                                                 0, bits, shape), bits, pairs, source)
     say(f"  interleaved: daemon ÷ bare {', '.join(f'{r:.0%}' for r in interleaved.ratios)}; "
         f"median {interleaved.ratio:.0%}")
+    say("  the same without evaluations (what the evaluations cost) ...")
+    quiet = interleaved_capacity(recording, daemon_config(recording, port, workdir / f"state-{next(trial_id)}", 0,
+                                                          bits, shape), bits, pairs, source, QUIET)
+    say(f"  without evaluations: daemon ÷ bare {', '.join(f'{r:.0%}' for r in quiet.ratios)}; "
+        f"median {quiet.ratio:.0%}")
     # the first paced trial is at the target, 90 % of the bare engine's latest run rounded up (so
     # that passing it shows the target met), on a grid of at most 2 % of the rate (87 % and 90 %
     # told apart at any size), bisected down to adjacent grid points
@@ -308,5 +319,5 @@ def measure_size(shape: tuple[int, int], pixel_format: str, workdir: Path, port:
     forget_recording(recording)
     recording.unlink()
     return SizeResult(shape, pixel_format, bare_runs, unpack_ms(shape, pixel_format), capacity,
-                      sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved, source, delivery)
+                      sorted(paced, key=lambda t: t.rate or 0.0), covered, interleaved, source, delivery, quiet)
 

@@ -47,8 +47,8 @@ def _bare(result: SizeResult) -> str:
     return f"{result.bare_fps:.0f} ({min(runs):.0f}–{max(runs):.0f})" if len(runs) > 1 else f"{result.bare_fps:.0f}"
 
 
-def _interleaved(result: SizeResult) -> str:
-    both = result.interleaved
+def _interleaved(result: SizeResult, quiet: bool = False) -> str:
+    both = result.quiet if quiet else result.interleaved
     if both is None or not both.ratios:
         return "–"
     return (f"{statistics.median(both.daemon):.0f} ÷ {statistics.median(both.bare):.0f}: {both.ratio:.0%} "
@@ -59,7 +59,7 @@ def _interleaved(result: SizeResult) -> str:
 def summary_row(result: SizeResult) -> list[str]:
     best, capacity = result.best, result.capacity
     latency_from = best or capacity
-    return [_size(result), _bare(result), _ratio(capacity), _interleaved(result),
+    return [_size(result), _bare(result), _ratio(capacity), _interleaved(result), _interleaved(result, quiet=True),
             _ratio(best) if best else "none tried was clean",
             str(latency_from.queue_frames), f"{capacity.cpu_ms:.1f}", _pair(capacity.push_ms, 1.0, 1),
             _pair(capacity.snapshot_ms, 1.0, 1), _pair(capacity.evaluate_ms, 1.0),
@@ -104,6 +104,7 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
     report.line()
     report.table(["size", "bare engine frames/s, median (range) of its runs", "daemon capacity frames/s (÷ bare)",
                   "capacity interleaved with the bare engine: frames/s, median ratio (range)",
+                  "the same without evaluations",
                   "highest paced rate, zero drops (÷ bare)", "queue frames", "CPU ms/frame",
                   "push ms mean / p99", "region stats ms mean / max (pipeline thread)",
                   "evaluation ms mean / max (evaluator thread)", "frame → alert p50 / p99 (s)",
@@ -125,6 +126,11 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
         drift_free = (f"; interleaved with the bare engine in {PHASE_S:g} s phases the daemon at its capacity ran at "
                       f"{both.ratio:.0%} of it (median of {len(both.ratios)} pairs)"
                       if both is not None and both.ratios else "")
+        quiet = result.quiet
+        if drift_free and quiet is not None and quiet.ratios:
+            drift_free += (f", and at {quiet.ratio:.0%} with no evaluation in the trial: the evaluations "
+                           f"(drying states, statistics, maps) cost {100 * (quiet.ratio - both.ratio):.0f} "
+                           "percentage points of the bare engine's rate")
         delivery = (f" The bare engine fed by the file replay on a second thread (one copy per frame, what the "
                     f"camera's delivery costs) ran at {result.delivery_ratio:.0%} of the bare engine alone "
                     f"({', '.join(f'{r:.0%}' for r in result.delivery)}, pairs of {e2e.BARE_RUN_S:g} s runs): "
@@ -141,7 +147,8 @@ def write_report(results: list[SizeResult], args: argparse.Namespace, *, seconds
                 "capacity cancels the drift instead: in one capacity trial the pipeline thread is held between two "
                 f"frames while a second, filled engine pushes the same frames, in alternating {PHASE_S:g} s "
                 "phases (daemon, bare, bare, daemon, ...); each pair gives a ratio and the column gives their "
-                "median and range.")
+                "median and range. *Without evaluations*: the same trial with a cadence that evaluates nothing "
+                "within it (no drying states, statistics or maps), the daemon's cost per frame alone.")
     report.line()
     report.line("An evaluation costs the pipeline thread one pass over the regions of the engine's live "
                 "integer sums (the *region stats* column: means at every states evaluation; count, mean, "

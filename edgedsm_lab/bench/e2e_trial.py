@@ -38,6 +38,9 @@ from edgedsm.resources import data_file
 TILE = 256
 WINDOW, LAG = 200, 10
 STATS_S, MAPS_S = 1.0, 10.0
+#: A cadence with no evaluation within a trial (the first, before the window filled, aside): the
+#: daemon's cost per frame alone, beside which the evaluations' cost shows.
+QUIET = Cadence(stats_every_s=3600.0, maps_every_s=3600.0, states_every_s=3600.0)
 RECORDED_FRAMES = 240
 FILL_LIMIT_S = 120.0  # a trial gives up when the window has not filled in this (plus its seconds)
 SCENE = data_file("config/scenes/constant.toml")
@@ -368,11 +371,13 @@ def anon_mib() -> float:
 
 def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: float, covered: float = 1.0,
               wrap: Callable[[PipelineProbes], PipelineProbes] | None = None,
-              recorder: Recorder | None = None, camera: Camera | None = None) -> Trial:
+              recorder: Recorder | None = None, camera: Camera | None = None,
+              cadence: Cadence | None = None) -> Trial:
     """Run the pipeline on ``config`` for ``seconds`` after its window filled and measure over
     those seconds (module docstring). ``wrap``: probes around the instruments' (the interleaved
     capacity holds the pipeline thread in one); ``recorder``: the pipeline's ``[recording]``;
-    ``camera``: instead of the config's (:func:`open_source`)."""
+    ``camera``: instead of the config's (:func:`open_source`); ``cadence``: instead of the
+    benchmark's (:data:`QUIET`: no evaluation within the trial)."""
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
@@ -383,7 +388,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         mqtt.wait_connected(10)
         camera = camera or open_camera_for(config)
         probes = instruments.probes()
-        pipeline = Pipeline(config, camera, mqtt, cadence=Cadence(STATS_S, MAPS_S),
+        pipeline = Pipeline(config, camera, mqtt, cadence=cadence or Cadence(STATS_S, MAPS_S),
                             probes=wrap(probes) if wrap else probes, recorder=recorder)
         # CPU time when the window filled; time and CPU time when the trial's seconds were up
         # (stopping is not measured)

@@ -129,7 +129,7 @@ def test_ratios_are_to_the_bare_engine_around_each_trial(tmp_path: Path) -> None
     assert result.bare_fps == 75.0 and capacity.bare_ratio == pytest.approx(0.92)
     assert slow.bare_ratio == pytest.approx(0.92) and fast.bare_ratio == pytest.approx(0.95)
     row = summary_row(result)
-    assert row[1] == "75 (50–100)" and row[2] == "46 (92%)" and row[3] == "–" and row[4] == "95 (95%)"
+    assert row[1] == "75 (50–100)" and row[2] == "46 (92%)" and row[3] == row[4] == "–" and row[5] == "95 (95%)"
     assert row[-3] == "2.00" and row[-2] == "0.75"  # the states and stats of the best zero-drop trial
     args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None, source="file")
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
@@ -171,7 +171,14 @@ def test_interleaved_capacity_pairs_each_daemon_phase_with_a_bare_one() -> None:
     both.drops = 0
     args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None, source="file")
     text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
-    assert "the daemon at its capacity ran at 90% of it (median of 3 pairs)" in text
+    assert "the daemon at its capacity ran at 90% of it (median of 3 pairs)." in text
+    # the same without evaluations: its own column, and what the evaluations cost beside it
+    result.quiet = Interleaved(daemon=[49.0, 47.0, 54.0], bare=[50.0, 48.0, 55.0])
+    assert summary_row(result)[3] == "45 ÷ 50: 90% (80%–96%, 3 pairs)"
+    assert summary_row(result)[4] == "49 ÷ 50: 98% (98%–98%, 3 pairs)"
+    text = "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
+    assert ("ran at 90% of it (median of 3 pairs), and at 98% with no evaluation in the trial: the evaluations "
+            "(drying states, statistics, maps) cost 8 percentage points of the bare engine's rate.") in text
 
 
 def test_alternation_holds_the_pipeline_thread_during_bare_phases(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -252,3 +259,28 @@ def test_the_bench_daemon_config_is_a_valid_config(tmp_path: Path) -> None:
         config = daemon_config(tmp_path / "frames.npy", 1883, tmp_path / "state", 30.0, 8, (64, 96), covered)
         assert config.cadence.stats_interval_s == STATS_S and config.cadence.maps_interval_s == MAPS_S
         assert [region.name for region in config.regions] == (["full", "centre"] if covered is None else ["panel"])
+
+
+@pytest.mark.timeout(60)
+def test_the_quiet_cadence_evaluates_nothing_once_the_window_filled(tmp_path: Path) -> None:
+    """The interleaved capacity without evaluations runs the daemon on ``QUIET``: the same frames
+    and pushes, no drying states, statistics or maps, where the benchmark's cadence gives them."""
+    from edgedsm.daemon.pipeline import Pipeline
+    from edgedsm.daemon.probes import PipelineProbes
+    from edgedsm.publish.sink import RecordingSink
+    from edgedsm_lab.bench.e2e_trial import MAPS_S, QUIET, STATS_S, Cadence, MemoryReplay, daemon_config
+
+    path = make_recording(tmp_path / "r.npy", (64, 64), 8, frames=8)
+    config = daemon_config(path, 1883, tmp_path / "state", 0.0, 8, (64, 64)).model_copy(update={"mqtt": None})
+    evaluations = {}
+    for name, cadence in (("bench", Cadence(STATS_S, MAPS_S)), ("quiet", QUIET)):
+        sink, ready = RecordingSink(), []
+        probes = PipelineProbes(snapshot_taken=lambda snapshot, _, ready=ready: ready.append(snapshot.ready))
+        # 1,000 frames at 400 frames/s: 2.5 s, the window (200 frames) filled after 0.5 s
+        pipeline = Pipeline(config, MemoryReplay(path, rate=400.0, loop=True, bits=8), sink, cadence=cadence,
+                            probes=probes)
+        pipeline.run(lambda: False, max_frames=1000)
+        assert pipeline.counters["frames"] == 1000
+        evaluations[name] = (sum(ready), len([s for s in sink.stats if s.ready]))
+    assert evaluations["bench"][0] >= 3 and evaluations["bench"][1] >= 1  # states every 0.5 s, stats every 1 s
+    assert evaluations["quiet"] == (0, 0)
