@@ -265,10 +265,10 @@ def test_the_bench_daemon_config_is_a_valid_config(tmp_path: Path) -> None:
 def test_the_quiet_cadence_evaluates_nothing_once_the_window_filled(tmp_path: Path) -> None:
     """The interleaved capacity without evaluations runs the daemon on ``QUIET``: the same frames
     and pushes, no drying states, statistics or maps, where the benchmark's cadence gives them."""
-    from edgedsm.daemon.pipeline import Pipeline
+    from edgedsm.daemon.pipeline import Cadence, Pipeline
     from edgedsm.daemon.probes import PipelineProbes
     from edgedsm.publish.sink import RecordingSink
-    from edgedsm_lab.bench.e2e_trial import MAPS_S, QUIET, STATS_S, Cadence, MemoryReplay, daemon_config
+    from edgedsm_lab.bench.e2e_trial import MAPS_S, QUIET, STATS_S, MemoryReplay, daemon_config
 
     path = make_recording(tmp_path / "r.npy", (64, 64), 8, frames=8)
     config = daemon_config(path, 1883, tmp_path / "state", 0.0, 8, (64, 64)).model_copy(update={"mqtt": None})
