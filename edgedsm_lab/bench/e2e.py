@@ -46,7 +46,7 @@ Measured, in one run, per size:
    region covering a decreasing fraction of the sensor, as ms per frame.
 
 Examples:
-  edgedsm bench e2e --quick                              # 2048² Mono8, about 3 minutes
+  edgedsm bench e2e --quick                              # 2048² Mono8, about 5 minutes
   edgedsm bench e2e --size 2048x2048,4096x2168 -o docs/bench-e2e.md
   edgedsm bench e2e --size 1024x1024 --pixel-format Mono12p
 """
