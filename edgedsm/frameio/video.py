@@ -35,6 +35,7 @@ import numpy as np
 
 from edgedsm.frameio.base import FrameReader, InputMissing, ReaderError
 from edgedsm.frameio.budget import check_frame
+from edgedsm.frames import sample_dtype
 
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mj2")
 #: FFmpeg decoders of codecs that keep every pixel.
@@ -85,7 +86,7 @@ def _samples(fmt: av.VideoFormat | None) -> tuple[int, int]:
         return 3, 2
     bits = _grey_bits(fmt)
     if bits is not None:
-        return 1, 1 if bits <= 8 else 2
+        return 1, sample_dtype(bits).itemsize  # grey: the frames' own array type
     return 3, 1 if fmt.has_palette or max(int(part.bits) for part in fmt.components) <= 8 else 2
 
 
