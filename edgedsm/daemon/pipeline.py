@@ -39,7 +39,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
-from edgedsm.config import DaemonConfig
+from edgedsm.config import CadenceSection, DaemonConfig
 from edgedsm.daemon.acquisition import Acquisition
 from edgedsm.daemon.capture import Capture
 from edgedsm.daemon.engine_budget import warm_up
@@ -87,9 +87,14 @@ class Cadence:
     """How often the pipeline evaluates and publishes (seconds of the monotonic clock); the
     drying states are judged every ``states_every_s`` whatever the stats interval."""
 
-    stats_every_s: float = 1.0
-    maps_every_s: float = 10.0
+    stats_every_s: float
+    maps_every_s: float
     states_every_s: float = 0.5
+
+    @classmethod
+    def of(cls, section: CadenceSection) -> Cadence:
+        """The configuration's ``[cadence]`` (its defaults are the daemon's: one place for them)."""
+        return cls(stats_every_s=section.stats_interval_s, maps_every_s=section.maps_interval_s)
 
 
 def next_due(due: float, every_s: float, now: float) -> float:
@@ -111,7 +116,7 @@ class Pipeline:
         self.recorder = recorder  # [recording]: offered every frame taken (never waits on the disk)
         self.camera = camera
         self.sink = sink
-        self.cadence = cadence or Cadence()
+        self.cadence = cadence or Cadence.of(config.cadence)
         self.clock = clock or Clock()
         self.on_alive = on_alive or (lambda: None)
         self.probes = probes or PipelineProbes()

@@ -258,5 +258,5 @@ class Service:
     @staticmethod
     def _cadence(config: DaemonConfig) -> Cadence:
         """How often stats and maps are evaluated and published."""
-        return Cadence(stats_every_s=config.cadence.stats_interval_s, maps_every_s=config.cadence.maps_interval_s)
+        return Cadence.of(config.cadence)
 

@@ -394,3 +394,16 @@ def test_statistics_wait_while_a_paced_cameras_queue_is_half_full_and_the_states
     assert len(gaps) >= 28 / stats_every_s - 2 and np.median(gaps) == pytest.approx(stats_every_s, abs=0.06), gaps
     states = np.diff(judged[2:])  # frames between two judgements: 0.5 s is 10 frames
     assert len(states) >= 40 and np.median(states) == 10, states
+
+
+def test_without_a_cadence_the_pipeline_takes_the_configurations(setup):
+    """The intervals' defaults live in the configuration alone: a pipeline built without a
+    cadence evaluates on ``[cadence]``, as the service's does."""
+    from edgedsm.config import CadenceSection
+
+    config, camera, _, publisher, _ = setup
+    config.cadence = defaults = CadenceSection()  # demo.toml sets its own
+    assert Pipeline(config, camera, publisher).cadence == Cadence(defaults.stats_interval_s, defaults.maps_interval_s)
+    config.cadence = CadenceSection(stats_interval_s=7.0, maps_interval_s=70.0)
+    cadence = Pipeline(config, camera, publisher).cadence
+    assert (cadence.stats_every_s, cadence.maps_every_s) == (7.0, 70.0)
