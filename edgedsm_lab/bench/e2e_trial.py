@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edgedsm.config import DaemonConfig
+from edgedsm.config import CadenceSection, DaemonConfig
 from edgedsm.daemon.devices import open_camera_for
 from edgedsm.daemon.handover import Snapshot
 from edgedsm.daemon.pipeline import Cadence, Pipeline
@@ -38,6 +38,12 @@ from edgedsm.resources import data_file
 TILE = 256
 WINDOW, LAG = 200, 10
 STATS_S, MAPS_S = 1.0, 10.0
+#: The benchmark's cadence (the issue's: statistics every second, maps every 10 s, drying states
+#: twice a second), five and six times the daemon's own.
+BENCH = Cadence(STATS_S, MAPS_S)
+#: The daemon's own cadence, a configuration without ``[cadence]`` (statistics every 5 s, maps
+#: every 60 s): what a site runs unless it asks for more.
+SHIPPED = Cadence.of(CadenceSection())
 #: A cadence with no evaluation within a trial (the first, before the window filled, aside): the
 #: daemon's cost per frame alone, beside which the evaluations' cost shows.
 QUIET = Cadence(stats_every_s=3600.0, maps_every_s=3600.0, states_every_s=3600.0)
@@ -334,10 +340,10 @@ class Trial:
 
 
 def daemon_config(recording: Path, port: int, state_dir: Path, rate: float, bits: int,
-                  shape: tuple[int, int], covered: float | None = None) -> DaemonConfig:
+                  shape: tuple[int, int], covered: float | None = None, cadence: Cadence = BENCH) -> DaemonConfig:
     """The default daemon configuration on the replay: two large regions (the whole sensor and
     its centre quarter), or with ``covered`` one centred region of that fraction and
-    ``estimator.area = "regions"``."""
+    ``estimator.area = "regions"``; evaluated on ``cadence`` (its ``[cadence]``)."""
     height, width = shape
     thresholds = {"wet_above": 0.9, "dry_below": 0.5, "min_dwell_s": 1.0}
     if covered is None:
@@ -356,7 +362,7 @@ def daemon_config(recording: Path, port: int, state_dir: Path, rate: float, bits
                       "area": "frame" if covered is None else "regions"},
         "regions": regions,
         "mqtt": {"host": "127.0.0.1", "port": port},
-        "cadence": {"stats_interval_s": STATS_S, "maps_interval_s": MAPS_S},
+        "cadence": {"stats_interval_s": cadence.stats_every_s, "maps_interval_s": cadence.maps_every_s},
     })
 
 
@@ -377,7 +383,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
     those seconds (module docstring). ``wrap``: probes around the instruments' (the interleaved
     capacity holds the pipeline thread in one); ``recorder``: the pipeline's ``[recording]``;
     ``camera``: instead of the config's (:func:`open_source`); ``cadence``: instead of the
-    benchmark's (:data:`QUIET`: no evaluation within the trial)."""
+    config's ``[cadence]`` (:data:`QUIET`: no evaluation within the trial)."""
     from edgedsm.publish.json_sink import MqttSink
 
     assert config.mqtt is not None
@@ -388,7 +394,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         mqtt.wait_connected(10)
         camera = camera or open_camera_for(config)
         probes = instruments.probes()
-        pipeline = Pipeline(config, camera, mqtt, cadence=cadence or Cadence(STATS_S, MAPS_S),
+        pipeline = Pipeline(config, camera, mqtt, cadence=cadence,
                             probes=wrap(probes) if wrap else probes, recorder=recorder)
         # CPU time when the window filled; time and CPU time when the trial's seconds were up
         # (stopping is not measured)
@@ -418,7 +424,7 @@ def run_trial(label: str, config: DaemonConfig, *, rate: float | None, seconds: 
         return ready_t <= t <= end_t
 
     delivered = sum(1 for t in instruments.enqueued.values() if within(t))
-    trial = Trial(label, rate, pipeline.capture.capacity, STATS_S, wall, delivered,
+    trial = Trial(label, rate, pipeline.capture.capacity, pipeline.cadence.stats_every_s, wall, delivered,
                   pipeline.counters["frames"] - ready_at, pipeline.counters["dropped_queue"], cpu_s, rss,
                   covered=covered, stall_s=instruments.stall_s(ready_t))
     trial.states_hz = cadence_hz([t for _, t in instruments.states if within(t)])

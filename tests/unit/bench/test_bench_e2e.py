@@ -261,19 +261,53 @@ def test_the_bench_daemon_config_is_a_valid_config(tmp_path: Path) -> None:
         assert [region.name for region in config.regions] == (["full", "centre"] if covered is None else ["panel"])
 
 
+def test_the_daemons_own_cadence_is_a_configuration_without_one(tmp_path: Path) -> None:
+    """The trial "on the daemon's own cadence" evaluates as a site that leaves ``[cadence]`` out."""
+    from edgedsm.config import CadenceSection
+    from edgedsm_lab.bench.e2e_trial import BENCH, SHIPPED, daemon_config
+
+    config = daemon_config(tmp_path / "frames.npy", 1883, tmp_path / "state", 30.0, 8, (64, 96), cadence=SHIPPED)
+    assert config.cadence == CadenceSection()
+    assert SHIPPED.stats_every_s > BENCH.stats_every_s and SHIPPED.maps_every_s > BENCH.maps_every_s
+
+
+def test_the_report_gives_the_target_on_the_daemons_own_cadence() -> None:
+    from edgedsm_lab.bench.e2e import SizeResult
+    from edgedsm_lab.bench.e2e_report import summary_row, write_report
+
+    capacity = Trial("capacity", None, 16, 1.0, 10.0, 460, 460, 0, 1.0, 100.0, bare_fps=50.0)
+    capacity.latency = {"alert": (0.4, 0.9), "stats": (0.7, 1.5)}
+    paced = Trial("paced", 45.0, 16, 1.0, 10.0, 450, 450, 3, 1.0, 100.0, bare_fps=50.0)
+    paced.latency = capacity.latency
+    shipped = Trial("paced, the daemon's own cadence", 45.0, 16, 5.0, 10.0, 450, 450, 0, 1.0, 100.0, bare_fps=48.0)
+    result = SizeResult((64, 64), "Mono8", [50.0, 50.0], 0.0, capacity, [paced], [], shipped=shipped)
+    assert summary_row(result)[6] == "45 (94%): zero drops"
+    args = SimpleNamespace(pixel_format="Mono8", quick=True, output=None, source="file")
+    lines = write_report([result], args, seconds=10.0, load=None).lines
+    text = "\n".join(lines)
+    assert ("On the daemon's own cadence (statistics every 5 s, maps every 60 s) the first paced rate, 45 frames/s "
+            "(94% of the bare engine around it), ran with zero drops.") in text
+    assert "zero drops up to 0% of the bare engine's rate: does NOT meet" in text  # the bench's cadence dropped 3
+    rows = [line for line in lines if line.startswith("| 64×64 Mono8 | ")]
+    assert [row.split(" | ")[1] for row in rows[1:]] == ["1", "5"]  # the paced table: both trials, their cadence
+    shipped.drops = 7
+    assert summary_row(result)[6] == "45 (94%): 7 dropped"
+    assert "ran with 7 frames dropped." in "\n".join(write_report([result], args, seconds=10.0, load=None).lines)
+
+
 @pytest.mark.timeout(60)
 def test_the_quiet_cadence_evaluates_nothing_once_the_window_filled(tmp_path: Path) -> None:
     """The interleaved capacity without evaluations runs the daemon on ``QUIET``: the same frames
     and pushes, no drying states, statistics or maps, where the benchmark's cadence gives them."""
-    from edgedsm.daemon.pipeline import Cadence, Pipeline
+    from edgedsm.daemon.pipeline import Pipeline
     from edgedsm.daemon.probes import PipelineProbes
     from edgedsm.publish.sink import RecordingSink
-    from edgedsm_lab.bench.e2e_trial import MAPS_S, QUIET, STATS_S, MemoryReplay, daemon_config
+    from edgedsm_lab.bench.e2e_trial import BENCH, QUIET, MemoryReplay, daemon_config
 
     path = make_recording(tmp_path / "r.npy", (64, 64), 8, frames=8)
     config = daemon_config(path, 1883, tmp_path / "state", 0.0, 8, (64, 64)).model_copy(update={"mqtt": None})
     evaluations = {}
-    for name, cadence in (("bench", Cadence(STATS_S, MAPS_S)), ("quiet", QUIET)):
+    for name, cadence in (("bench", BENCH), ("quiet", QUIET)):
         sink, ready = RecordingSink(), []
         probes = PipelineProbes(snapshot_taken=lambda snapshot, _, ready=ready: ready.append(snapshot.ready))
         # 1,000 frames at 400 frames/s: 2.5 s, the window (200 frames) filled after 0.5 s
