@@ -39,10 +39,10 @@ TILE = 256
 WINDOW, LAG = 200, 10
 STATS_S, MAPS_S = 1.0, 10.0
 #: The benchmark's cadence (the issue's: statistics every second, maps every 10 s, drying states
-#: twice a second), five and six times the daemon's own.
+#: twice a second), more often than the daemon's own.
 BENCH = Cadence(STATS_S, MAPS_S)
-#: The daemon's own cadence, a configuration without ``[cadence]`` (statistics every 5 s, maps
-#: every 60 s): what a site runs unless it asks for more.
+#: The daemon's own cadence, a configuration without ``[cadence]`` (its defaults,
+#: ``CadenceSection``): what a site runs unless it asks for more.
 SHIPPED = Cadence.of(CadenceSection())
 #: A cadence with no evaluation within a trial (the first, before the window filled, aside): the
 #: daemon's cost per frame alone, beside which the evaluations' cost shows.
