@@ -135,7 +135,7 @@ class Service:
             self._reloaded = True
             return True
         if pipeline is not None:
-            pipeline.apply(new, self._cadence(new), self.sinks.recorder)
+            pipeline.apply(new, Cadence.of(new.cadence), self.sinks.recorder)
         self.config = new
         log.warning("configuration reloaded from %s (changed: %s); measurement kept", self.config_path, what)
         self.notifier.ready(status=f"measuring with {new.camera.uri} (reloaded)")
@@ -220,7 +220,7 @@ class Service:
         # opened last and closed by LaserSafety (switched off) whatever happens after
         relay = open_relay(config.laser.spec) if config.laser is not None else None
         couple_simulated_laser(camera, relay)
-        pipeline = Pipeline(config, camera, sink, relay=relay, cadence=self.cadence or self._cadence(config),
+        pipeline = Pipeline(config, camera, sink, relay=relay, cadence=self.cadence,
                             on_alive=alive, probes=self.sinks.probes, recorder=self.sinks.recorder)
         holder["pipeline"] = self.pipeline = pipeline
         safety = LaserSafety(relay) if relay is not None else None
@@ -254,9 +254,4 @@ class Service:
         pipeline.run(self._should_stop)
         if self._stop.is_set():
             self.notifier.stopping()
-
-    @staticmethod
-    def _cadence(config: DaemonConfig) -> Cadence:
-        """How often stats and maps are evaluated and published."""
-        return Cadence.of(config.cadence)
 
